@@ -1,0 +1,106 @@
+# Typed, range-checked option declarations that every config section is built from.
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+OptionKind = type | tuple[type, ...]
+
+
+@dataclass(frozen=True)
+class Option:
+    """One config key: its type, default, bounds and a one-line description.
+
+    ``kind`` is ``bool``, ``int``, ``float``, ``str`` or ``list``; ``float`` also accepts an
+    integer. ``item`` is the element type of a list. ``choices`` restricts strings. ``minval``
+    and ``maxval`` are inclusive, ``above``/``below`` exclusive. ``check`` is an extra validator
+    returning an error text or ``None``.
+    """
+
+    kind: type
+    default: Any
+    doc: str
+    minval: float | None = None
+    maxval: float | None = None
+    above: float | None = None
+    below: float | None = None
+    choices: Sequence[str] | None = None
+    item: type | None = None
+    length: int | None = None
+    check: Callable[[Any], str | None] | None = field(default=None, compare=False)
+
+    def validate(self, value: Any) -> tuple[Any, str | None]:
+        """Return the normalised value and an error text (``None`` when valid)."""
+        value, err = _coerce(self.kind, value)
+        if err:
+            return value, err
+        if self.kind is list:
+            return self._validate_list(value)
+        return value, self._validate_scalar(value)
+
+    def _validate_list(self, value: list[Any]) -> tuple[Any, str | None]:
+        if self.length is not None and len(value) != self.length:
+            return value, f"expected a list of {self.length} items, got {len(value)}"
+        out = []
+        for i, element in enumerate(value):
+            element, err = _coerce(self.item or str, element)
+            if err:
+                return value, f"item {i}: {err}"
+            err = self._validate_scalar(element)
+            if err:
+                return value, f"item {i}: {err}"
+            out.append(element)
+        return out, self._run_check(out)
+
+    def _validate_scalar(self, value: Any) -> str | None:
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"must be a finite number, got {value}"
+        if self.choices is not None and value not in self.choices:
+            return f"must be one of {', '.join(map(repr, self.choices))}, got {value!r}"
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            err = _range_error(value, self.minval, self.maxval, self.above, self.below)
+            if err:
+                return err
+        return self._run_check(value)
+
+    def _run_check(self, value: Any) -> str | None:
+        return self.check(value) if self.check else None
+
+
+def _coerce(kind: type, value: Any) -> tuple[Any, str | None]:
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value), None
+    if kind is int and isinstance(value, bool):
+        return value, f"expected an integer, got {value!r}"
+    if not isinstance(value, kind):
+        return value, f"expected {_kind_name(kind)}, got {type(value).__name__} {value!r}"
+    return value, None
+
+
+def _kind_name(kind: type) -> str:
+    names = {bool: "true/false", int: "an integer", float: "a number", str: "a string",
+             list: "a list"}
+    return names.get(kind, kind.__name__)
+
+
+def _range_error(value: float, minval: float | None, maxval: float | None,
+                 above: float | None, below: float | None) -> str | None:
+    if minval is not None and value < minval:
+        return f"must be >= {minval}, got {value}"
+    if maxval is not None and value > maxval:
+        return f"must be <= {maxval}, got {value}"
+    if above is not None and value <= above:
+        return f"must be > {above}, got {value}"
+    if below is not None and value >= below:
+        return f"must be < {below}, got {value}"
+    return None
+
+
+Options = Mapping[str, Option]
+
+
+def defaults(options: Options) -> dict[str, Any]:
+    """The default values of a set of options."""
+    return {key: opt.default for key, opt in options.items()}

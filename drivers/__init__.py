@@ -1,0 +1,44 @@
+# Motor driver registry: one table, name -> (module, class), imported only when chosen.
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+from drivers.base import DriverClosed, DriverError, DriverFault, EncoderReading, MotorDriver
+
+# driver name => (module, class name)
+DRIVERS: dict[str, tuple[str, str]] = {
+    "mock": ("drivers.mock", "MockDriver"),
+    "l298n": ("drivers.l298n", "L298NDriver"),
+    "pigpio": ("drivers.pigpio_pwm", "PigpioDriver"),
+    "serial": ("drivers.arduino_serial", "SerialBridgeDriver"),
+    "odrive_can": ("drivers.odrive_can", "ODriveCanDriver"),
+}
+
+__all__ = ["DRIVERS", "DriverClosed", "DriverError", "DriverFault", "EncoderReading",
+           "MotorDriver", "UnknownDriver", "create_driver", "driver_class"]
+
+
+class UnknownDriver(DriverError, LookupError):
+    """A driver name that is not in the registry."""
+
+
+def driver_class(name: str) -> type[MotorDriver]:
+    """Import and return the class registered as ``name``."""
+    try:
+        module_name, class_name = DRIVERS[name]
+    except KeyError:
+        valid = ", ".join(sorted(DRIVERS))
+        raise UnknownDriver(f"unknown driver {name!r}; valid drivers: {valid}") from None
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise DriverError(f"driver {name!r} cannot be imported: {exc}") from None
+    cls: type[MotorDriver] = getattr(module, class_name)
+    return cls
+
+
+def create_driver(name: str, options: Mapping[str, Any], *, max_wheel_speed: float) -> MotorDriver:
+    """Build (but do not open) the driver registered as ``name``."""
+    return driver_class(name)(options, max_wheel_speed=max_wheel_speed)

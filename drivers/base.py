@@ -1,0 +1,197 @@
+# The motor driver contract: a small async base class with a template method.
+from __future__ import annotations
+
+import math
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from daemon.options import Option, Options
+
+
+class DriverError(Exception):
+    """Base of every driver error."""
+
+
+class DriverClosed(DriverError):
+    """A command reached a driver after ``close()``."""
+
+
+class DriverFault(DriverError):
+    """The hardware failed: a write error, a lost port, a lost peer, a missed heartbeat."""
+
+
+class InvalidCommand(DriverError, ValueError):
+    """A wheel speed that is not a finite number."""
+
+
+@dataclass(frozen=True)
+class EncoderReading:
+    """Wheel positions in radians (forward positive) and the monotonic time they were read."""
+
+    left_rad: float
+    right_rad: float
+    t_mono: float
+
+
+class MotorDriver(ABC):
+    """Base of every motor driver.
+
+    The public methods live here and do the common work: validate and clamp the command to
+    ``max_wheel_speed`` (rad/s), refuse after ``close()``, time each write, turn hardware
+    exceptions into :class:`DriverFault`, and keep the health counters. A subclass implements
+    the hardware part: ``_open``, ``_apply``, ``_close`` and optionally ``_read_encoders``,
+    ``_health`` and ``_safe_stop``.
+
+    A driver that notices a fault on its own (a missed heartbeat, a vanished peer) calls
+    :meth:`report_fault`; the control loop polls :attr:`fault` every tick, stops the wheels and
+    reconnects with back-off (``close()`` then ``open()`` on the same object).
+    """
+
+    #: Options of this driver's ``[driver.<name>]`` config section.
+    OPTIONS: ClassVar[Options] = {}
+
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        self.options = dict(options)
+        self.max_wheel_speed = max_wheel_speed
+        self.is_open = False
+        self.is_closed = False
+        self.fault: str | None = None
+        self.writes = 0
+        self.write_errors = 0
+        self.last_command: tuple[float, float] = (0.0, 0.0)
+        self.last_write_mono: float | None = None
+        self.last_write_duration_s = 0.0
+
+    async def open(self) -> None:
+        """Connect to the hardware. May be called again after ``close()`` to reconnect."""
+        try:
+            await self._open()
+        except DriverError:
+            raise
+        except Exception as exc:
+            raise DriverFault(f"open failed: {exc}") from exc
+        self.is_open, self.is_closed, self.fault = True, False, None
+        self.last_command = (0.0, 0.0)
+
+    async def set_wheel_speeds(self, left_rad_s: float, right_rad_s: float) -> tuple[float, float]:
+        """Command both wheels (rad/s, forward positive); returns the clamped pair written."""
+        if self.is_closed or not self.is_open:
+            raise DriverClosed("driver is closed" if self.is_closed else "driver is not open")
+        left, right = self.clamp(left_rad_s), self.clamp(right_rad_s)
+        start = time.monotonic()
+        try:
+            await self._apply(left, right)
+        except DriverError as exc:
+            self._count_write_error(str(exc))
+            raise
+        except Exception as exc:
+            self._count_write_error(f"write failed: {exc}")
+            raise DriverFault(f"write failed: {exc}") from exc
+        end = time.monotonic()
+        self.writes += 1
+        self.last_command = (left, right)
+        self.last_write_mono = end
+        self.last_write_duration_s = end - start
+        return left, right
+
+    def clamp(self, speed: float) -> float:
+        """Refuse a non-finite speed; clamp a finite one to ``±max_wheel_speed``."""
+        if isinstance(speed, bool) or not isinstance(speed, int | float):
+            raise InvalidCommand(f"wheel speed must be a number, got {type(speed).__name__}")
+        if not math.isfinite(speed):
+            raise InvalidCommand(f"wheel speed must be finite, got {speed}")
+        return max(-self.max_wheel_speed, min(self.max_wheel_speed, float(speed)))
+
+    async def read_encoders(self) -> EncoderReading | None:
+        """Wheel positions, or ``None`` when this hardware has no encoders (open loop)."""
+        if not self.is_open:
+            return None
+        try:
+            return await self._read_encoders()
+        except DriverError:
+            raise
+        except Exception as exc:
+            raise DriverFault(f"encoder read failed: {exc}") from exc
+
+    async def stop(self) -> None:
+        """Command zero speed on both wheels."""
+        await self.set_wheel_speeds(0.0, 0.0)
+
+    async def close(self) -> None:
+        """Stop the wheels where still possible and release the hardware. Idempotent."""
+        if self.is_closed:
+            return
+        if self.is_open and self.fault is None:
+            try:
+                await self.stop()
+            except DriverError:
+                pass
+        self.is_open, self.is_closed = False, True
+        await self._close()
+
+    async def safe_stop(self) -> None:
+        """Zero the motors from a fresh process (``arbiterd safe-stop``), then close."""
+        await self.open()
+        try:
+            await self._safe_stop()
+        finally:
+            await self.close()
+
+    def report_fault(self, reason: str) -> None:
+        """Mark the driver faulted; the control loop stops and reconnects it."""
+        if self.fault is None:
+            self.fault = reason
+
+    def health(self) -> dict[str, Any]:
+        """State and counters for ``/api/health``."""
+        status = "error" if self.fault else ("ok" if self.is_open else "error")
+        return {
+            "status": status,
+            "driver": self.name(),
+            "open": self.is_open,
+            "fault": self.fault,
+            "writes": self.writes,
+            "write_errors": self.write_errors,
+            "last_command_rad_s": list(self.last_command),
+            "last_write_ms": round(self.last_write_duration_s * 1e3, 4),
+            **self._health(),
+        }
+
+    @classmethod
+    def name(cls) -> str:
+        return cls.__name__
+
+    def _count_write_error(self, reason: str) -> None:
+        self.write_errors += 1
+        self.report_fault(reason)
+
+    # -- the hardware part ------------------------------------------------------------------
+
+    @abstractmethod
+    async def _open(self) -> None:
+        """Connect and leave the motors stopped."""
+
+    @abstractmethod
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        """Write already validated and clamped wheel speeds."""
+
+    @abstractmethod
+    async def _close(self) -> None:
+        """Release the hardware; the wheels were already stopped if that was possible."""
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        return None
+
+    async def _safe_stop(self) -> None:
+        await self.stop()
+
+    def _health(self) -> dict[str, Any]:
+        return {}
+
+
+def option(kind: type, default: Any, doc: str, **kw: Any) -> Option:
+    """Shorthand for driver modules declaring their ``OPTIONS``."""
+    return Option(kind, default, doc, **kw)

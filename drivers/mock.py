@@ -1,0 +1,85 @@
+# Mock driver: records every command with its time; ideal wheels give exact encoders.
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from drivers.base import EncoderReading, MotorDriver, option
+from daemon.options import Options
+
+
+@dataclass(frozen=True)
+class RecordedCommand:
+    """One write the mock driver saw: monotonic time and wheel speeds in rad/s."""
+
+    t_mono: float
+    left_rad_s: float
+    right_rad_s: float
+
+
+class MockDriver(MotorDriver):
+    """A registered driver with no hardware: ideal wheels that follow each command at once.
+
+    Encoders integrate the commanded speeds, so odometry through this driver is exact. Every
+    command is recorded (bounded by ``history``) for tests and ``arbiterd bench``; with
+    ``log_file`` set, every command is also appended there as ``t_mono left right``, so a test
+    can watch a daemon subprocess's wheels.
+    """
+
+    OPTIONS: ClassVar[Options] = {
+        "encoders": option(bool, True, "report ideal encoder positions (closed-loop odometry)"),
+        "history": option(int, 100000, "how many commands to keep in memory", minval=1),
+        "log_file": option(str, "", "append every command to this file ('' = off)"),
+    }
+
+    def __init__(self, options: Any, *, max_wheel_speed: float) -> None:
+        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
+        super().__init__(opts, max_wheel_speed=max_wheel_speed)
+        self.commands: deque[RecordedCommand] = deque(maxlen=int(opts["history"]))
+        self._positions = [0.0, 0.0]
+        self._speeds = (0.0, 0.0)
+        self._since = time.monotonic()
+        self._log: Any = None
+
+    @classmethod
+    def name(cls) -> str:
+        return "mock"
+
+    async def _open(self) -> None:
+        self._since = time.monotonic()
+        self._speeds = (0.0, 0.0)
+        if self.options["log_file"]:
+            self._log = open(self.options["log_file"], "a", buffering=1)  # noqa: SIM115
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        now = time.monotonic()
+        self._integrate(now)
+        self._speeds = (left_rad_s, right_rad_s)
+        self.commands.append(RecordedCommand(now, left_rad_s, right_rad_s))
+        if self._log is not None:
+            self._log.write(f"{now:.6f} {left_rad_s:.6f} {right_rad_s:.6f}\n")
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        if not self.options["encoders"]:
+            return None
+        now = time.monotonic()
+        self._integrate(now)
+        return EncoderReading(self._positions[0], self._positions[1], now)
+
+    async def _close(self) -> None:
+        self._integrate(time.monotonic())
+        self._speeds = (0.0, 0.0)
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def _integrate(self, now: float) -> None:
+        dt = now - self._since
+        self._positions[0] += self._speeds[0] * dt
+        self._positions[1] += self._speeds[1] * dt
+        self._since = now
+
+    def _health(self) -> dict[str, Any]:
+        return {"recorded_commands": len(self.commands)}
