@@ -140,6 +140,15 @@ class MotorDriver(ABC):
         finally:
             await self.close()
 
+    async def try_zero(self) -> bool:
+        """Best effort to zero the wheels after a fault; True when the hardware took it."""
+        try:
+            await self._apply(0.0, 0.0)
+        except Exception:
+            return False
+        self.last_command = (0.0, 0.0)
+        return True
+
     def report_fault(self, reason: str) -> None:
         """Mark the driver faulted; the control loop stops and reconnects it."""
         if self.fault is None:

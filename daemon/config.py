@@ -1,0 +1,233 @@
+# Strict TOML configuration: every key declared, typed and range-checked; every problem reported.
+from __future__ import annotations
+
+import importlib
+import os
+import tomllib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.options import Options, defaults
+
+DEFAULT_PATH = Path("/etc/arbiterd/arbiterd.toml")
+BUILTIN = "<built-in defaults>"
+ENV_PREFIX = "ARBITERD_"
+
+# section => "module:ATTRIBUTE" holding its Options; each component owns its section.
+SECTIONS: dict[str, str] = {
+    "robot": "daemon.settings:ROBOT_OPTIONS",
+    "control": "daemon.settings:CONTROL_OPTIONS",
+    "limits": "daemon.settings:LIMITS_OPTIONS",
+    "driver": "daemon.settings:DRIVER_OPTIONS",
+    "lidar": "daemon.settings:LIDAR_OPTIONS",
+    "http": "daemon.settings:HTTP_OPTIONS",
+    "rosbridge": "daemon.settings:ROSBRIDGE_OPTIONS",
+    "security": "daemon.settings:SECURITY_OPTIONS",
+    "sim": "daemon.settings:SIM_OPTIONS",
+    "logging": "daemon.settings:LOGGING_OPTIONS",
+}
+
+
+class ConfigError(Exception):
+    """One or more configuration problems; each names the file, section and key."""
+
+    def __init__(self, problems: list[str]) -> None:
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+@dataclass
+class Config:
+    """Validated configuration: every section with every key, defaults filled in."""
+
+    sections: dict[str, dict[str, Any]]
+    source: str = BUILTIN
+    sim: bool = True
+    token: str = ""
+    warnings: list[str] = field(default_factory=list)
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.sections[section]
+
+    def driver_options(self, name: str | None = None) -> dict[str, Any]:
+        """The ``[driver.<name>]`` section (default: the configured driver type)."""
+        return self.sections[f"driver.{name or self['driver']['type']}"]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {name: dict(values) for name, values in self.sections.items()}
+
+
+def section_options(section: str) -> Options:
+    """The Options table of a section, including ``driver.<name>`` subsections."""
+    if section.startswith("driver."):
+        from drivers import driver_class
+
+        return driver_class(section.split(".", 1)[1]).OPTIONS
+    module_name, attr = SECTIONS[section].split(":")
+    options: Options = getattr(importlib.import_module(module_name), attr)
+    return options
+
+
+def all_sections() -> list[str]:
+    from drivers import DRIVERS
+
+    return [*SECTIONS, *(f"driver.{name}" for name in DRIVERS)]
+
+
+def _section_tables(problems: list[str], used: set[str], source: str) -> dict[str, Options]:
+    """Every section's Options; a driver module that cannot be imported is a problem only
+    when its section is used."""
+    tables: dict[str, Options] = {}
+    for section in all_sections():
+        try:
+            tables[section] = section_options(section)
+        except Exception as exc:
+            if section in used:
+                problems.append(f"{source}: [{section}]: {exc}")
+    return tables
+
+
+def load_config(path: Path | None = None, *, sim: bool = False,
+                env: Mapping[str, str] | None = None) -> Config:
+    """Load and validate a config; raises :class:`ConfigError` listing every problem.
+
+    ``path=None`` means the default path if it exists, else the built-in defaults, which run
+    the simulated robot. An explicit path must exist.
+    """
+    env = os.environ if env is None else env
+    raw, source, builtin = _read_source(path)
+    problems: list[str] = []
+    flat = _flatten_file(raw, source, problems)
+    tables = _section_tables(problems, set(flat), source)
+    _apply_env(flat, env, tables, problems)
+    sections = _validate(flat, tables, source, problems)
+    token = _read_token(sections.get("security", {}), source, problems)
+    if problems:
+        raise ConfigError(problems)
+    config = Config(sections, source=source, sim=sim or builtin, token=token)
+    if config["control"]["cmd_vel_timeout"] == 0:
+        config.warnings.append("[control] cmd_vel_timeout = 0: the deadman stop is DISABLED")
+    return config
+
+
+def _read_source(path: Path | None) -> tuple[dict[str, Any], str, bool]:
+    if path is None:
+        if not DEFAULT_PATH.exists():
+            return {}, BUILTIN, True
+        path = DEFAULT_PATH
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError([f"{path}: config file not found"]) from None
+    except OSError as exc:
+        raise ConfigError([f"{path}: cannot read config file: {exc.strerror}"]) from None
+    try:
+        return tomllib.loads(text), str(path), False
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError([f"{path}: not valid TOML: {exc}"]) from None
+
+
+def _flatten_file(raw: dict[str, Any], source: str,
+                  problems: list[str]) -> dict[str, dict[str, Any]]:
+    """Section -> {dotted key: value}; ``[driver.<name>]`` tables become their own sections."""
+    known = set(all_sections())
+    flat: dict[str, dict[str, Any]] = {}
+    for name, table in raw.items():
+        if name not in known or not isinstance(table, dict):
+            what = "unknown section" if name not in known else "must be a table"
+            problems.append(f"{source}: [{name}]: {what}; valid sections: "
+                            f"{', '.join(sorted(SECTIONS))}")
+            continue
+        flat[name] = {}
+        for key, value in _walk(table):
+            sub = f"{name}.{key.split('.', 1)[0]}"
+            if name == "driver" and sub in known and isinstance(table.get(key.split(".")[0]), dict):
+                flat.setdefault(sub, {})[key.split(".", 1)[1]] = value
+            else:
+                flat[name][key] = value
+    return flat
+
+
+def _walk(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    for key, value in table.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _walk(value, dotted + ".")
+        else:
+            yield dotted, value
+
+
+def env_name(section: str, key: str) -> str:
+    """``ARBITERD_<SECTION>_<KEY>`` with dots as underscores, upper case."""
+    return (ENV_PREFIX + f"{section}_{key}".replace(".", "_")).upper()
+
+
+def _apply_env(flat: dict[str, dict[str, Any]], env: Mapping[str, str],
+               tables: dict[str, Options], problems: list[str]) -> None:
+    names = {env_name(section, key): (section, key)
+             for section, options in tables.items() for key in options}
+    prefixes = tuple(env_name(section, "") for section in SECTIONS)
+    for var, text in env.items():
+        if var in names:
+            section, key = names[var]
+            flat.setdefault(section, {})[key] = _parse_env_value(text)
+        elif var.startswith(prefixes):
+            problems.append(f"environment: {var}: no such config key")
+
+
+def _parse_env_value(text: str) -> Any:
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _validate(flat: dict[str, dict[str, Any]], tables: dict[str, Options], source: str,
+              problems: list[str]) -> dict[str, dict[str, Any]]:
+    sections: dict[str, dict[str, Any]] = {}
+    for section, options in tables.items():
+        values = defaults(options)
+        for key, value in flat.get(section, {}).items():
+            option = options.get(key)
+            if option is None:
+                problems.append(_unknown_key(source, section, key, options))
+                continue
+            value, err = option.validate(value)
+            if err:
+                problems.append(f"{source}: [{section}] {key}: {err}")
+            values[key] = value
+        sections[section] = values
+    return sections
+
+
+def _unknown_key(source: str, section: str, key: str, options: Options) -> str:
+    close = [k for k in options if _similar(k, key)]
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"{source}: [{section}] {key}: unknown key{hint}"
+
+
+def _similar(a: str, b: str) -> bool:
+    import difflib
+
+    return difflib.SequenceMatcher(None, a, b).ratio() > 0.8
+
+
+def _read_token(security: Mapping[str, Any], source: str, problems: list[str]) -> str:
+    token, token_file = security.get("token", ""), security.get("token_file", "")
+    if token and token_file:
+        problems.append(f"{source}: [security]: set token or token_file, not both")
+        return ""
+    if not token_file:
+        return str(token)
+    try:
+        lines = Path(token_file).read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        problems.append(f"{source}: [security] token_file: cannot read {token_file}: "
+                        f"{exc.strerror}")
+        return ""
+    if not lines or not lines[0].strip():
+        problems.append(f"{source}: [security] token_file: {token_file} is empty")
+        return ""
+    return lines[0].strip()

@@ -1,0 +1,90 @@
+# Command arbiter: a priority mux over command sources with per-source timeouts and an e-stop latch.
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from daemon.control.commands import ZERO, Twist
+
+
+@dataclass
+class SourceState:
+    """The latest command of one source and when it arrived (monotonic seconds)."""
+
+    name: str
+    priority: int
+    timeout_s: float
+    twist: Twist = ZERO
+    t_recv: float = 0.0
+    active: bool = False
+
+    def is_live(self, now: float) -> bool:
+        return self.active and (self.timeout_s <= 0 or now - self.t_recv <= self.timeout_s)
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the arbiter wants now: the target, who set it, and whether to brake hard."""
+
+    twist: Twist
+    source: str | None
+    emergency: bool
+    reason: str
+
+
+class Arbiter:
+    """Picks the command to follow: the live source with the highest priority (the newest
+    among equals). The e-stop latch overrides everything until released. A source that times
+    out or disconnects while it was in charge makes the robot brake with the emergency
+    deceleration (the deadman stop); a source commanding zero brakes normally.
+    """
+
+    def __init__(self, default_timeout_s: float) -> None:
+        self.default_timeout_s = default_timeout_s
+        self.sources: dict[str, SourceState] = {}
+        self.estop_engaged = False
+        self.estop_reason = ""
+        self._generation = 0
+        self._last_source: str | None = None
+
+    def submit(self, source: str, twist: Twist, now: float, priority: int = 10,
+               timeout_s: float | None = None) -> None:
+        state = self.sources.get(source)
+        if state is None:
+            state = SourceState(source, priority,
+                                self.default_timeout_s if timeout_s is None else timeout_s)
+            self.sources[source] = state
+        state.priority = priority
+        state.twist, state.t_recv, state.active = twist, now, True
+
+    def drop(self, source: str) -> None:
+        """Forget a source (its client disconnected)."""
+        self.sources.pop(source, None)
+
+    def invalidate_all(self) -> None:
+        """Require a fresh command from every source (after a fault or an e-stop release)."""
+        for state in self.sources.values():
+            state.active = False
+
+    def engage_estop(self, reason: str) -> None:
+        self.estop_engaged, self.estop_reason = True, reason
+        self.invalidate_all()
+
+    def release_estop(self) -> None:
+        self.estop_engaged, self.estop_reason = False, ""
+        self.invalidate_all()
+
+    def decide(self, now: float) -> Decision:
+        if self.estop_engaged:
+            return Decision(ZERO, None, True, f"e-stop: {self.estop_reason}")
+        live = [s for s in self.sources.values() if s.is_live(now)]
+        if not live:
+            emergency = self._last_source is not None
+            reason = "deadman: no valid command" if emergency else "idle"
+            return Decision(ZERO, None, emergency, reason)
+        best = max(live, key=lambda s: (s.priority, s.t_recv))
+        self._last_source = best.name
+        return Decision(best.twist, best.name, False, "command")
+
+    def idle(self) -> None:
+        """The robot has stopped after a deadman brake: later silence is plain idling."""
+        self._last_source = None

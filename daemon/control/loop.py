@@ -1,0 +1,306 @@
+# The control loop: event path (apply on arrival) and tick path (ramps, deadman, odometry).
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from daemon.bus import Bus
+from daemon.config import Config
+from daemon.control.arbiter import Arbiter, Decision
+from daemon.control.commands import Twist
+from daemon.control.kinematics import DiffDrive, scale_to_limit
+from daemon.control.limiter import AxisLimiter, AxisLimits
+from daemon.control.metronome import Metronome
+from daemon.control.odometry import Odometry
+from daemon.latency import LatencyTracker
+from daemon.telemetry import LatencyReport, OdomSample
+from drivers import DriverError, MotorDriver
+
+log = logging.getLogger("arbiterd.control")
+
+
+@dataclass(frozen=True)
+class Applied:
+    """What the event path did with one command."""
+
+    accepted: bool
+    source: str | None
+    wheel_rad_s: tuple[float, float]
+    clamped: list[str]
+    report: LatencyReport | None
+    error: str | None = None
+
+
+def axis_limits(limits: dict[str, Any], axis: str) -> AxisLimits:
+    return AxisLimits(limits[f"{axis}.max_velocity"], limits[f"{axis}.max_acceleration"],
+                      limits[f"{axis}.max_deceleration"],
+                      limits[f"{axis}.emergency_deceleration"], limits[f"{axis}.max_jerk"])
+
+
+class ControlLoop:
+    """Owns the driver, the arbiter, the limiters and odometry (component ``control``)."""
+
+    name = "control"
+    core = True
+
+    def __init__(self, config: Config, driver: MotorDriver, bus: Bus,
+                 latency: LatencyTracker) -> None:
+        control = config["control"]
+        self.config = config
+        self.driver = driver
+        self.bus = bus
+        self.latency = latency
+        self.geometry = DiffDrive.from_config(config["robot"])
+        self.linear = AxisLimiter(axis_limits(config["limits"], "linear.x"))
+        self.angular = AxisLimiter(axis_limits(config["limits"], "angular.z"))
+        self.arbiter = Arbiter(control["cmd_vel_timeout"])
+        self.odometry = Odometry(self.geometry)
+        self.period_s = 1.0 / control["update_rate"]
+        self.late_s = control["late_tick_ms"] / 1e3
+        self.publish_every = max(1, round(control["update_rate"] / control["publish_rate"]))
+        self.open_loop = control["open_loop"]
+        self.on_tick: list[Callable[[float, bool], None]] = []
+        self.fault: str | None = None
+        self.faults = 0
+        self.reconnects = 0
+        self.clamps: dict[str, int] = {}
+        self.last_clamped: list[str] = []
+        self.wheels = (0.0, 0.0)
+        self.decision = Decision(Twist(), None, False, "idle")
+        self._lock = asyncio.Lock()
+        self._last_step = time.monotonic()
+        self._tick_task: asyncio.Task[None] | None = None
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._metronome: Metronome | None = None
+        self._ticks = 0
+        self._stopping = False
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    async def start(self) -> None:
+        await self.driver.open()
+        self._last_step = time.monotonic()
+        self._metronome = Metronome(asyncio.get_running_loop(), self.period_s)
+        self._metronome.start()
+        self._tick_task = asyncio.create_task(self._tick_forever(), name="control-tick")
+
+    async def stop(self) -> None:
+        self._stopping = True
+        if self._metronome:
+            self._metronome.stop()
+        for task in (self._tick_task, self._reconnect_task):
+            if task:
+                task.cancel()
+        await self.halt()
+        await self.driver.close()
+
+    async def halt(self) -> None:
+        """Zero the wheels now (shutdown path): no ramp, it is what stopping the daemon means."""
+        self.arbiter.engage_estop("shutdown")
+        self.linear.reset()
+        self.angular.reset()
+        async with self._lock:
+            await self._write(0.0, 0.0)
+
+    # -- event path ----------------------------------------------------------------------
+
+    async def submit(self, source: str, twist: Twist, *, t_recv: float,
+                     cmd_id: str | int | None = None, t_sent_ms: float | None = None,
+                     priority: int = 10) -> Applied:
+        """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
+        if self._stopping:
+            return Applied(False, None, self.wheels, [], None, "daemon is shutting down")
+        self.arbiter.submit(source, twist, time.monotonic(), priority)
+        async with self._lock:
+            written = await self._step(time.monotonic())
+        t_exec = time.monotonic()
+        if not written:
+            reason = self._refusal_reason()
+            return Applied(False, self.decision.source, self.wheels, [], None, reason)
+        report = self.latency.record_command(t_recv, t_exec, source=source, cmd_id=cmd_id,
+                                             t_sent_ms=t_sent_ms)
+        if cmd_id is not None or t_sent_ms is not None:
+            self.bus.publish("latency_report", report)
+        return Applied(True, self.decision.source, self.wheels, self.last_clamped, report)
+
+    def _refusal_reason(self) -> str:
+        if self.arbiter.estop_engaged:
+            return "e-stop engaged"
+        if self.fault:
+            return f"driver fault: {self.fault}"
+        return "command not applied"
+
+    async def drop_source(self, source: str) -> None:
+        """A command source went away (WebSocket closed): brake now if it was in charge."""
+        self.arbiter.drop(source)
+        async with self._lock:
+            await self._step(time.monotonic())
+
+    async def engage_estop(self, reason: str) -> None:
+        self.arbiter.engage_estop(reason)
+        log.warning("e-stop engaged: %s", reason)
+        async with self._lock:
+            await self._step(time.monotonic())
+
+    def release_estop(self) -> None:
+        if self.arbiter.estop_engaged:
+            log.warning("e-stop released; waiting for a fresh command")
+        self.arbiter.release_estop()
+
+    # -- tick path -----------------------------------------------------------------------
+
+    async def _tick_forever(self) -> None:
+        assert self._metronome is not None
+        while True:
+            deadline = await self._metronome.wait()
+            now = time.monotonic()
+            lateness = now - deadline
+            on_time = lateness <= self.late_s
+            self.latency.record_tick(lateness, not on_time)
+            self.latency.missed_ticks = self._metronome.missed
+            try:
+                await self._tick(now)
+            except Exception:
+                log.exception("control tick failed")
+                on_time = False
+            for callback in self.on_tick:
+                callback(now, on_time)
+
+    async def _tick(self, now: float) -> None:
+        if self.driver.fault and not self.fault:
+            await self._on_fault(self.driver.fault)
+        async with self._lock:
+            await self._step(now)
+        await self._update_odometry(now)
+        self._ticks += 1
+        if self._ticks % self.publish_every == 0:
+            self.bus.publish("odom", self.odom_sample())
+
+    # -- shared step -----------------------------------------------------------------------
+
+    async def _step(self, now: float) -> bool:
+        """Arbitrate, limit, convert and write once; True when the driver was written."""
+        self.decision = decision = self.arbiter.decide(now)
+        dt = now - self._last_step
+        self._last_step = now
+        self.last_clamped = self._target_clamps(decision.twist)
+        v = self.linear.step(decision.twist.linear_x, dt, decision.emergency)
+        w = self.angular.step(decision.twist.angular_z, dt, decision.emergency)
+        if decision.source is None and v == 0.0 and w == 0.0:
+            self.arbiter.idle()
+        left, right = self.geometry.wheel_speeds(v, w)
+        left, right, scaled = scale_to_limit(left, right, self.driver.max_wheel_speed)
+        if scaled:
+            self._count_clamp("wheel_speed")
+        if self.fault:
+            return False
+        return await self._write(left, right)
+
+    async def _write(self, left: float, right: float) -> bool:
+        if not self.driver.is_open:
+            return False
+        try:
+            self.wheels = await self.driver.set_wheel_speeds(left, right)
+        except DriverError as exc:
+            await self._on_fault(str(exc))
+            return False
+        return True
+
+    def _target_clamps(self, twist: Twist) -> list[str]:
+        clamped = []
+        for name, limiter, value in (("linear.x", self.linear, twist.linear_x),
+                                     ("angular.z", self.angular, twist.angular_z)):
+            if limiter.clamp_target(value)[1]:
+                clamped.append(name)
+                self._count_clamp(name)
+        return clamped
+
+    def _count_clamp(self, name: str) -> None:
+        self.clamps[name] = self.clamps.get(name, 0) + 1
+
+    async def _update_odometry(self, now: float) -> None:
+        reading = None
+        if not self.open_loop and not self.fault:
+            try:
+                reading = await self.driver.read_encoders()
+            except DriverError as exc:
+                await self._on_fault(str(exc))
+        if reading is not None:
+            self.odometry.update_from_encoders(reading.left_rad, reading.right_rad,
+                                               reading.t_mono)
+        else:
+            linear, angular = self.geometry.body_twist(*self.wheels)
+            self.odometry.update_open_loop(linear, angular, self.period_s)
+
+    # -- faults ------------------------------------------------------------------------------
+
+    async def _on_fault(self, reason: str) -> None:
+        if self.fault or self._stopping:
+            return
+        self.fault = reason
+        self.faults += 1
+        log.error("driver fault: %s; motors stopped, reconnecting", reason)
+        self.arbiter.invalidate_all()
+        self.linear.reset()
+        self.angular.reset()
+        self.driver.report_fault(reason)
+        await self.driver.try_zero()  # where the hardware still listens
+        self.wheels = (0.0, 0.0)
+        self._reconnect_task = asyncio.create_task(self._reconnect(), name="driver-reconnect")
+
+    async def _reconnect(self) -> None:
+        control = self.config["control"]
+        delay = control["reconnect_min_s"]
+        while not self._stopping:
+            await self.driver.close()
+            await asyncio.sleep(delay)
+            try:
+                await self.driver.open()
+            except DriverError as exc:
+                log.warning("driver reconnect failed: %s; retrying in %.1f s", exc, delay)
+                delay = min(delay * 2, control["reconnect_max_s"])
+                continue
+            self.reconnects += 1
+            self.odometry.reset_encoder_reference()
+            self.arbiter.invalidate_all()
+            self.fault = None
+            log.warning("driver reconnected; wheels stay still until a fresh command")
+            return
+
+    # -- reports ---------------------------------------------------------------------------
+
+    def odom_sample(self) -> OdomSample:
+        odo, robot, control = self.odometry, self.config["robot"], self.config["control"]
+        return OdomSample(time.time(), robot["odom_frame_id"], robot["base_frame_id"], odo.x,
+                          odo.y, odo.theta, odo.linear, odo.angular,
+                          control["pose_covariance_diagonal"],
+                          control["twist_covariance_diagonal"])
+
+    def status(self) -> dict[str, Any]:
+        odo = self.odometry
+        return {
+            "pose": {"x": odo.x, "y": odo.y, "theta": odo.theta,
+                     "theta_deg": math.degrees(odo.theta)},
+            "twist": {"linear_x": self.linear.velocity, "angular_z": self.angular.velocity},
+            "target": {"linear_x": self.decision.twist.linear_x,
+                       "angular_z": self.decision.twist.angular_z},
+            "wheel_speeds_rad_s": {"left": self.wheels[0], "right": self.wheels[1]},
+            "active_source": self.decision.source,
+            "reason": self.decision.reason,
+            "estop": {"engaged": self.arbiter.estop_engaged,
+                      "reason": self.arbiter.estop_reason},
+            "clamps": dict(self.clamps),
+            "last_clamped": list(self.last_clamped),
+            "fault": self.fault,
+        }
+
+    def health(self) -> dict[str, Any]:
+        status = "error" if self.fault else "ok"
+        return {"status": status, "fault": self.fault, "faults": self.faults,
+                "reconnects": self.reconnects, "driver": self.driver.health(),
+                "estop": self.arbiter.estop_engaged}

@@ -1,0 +1,55 @@
+# Prometheus text exposition of health, latency and component counters.
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from typing import Any
+
+STATUS_VALUE = {"ok": 0, "degraded": 1, "error": 2}
+
+
+def prometheus_text(health: dict[str, Any], latency: dict[str, Any]) -> str:
+    lines = [
+        "# HELP arbiterd_up 1 while the daemon serves.",
+        "# TYPE arbiterd_up gauge",
+        "arbiterd_up 1",
+        "# HELP arbiterd_status Overall health: 0 ok, 1 degraded, 2 error.",
+        "# TYPE arbiterd_status gauge",
+        f"arbiterd_status {STATUS_VALUE.get(health['status'], 2)}",
+        "# TYPE arbiterd_uptime_seconds gauge",
+        f"arbiterd_uptime_seconds {health['uptime_s']}",
+        "# TYPE arbiterd_commands_total counter",
+        f"arbiterd_commands_total {latency['commands']}",
+        "# TYPE arbiterd_ticks_total counter",
+        f"arbiterd_ticks_total {latency['tick']['count']}",
+        "# TYPE arbiterd_late_ticks_total counter",
+        f"arbiterd_late_ticks_total {latency['tick']['late']}",
+    ]
+    lines += _summary("arbiterd_receipt_to_exec_ms", latency["receipt_to_exec_ms"])
+    lines += _summary("arbiterd_tick_lateness_ms", latency["tick"]["lateness_ms"])
+    for name, component in health["components"].items():
+        lines.append(f'arbiterd_component_status{{component="{name}"}} '
+                     f'{STATUS_VALUE.get(component.get("status", "error"), 2)}')
+        for key, value in _numbers(component):
+            lines.append(f'arbiterd_component_value{{component="{name}",key="{key}"}} {value}')
+    return "\n".join(lines) + "\n"
+
+
+def _summary(name: str, stats: dict[str, Any]) -> list[str]:
+    lines = [f"# TYPE {name} summary"]
+    for q in ("50", "90", "99"):
+        if f"p{q}" in stats:
+            lines.append(f'{name}{{quantile="0.{q}"}} {stats[f"p{q}"]}')
+    lines.append(f"{name}_count {stats.get('count', 0)}")
+    return lines
+
+
+def _numbers(data: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, float]]:
+    for key, value in data.items():
+        name = re.sub(r"[^a-zA-Z0-9_]", "_", f"{prefix}{key}")
+        if isinstance(value, bool):
+            yield name, int(value)
+        elif isinstance(value, int | float):
+            yield name, value
+        elif isinstance(value, dict):
+            yield from _numbers(value, name + "_")

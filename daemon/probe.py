@@ -1,0 +1,44 @@
+# Hardware probing for `arbiterd check` and the motor-off path of `arbiterd safe-stop`.
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from daemon.config import Config
+from daemon.control.kinematics import DiffDrive
+from drivers import DriverError, MotorDriver, create_driver
+
+# config section => "module:function" probing that part's hardware; returns problems.
+PROBES: dict[str, str] = {}
+
+
+def build_driver(config: Config, name: str | None = None) -> MotorDriver:
+    """The configured driver (or ``name``), built with the wheel-speed clamp from the limits."""
+    limits = config["limits"]
+    geometry = DiffDrive.from_config(config["robot"])
+    max_wheel = config["robot"]["max_wheel_speed"] or geometry.max_wheel_speed(
+        limits["linear.x.max_velocity"], limits["angular.z.max_velocity"])
+    name = name or config["driver"]["type"]
+    return create_driver(name, config.driver_options(name), max_wheel_speed=max_wheel)
+
+
+async def probe_hardware(config: Config) -> list[str]:
+    """Open the configured driver (and other configured hardware); list what failed."""
+    problems = []
+    driver = build_driver(config)
+    try:
+        await driver.open()
+    except DriverError as exc:
+        problems.append(f"[driver] {config['driver']['type']}: {exc}")
+    finally:
+        await driver.close()
+    for section, target in PROBES.items():
+        module_name, func = target.split(":")
+        probe: Any = getattr(importlib.import_module(module_name), func)
+        problems += [f"[{section}] {p}" for p in await probe(config)]
+    return problems
+
+
+async def safe_stop(config: Config) -> None:
+    """Zero the motors through the configured driver, from a process of its own."""
+    await build_driver(config).safe_stop()

@@ -1,0 +1,118 @@
+# Option tables of the daemon's own config sections ([robot], [control], [limits], [driver], ...).
+from __future__ import annotations
+
+from daemon.options import Option, Options
+
+ROBOT_OPTIONS: Options = {
+    "name": Option(str, "arbiter", "robot name shown in /robot_info and the logs"),
+    "wheel_separation": Option(float, 0.30, "distance between the wheel contact points, m",
+                               above=0.0, maxval=5.0),
+    "wheel_radius": Option(float, 0.05, "wheel radius, m", above=0.0, maxval=1.0),
+    "wheel_separation_multiplier": Option(float, 1.0, "calibration factor on wheel_separation",
+                                          above=0.0, maxval=10.0),
+    "left_wheel_radius_multiplier": Option(float, 1.0, "calibration factor, left wheel radius",
+                                           above=0.0, maxval=10.0),
+    "right_wheel_radius_multiplier": Option(float, 1.0, "calibration factor, right wheel radius",
+                                            above=0.0, maxval=10.0),
+    "max_wheel_speed": Option(float, 0.0, "hard wheel speed clamp, rad/s "
+                              "(0 = derived from the velocity limits)", minval=0.0),
+    "base_frame_id": Option(str, "base_link", "frame of the robot body"),
+    "odom_frame_id": Option(str, "odom", "frame odometry is expressed in"),
+}
+
+_COVARIANCE_DEFAULT = [0.001, 0.001, 0.001, 0.001, 0.001, 0.01]
+
+CONTROL_OPTIONS: Options = {
+    "update_rate": Option(float, 50.0, "control tick rate, Hz", minval=1.0, maxval=1000.0),
+    "cmd_vel_timeout": Option(float, 0.5, "deadman: stop when no valid command for this long, s "
+                              "(0 disables it, with a warning)", minval=0.0, maxval=60.0),
+    "open_loop": Option(bool, False, "integrate odometry from the applied command even when the "
+                        "driver has encoders"),
+    "publish_rate": Option(float, 20.0, "odometry/TF publish rate, Hz", above=0.0, maxval=200.0),
+    "enable_odom_tf": Option(bool, True, "publish odom -> base_link on /tf"),
+    "pose_covariance_diagonal": Option(list, _COVARIANCE_DEFAULT, "odometry pose covariance "
+                                       "diagonal (x, y, z, roll, pitch, yaw)", item=float,
+                                       length=6, minval=0.0),
+    "twist_covariance_diagonal": Option(list, _COVARIANCE_DEFAULT, "odometry twist covariance "
+                                        "diagonal", item=float, length=6, minval=0.0),
+    "late_tick_ms": Option(float, 5.0, "a tick later than this is late: the systemd watchdog "
+                           "is not pet", above=0.0, maxval=1000.0),
+    "reconnect_min_s": Option(float, 0.5, "first driver reconnect delay after a fault, s",
+                              above=0.0, maxval=60.0),
+    "reconnect_max_s": Option(float, 10.0, "longest driver reconnect delay (back-off cap), s",
+                              above=0.0, maxval=600.0),
+    "allow_fault_injection": Option(bool, False, "enable POST /api/debug/stall (tests only)"),
+}
+
+
+def _axis_options(axis: str, unit: str, vel: float, acc: float, dec: float,
+                  emergency: float) -> Options:
+    return {
+        f"{axis}.max_velocity": Option(float, vel, f"{axis} velocity limit, {unit}",
+                                       above=0.0, maxval=100.0),
+        f"{axis}.max_acceleration": Option(float, acc, f"{axis} acceleration limit, {unit}/s",
+                                           above=0.0, maxval=1000.0),
+        f"{axis}.max_deceleration": Option(float, dec, f"{axis} deceleration limit (slowing "
+                                           f"toward zero), {unit}/s", above=0.0, maxval=1000.0),
+        f"{axis}.emergency_deceleration": Option(float, emergency, f"{axis} deceleration for "
+                                                 f"deadman and e-stop, {unit}/s",
+                                                 above=0.0, maxval=1000.0),
+        f"{axis}.max_jerk": Option(float, 0.0, f"{axis} jerk limit, {unit}/s² (0 = off)",
+                                   minval=0.0, maxval=100000.0),
+    }
+
+
+LIMITS_OPTIONS: Options = {
+    **_axis_options("linear.x", "m/s", 2.0, 1.0, 2.0, 4.0),
+    **_axis_options("angular.z", "rad/s", 2.0, 4.0, 6.0, 12.0),
+}
+
+DRIVER_NAMES = ("mock", "l298n", "pigpio", "serial", "odrive_can")
+
+DRIVER_OPTIONS: Options = {
+    "type": Option(str, "mock", "motor driver", choices=DRIVER_NAMES),
+}
+
+HTTP_OPTIONS: Options = {
+    "enabled": Option(bool, True, "serve the HTTP API"),
+    "host": Option(str, "0.0.0.0", "HTTP listen address"),
+    "port": Option(int, 8085, "HTTP listen port", minval=1, maxval=65535),
+    "max_body_bytes": Option(int, 65536, "largest accepted request body", minval=64,
+                             maxval=16 * 1024 * 1024),
+}
+
+SECURITY_OPTIONS: Options = {
+    "token": Option(str, "", "bearer token required to move the robot ('' = none)"),
+    "token_file": Option(str, "", "file holding the token (first line); '' = none"),
+    "allowed_origins": Option(list, [], "extra browser origins allowed on the WebSocket "
+                              "(same host and localhost are always allowed)", item=str),
+    "read_requires_token": Option(bool, False, "also require the token for read-only telemetry"),
+}
+
+LOGGING_OPTIONS: Options = {
+    "level": Option(str, "info", "log level", choices=("debug", "info", "warning", "error")),
+    "timestamps": Option(bool, False, "prefix log lines with a timestamp (journald adds its own)"),
+}
+
+ROSBRIDGE_OPTIONS: Options = {
+    "enabled": Option(bool, True, "serve the rosbridge v2 WebSocket"),
+    "host": Option(str, "0.0.0.0", "rosbridge listen address"),
+    "port": Option(int, 9090, "rosbridge listen port", minval=1, maxval=65535),
+    "max_clients": Option(int, 32, "most simultaneous WebSocket clients", minval=1,
+                          maxval=1024),
+    "max_message_bytes": Option(int, 1048576, "largest accepted incoming message",
+                                minval=1024, maxval=64 * 1048576),
+}
+
+# Interim tables until the lidar and simulator packages declare their own sections.
+LIDAR_OPTIONS: Options = {
+    "enabled": Option(bool, False, "read an RPLIDAR"),
+    "port": Option(str, "/dev/rplidar", "serial port of the lidar"),
+    "baudrate": Option(int, 115200, "serial speed", choices=None, minval=9600, maxval=2000000),
+    "scan_mode": Option(str, "express", "scan mode: a name the device reports, or "
+                        "standard | express"),
+}
+SIM_OPTIONS: Options = {
+    "driver": Option(str, "serial", "which emulator --sim wires", choices=DRIVER_NAMES),
+    "seed": Option(int, 1, "seed of the simulated world and its noise"),
+}

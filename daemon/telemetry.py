@@ -1,0 +1,44 @@
+# Telemetry records the control loop publishes on the bus (odometry, latency reports).
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class OdomSample:
+    """Odometry at one instant, in the units and frames of nav_msgs/Odometry."""
+
+    stamp: float  # wall clock, s
+    frame_id: str
+    child_frame_id: str
+    x: float
+    y: float
+    theta: float
+    linear_x: float
+    angular_z: float
+    pose_covariance_diagonal: list[float] = field(default_factory=list)
+    twist_covariance_diagonal: list[float] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stamp": self.stamp, "frame_id": self.frame_id,
+                "child_frame_id": self.child_frame_id,
+                "pose": {"x": self.x, "y": self.y, "theta": self.theta},
+                "twist": {"linear_x": self.linear_x, "angular_z": self.angular_z}}
+
+
+@dataclass(frozen=True)
+class LatencyReport:
+    """One stamped command's timeline: client send, daemon receipt, driver write (wall ms)."""
+
+    id: str | int | None
+    t_sent: float | None
+    t_recv: float
+    t_exec: float
+    exec_ms: float
+    source: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"id": self.id, "t_sent": self.t_sent, "t_recv": self.t_recv,
+                "t_exec": self.t_exec, "exec_ms": self.exec_ms, "source": self.source,
+                "transit_ms": None if self.t_sent is None else self.t_recv - self.t_sent}
