@@ -1,6 +1,7 @@
 # The motor driver contract: a small async base class with a template method.
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from abc import ABC, abstractmethod
@@ -125,10 +126,8 @@ class MotorDriver(ABC):
         if self.is_closed:
             return
         if self.is_open and self.fault is None:
-            try:
+            with contextlib.suppress(DriverError):
                 await self.stop()
-            except DriverError:
-                pass
         self.is_open, self.is_closed = False, True
         await self._close()
 

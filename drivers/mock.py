@@ -6,8 +6,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from drivers.base import EncoderReading, MotorDriver, option
 from daemon.options import Options
+from drivers.base import EncoderReading, MotorDriver, option
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class MockDriver(MotorDriver):
         self._since = time.monotonic()
         self._speeds = (0.0, 0.0)
         if self.options["log_file"]:
-            self._log = open(self.options["log_file"], "a", buffering=1)  # noqa: SIM115
+            self._log = open(self.options["log_file"], "a", buffering=1)  # noqa: SIM115, ASYNC230
 
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         now = time.monotonic()

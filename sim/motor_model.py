@@ -43,14 +43,16 @@ class WheelMotor:
         self.speed_rad_s = start + (self.target_rad_s - start) * alpha
         # integral of the exponential approach over dt
         if self.time_constant_s > 0:
-            moved = self.target_rad_s * dt + (start - self.target_rad_s) * self.time_constant_s * alpha
+            lag = (start - self.target_rad_s) * self.time_constant_s * alpha
+            moved = self.target_rad_s * dt + lag
         else:
             moved = self.target_rad_s * dt
         self.position_rad += moved
 
     @property
     def counts(self) -> int:
-        return self.direction * int(math.floor(self.position_rad / (2 * math.pi) * self.counts_per_rev))
+        turns = self.position_rad / (2 * math.pi)
+        return self.direction * math.floor(turns * self.counts_per_rev)
 
 
 class MotorPair:
