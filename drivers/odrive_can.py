@@ -1,0 +1,542 @@
+# ODrive CANSimple driver over python-can: velocity control, heartbeat watch, encoder odometry.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import struct
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import can
+
+from daemon.options import Options
+from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+
+# -- CANSimple wire format (pure: no I/O) -----------------------------------------------------
+
+CMD_HEARTBEAT = 0x01
+CMD_ESTOP = 0x02
+CMD_SET_AXIS_STATE = 0x07
+CMD_GET_ENCODER_ESTIMATES = 0x09
+CMD_SET_CONTROLLER_MODE = 0x0B
+CMD_SET_INPUT_VEL = 0x0D
+CMD_CLEAR_ERRORS = 0x18
+
+AXIS_STATE_IDLE = 1
+AXIS_STATE_CLOSED_LOOP_CONTROL = 8
+CONTROL_MODE_VELOCITY = 2
+INPUT_MODES = {"passthrough": 1, "vel_ramp": 2}
+
+AXIS_STATE_NAMES = {
+    0: "UNDEFINED", 1: "IDLE", 2: "STARTUP_SEQUENCE", 3: "FULL_CALIBRATION_SEQUENCE",
+    4: "MOTOR_CALIBRATION", 6: "ENCODER_INDEX_SEARCH", 7: "ENCODER_OFFSET_CALIBRATION",
+    8: "CLOSED_LOOP_CONTROL", 9: "LOCKIN_SPIN", 10: "ENCODER_DIR_FIND", 11: "HOMING",
+}
+
+MAX_NODE_ID = 0x3F
+MAX_CMD_ID = 0x1F
+
+
+class FrameError(ValueError):
+    """A CANSimple frame whose id or payload does not fit the protocol."""
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """The part of the cyclic heartbeat the driver uses (bytes 0-3 error, byte 4 state)."""
+
+    axis_error: int
+    axis_state: int
+
+
+@dataclass(frozen=True)
+class EncoderEstimate:
+    """A Get_Encoder_Estimates payload: position in turns and velocity in turns/s."""
+
+    pos_rev: float
+    vel_rev_s: float
+
+
+def arbitration_id(node_id: int, cmd_id: int) -> int:
+    """The 11-bit CAN id of a command: ``node_id << 5 | cmd_id``."""
+    if not 0 <= node_id <= MAX_NODE_ID:
+        raise FrameError(f"node id must be 0..{MAX_NODE_ID}, got {node_id}")
+    if not 0 <= cmd_id <= MAX_CMD_ID:
+        raise FrameError(f"command id must be 0..{MAX_CMD_ID:#x}, got {cmd_id:#x}")
+    return node_id << 5 | cmd_id
+
+
+def split_arbitration_id(arb_id: int) -> tuple[int, int]:
+    """(node id, command id) of an 11-bit CANSimple id."""
+    if not 0 <= arb_id <= 0x7FF:
+        raise FrameError(f"CANSimple uses 11-bit ids, got {arb_id:#x}")
+    return arb_id >> 5, arb_id & MAX_CMD_ID
+
+
+def encode_set_input_vel(vel_rev_s: float, torque_ff_nm: float = 0.0) -> bytes:
+    """Set_Input_Vel payload: two little-endian float32, velocity [turn/s] and torque [Nm]."""
+    if not (math.isfinite(vel_rev_s) and math.isfinite(torque_ff_nm)):
+        raise FrameError(f"Set_Input_Vel needs finite values, got {vel_rev_s}, {torque_ff_nm}")
+    return struct.pack("<ff", vel_rev_s, torque_ff_nm)
+
+
+def encode_set_axis_state(state: int) -> bytes:
+    """Set_Axis_State payload: the requested state as little-endian uint32."""
+    return struct.pack("<I", state)
+
+
+def encode_set_controller_mode(control_mode: int, input_mode: int) -> bytes:
+    """Set_Controller_Mode payload: control mode and input mode as little-endian uint32."""
+    return struct.pack("<II", control_mode, input_mode)
+
+
+def decode_heartbeat(data: bytes) -> Heartbeat:
+    """Parse a heartbeat; only the axis error (bytes 0-3) and state (byte 4) are needed."""
+    if len(data) < 5:
+        raise FrameError(f"heartbeat needs at least 5 data bytes, got {len(data)}")
+    axis_error, axis_state = struct.unpack_from("<IB", data)
+    return Heartbeat(axis_error, axis_state)
+
+
+def decode_encoder_estimates(data: bytes) -> EncoderEstimate:
+    """Parse Get_Encoder_Estimates: position (bytes 0-3) and velocity (bytes 4-7), float32."""
+    if len(data) < 8:
+        raise FrameError(f"encoder estimates need 8 data bytes, got {len(data)}")
+    pos, vel = struct.unpack_from("<ff", data)
+    if not math.isfinite(pos):
+        raise FrameError(f"encoder position (bytes 0-3) is not finite: {pos}")
+    if not math.isfinite(vel):
+        raise FrameError(f"encoder velocity (bytes 4-7) is not finite: {vel}")
+    return EncoderEstimate(pos, vel)
+
+
+def axis_state_name(state: int) -> str:
+    return AXIS_STATE_NAMES.get(state, f"STATE_{state}")
+
+
+# -- the driver --------------------------------------------------------------------------------
+
+
+def _check_interface(name: str) -> str | None:
+    from can.interfaces import VALID_INTERFACES
+
+    if name in VALID_INTERFACES:
+        return None
+    return f"unknown python-can interface {name!r}; valid: {', '.join(sorted(VALID_INTERFACES))}"
+
+
+@dataclass
+class _Axis:
+    """What the driver knows about one ODrive axis (one wheel)."""
+
+    side: str
+    node_id: int
+    sign: float
+    heartbeat: Heartbeat | None = None
+    heartbeat_mono: float | None = None
+    estimate: EncoderEstimate | None = None
+    estimate_mono: float | None = None
+    command_rev_s: float = 0.0
+
+    def label(self) -> str:
+        return f"ODrive node {self.node_id} ({self.side})"
+
+    def forget(self) -> None:
+        self.heartbeat = self.heartbeat_mono = self.estimate = self.estimate_mono = None
+        self.command_rev_s = 0.0
+
+
+class _FrameListener:
+    """python-can listener handing frames (in the event loop) to the driver."""
+
+    def __init__(self, on_frame: Callable[[can.Message], None],
+                 on_error: Callable[[Exception], None]) -> None:
+        self._on_frame = on_frame
+        self._on_error = on_error
+
+    def __call__(self, msg: can.Message) -> None:
+        self._on_frame(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self._on_error(exc)
+
+
+class ODriveCanDriver(MotorDriver):
+    """Two ODrive axes (one per wheel) driven with CANSimple frames over python-can.
+
+    ``open()`` waits for both heartbeats, clears errors, zeroes the velocity input, selects
+    velocity control and requests closed-loop control, then waits until both heartbeats report
+    it and the first encoder estimates arrived. A background task turns a missing heartbeat, an
+    axis error, an axis leaving closed loop or stale encoder estimates into a fault (and zeroes
+    the velocity inputs at once). ``close()`` zeroes the inputs and puts both axes in IDLE.
+    """
+
+    OPTIONS: ClassVar[Options] = {
+        "interface": option(str, "socketcan", "python-can interface (socketcan on a Pi CAN "
+                            "HAT; virtual or udp_multicast for the emulator)",
+                            check=_check_interface),
+        "channel": option(str, "can0", "python-can channel (can0, a virtual bus name, or a "
+                          "multicast group for udp_multicast)"),
+        "bitrate": option(int, 0, "bit rate handed to python-can (0 = the interface's own "
+                          "setting; socketcan takes it from `ip link`)", minval=0),
+        "multicast_port": option(int, 43113, "UDP port of the udp_multicast interface",
+                                 minval=1, maxval=65535),
+        "left_node_id": option(int, 0, "CAN node id of the left wheel's axis",
+                               minval=0, maxval=MAX_NODE_ID),
+        "right_node_id": option(int, 1, "CAN node id of the right wheel's axis",
+                                minval=0, maxval=MAX_NODE_ID),
+        "left_inverted": option(bool, False, "left motor turns backwards for forward motion"),
+        "right_inverted": option(bool, True, "right motor turns backwards for forward motion "
+                                 "(mirrored mounting)"),
+        "gear_ratio": option(float, 1.0, "motor turns per wheel turn (1 for hub motors)",
+                             above=0.0),
+        "input_mode": option(str, "passthrough", "ODrive input mode in velocity control",
+                             choices=tuple(INPUT_MODES)),
+        "heartbeat_period_s": option(float, 0.1, "the ODrives' heartbeat period "
+                                     "(heartbeat_rate_ms / 1000)", above=0.0),
+        "heartbeat_misses": option(int, 3, "missed heartbeat periods that make a fault",
+                                   minval=1),
+        "encoder_timeout_s": option(float, 0.5, "fault when encoder estimates stop for this "
+                                    "long (0 = never)", minval=0.0),
+        "request_encoders": option(bool, False, "ask for encoder estimates with RTR frames "
+                                   "(when the cyclic encoder message is off)"),
+        "startup_timeout_s": option(float, 2.0, "how long open() waits for heartbeats, closed "
+                                    "loop and the first encoder estimates", above=0.0),
+        "clear_errors_on_open": option(bool, True, "send Clear_Errors before requesting "
+                                       "closed-loop control"),
+        "keepalive_period_s": option(float, 0.1, "resend the last Set_Input_Vel this often to "
+                                     "feed the ODrive watchdog (0 = off)", minval=0.0),
+    }
+
+    SEND_TIMEOUT_S = 0.05
+
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
+        super().__init__(opts, max_wheel_speed=max_wheel_speed)
+        if opts["left_node_id"] == opts["right_node_id"]:
+            raise ValueError("driver.odrive_can: left_node_id and right_node_id must differ "
+                             f"(both are {opts['left_node_id']})")
+        self._left = _Axis("left", opts["left_node_id"], -1.0 if opts["left_inverted"] else 1.0)
+        self._right = _Axis("right", opts["right_node_id"],
+                            -1.0 if opts["right_inverted"] else 1.0)
+        self._axes = {axis.node_id: axis for axis in (self._left, self._right)}
+        self._bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._frame_event: asyncio.Event | None = None
+        self.frames_rx = 0
+        self.frames_tx = 0
+        self.bad_frames = 0
+        self.last_bad_frame = ""
+
+    @classmethod
+    def name(cls) -> str:
+        return "odrive_can"
+
+    # -- unit conversion --------------------------------------------------------------------
+
+    def _rad_to_rev(self, axis: _Axis, rad: float) -> float:
+        return axis.sign * rad * float(self.options["gear_ratio"]) / (2 * math.pi)
+
+    def _rev_to_rad(self, axis: _Axis, rev: float) -> float:
+        return axis.sign * rev * 2 * math.pi / float(self.options["gear_ratio"])
+
+    # -- lifecycle --------------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        for axis in self._axes.values():
+            axis.forget()
+        self._frame_event = asyncio.Event()
+        self._bus = await asyncio.to_thread(self._connect)
+        try:
+            self._notifier = can.Notifier(
+                self._bus, [_FrameListener(self._on_frame, self._on_receive_error)],
+                timeout=0.1, loop=asyncio.get_running_loop())
+            await self._start_axes()
+        except BaseException:
+            await self._release_bus(idle=True)
+            raise
+        self._tasks = [asyncio.create_task(self._monitor(), name="odrive-monitor")]
+        if self.options["keepalive_period_s"] > 0:
+            self._tasks.append(asyncio.create_task(self._keepalive(), name="odrive-keepalive"))
+
+    def _connect(self) -> can.BusABC:
+        kwargs: dict[str, Any] = {}
+        if self.options["bitrate"]:
+            kwargs["bitrate"] = self.options["bitrate"]
+        if self.options["interface"] == "udp_multicast":
+            kwargs["port"] = self.options["multicast_port"]
+        return can.Bus(interface=self.options["interface"], channel=self.options["channel"],
+                       **kwargs)
+
+    async def _start_axes(self) -> None:
+        axes = list(self._axes.values())
+        await self._wait_until(lambda: all(a.heartbeat is not None for a in axes),
+                               "a heartbeat")
+        input_mode = INPUT_MODES[self.options["input_mode"]]
+        for axis in axes:
+            if self.options["clear_errors_on_open"]:
+                self._send(axis, CMD_CLEAR_ERRORS, b"\x00")
+            # zero the set-point first: entering closed loop must not resume an old velocity
+            self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(0.0))
+            self._send(axis, CMD_SET_CONTROLLER_MODE,
+                       encode_set_controller_mode(CONTROL_MODE_VELOCITY, input_mode))
+            self._send(axis, CMD_SET_AXIS_STATE, encode_set_axis_state(
+                AXIS_STATE_CLOSED_LOOP_CONTROL))
+        await self._wait_until(lambda: all(_in_closed_loop(a) for a in axes),
+                               "closed-loop control")
+        self._request_estimates()
+        await self._wait_until(lambda: all(a.estimate is not None for a in axes),
+                               "encoder estimates", poke=self._request_estimates)
+
+    async def _wait_until(self, done: Callable[[], bool], what: str,
+                          poke: Callable[[], None] | None = None) -> None:
+        assert self._frame_event is not None
+        deadline = time.monotonic() + float(self.options["startup_timeout_s"])
+        while not done():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DriverFault(f"waited {self.options['startup_timeout_s']} s for {what} on "
+                                  f"{self._where()}: {self._axes_summary()}")
+            self._frame_event.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._frame_event.wait(), min(remaining, 0.1))
+            if poke is not None:
+                poke()
+
+    async def _close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._tasks = []
+        await self._release_bus(idle=True)
+
+    async def _release_bus(self, *, idle: bool) -> None:
+        bus, notifier = self._bus, self._notifier
+        self._bus = self._notifier = None
+        if bus is None:
+            return
+        if idle:
+            self._zero_and_idle(bus)
+        if notifier is not None:
+            await asyncio.to_thread(notifier.stop, 1.0)
+        await asyncio.to_thread(bus.shutdown)
+
+    def _zero_and_idle(self, bus: can.BusABC) -> None:
+        """Best effort: zero velocity and IDLE on both axes, ignoring send errors."""
+        for axis in self._axes.values():
+            for cmd, data in ((CMD_SET_INPUT_VEL, encode_set_input_vel(0.0)),
+                              (CMD_SET_AXIS_STATE, encode_set_axis_state(AXIS_STATE_IDLE))):
+                with contextlib.suppress(can.CanError, OSError):
+                    bus.send(_frame(axis.node_id, cmd, data), timeout=self.SEND_TIMEOUT_S)
+                    self.frames_tx += 1
+
+    async def safe_stop(self) -> None:
+        """Zero both velocity inputs and put both axes in IDLE, without entering closed loop."""
+        try:
+            bus = await asyncio.to_thread(self._connect)
+        except (can.CanError, OSError, ValueError) as exc:
+            raise DriverFault(f"safe-stop: cannot open {self._where()}: {exc}") from exc
+        try:
+            self._zero_and_idle(bus)
+            idle = await asyncio.to_thread(self._confirm_idle, bus)
+        finally:
+            await asyncio.to_thread(bus.shutdown)
+        missing = [a.label() for a in self._axes.values() if a.node_id not in idle]
+        if missing:
+            raise DriverFault(f"safe-stop sent zero velocity and IDLE on {self._where()}, but "
+                              f"no IDLE heartbeat came back from {', '.join(missing)}")
+
+    def _confirm_idle(self, bus: can.BusABC) -> set[int]:
+        window = float(self.options["heartbeat_period_s"]) * (self.options["heartbeat_misses"]
+                                                              + 1)
+        deadline = time.monotonic() + window
+        idle: set[int] = set()
+        while idle != set(self._axes) and (remaining := deadline - time.monotonic()) > 0:
+            msg = bus.recv(remaining)
+            if msg is None or msg.is_remote_frame or msg.is_extended_id:
+                continue
+            node, cmd = split_arbitration_id(msg.arbitration_id)
+            if node in self._axes and cmd == CMD_HEARTBEAT:
+                with contextlib.suppress(FrameError):
+                    if decode_heartbeat(bytes(msg.data)).axis_state == AXIS_STATE_IDLE:
+                        idle.add(node)
+        return idle
+
+    # -- commands ---------------------------------------------------------------------------
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        moving = left_rad_s != 0.0 or right_rad_s != 0.0
+        reason = self.fault or self._link_fault(time.monotonic())
+        if reason and moving:
+            self.report_fault(reason)
+            raise DriverFault(f"refusing motion: {reason}")
+        for axis, rad_s in ((self._left, left_rad_s), (self._right, right_rad_s)):
+            rev_s = self._rad_to_rev(axis, rad_s)
+            self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(rev_s))
+            axis.command_rev_s = rev_s
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        if self.options["request_encoders"]:
+            self._request_estimates()
+        left, right = self._left, self._right
+        if left.estimate is None or right.estimate is None:
+            raise DriverFault(f"no encoder estimates yet on {self._where()}")
+        t_mono = max(left.estimate_mono or 0.0, right.estimate_mono or 0.0)
+        return EncoderReading(self._rev_to_rad(left, left.estimate.pos_rev),
+                              self._rev_to_rad(right, right.estimate.pos_rev), t_mono)
+
+    def _request_estimates(self) -> None:
+        if self.options["request_encoders"]:
+            for axis in self._axes.values():
+                self._send(axis, CMD_GET_ENCODER_ESTIMATES, b"", remote=True)
+
+    def _send(self, axis: _Axis, cmd: int, data: bytes, *, remote: bool = False) -> None:
+        if self._bus is None:
+            raise DriverFault("CAN bus is not open")
+        try:
+            self._bus.send(_frame(axis.node_id, cmd, data, remote=remote),
+                           timeout=self.SEND_TIMEOUT_S)
+        except (can.CanError, OSError) as exc:
+            raise DriverFault(f"CAN send of command {cmd:#04x} to {axis.label()} on "
+                              f"{self._where()} failed: {exc}") from exc
+        self.frames_tx += 1
+
+    # -- receive path and supervision --------------------------------------------------------
+
+    def _on_frame(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
+            return
+        node, cmd = split_arbitration_id(msg.arbitration_id)
+        axis = self._axes.get(node)
+        if axis is None or cmd not in (CMD_HEARTBEAT, CMD_GET_ENCODER_ESTIMATES):
+            return
+        self.frames_rx += 1
+        try:
+            if cmd == CMD_HEARTBEAT:
+                axis.heartbeat = decode_heartbeat(bytes(msg.data))
+                axis.heartbeat_mono = time.monotonic()
+            else:
+                axis.estimate = decode_encoder_estimates(bytes(msg.data))
+                axis.estimate_mono = time.monotonic()
+        except FrameError as exc:
+            self.bad_frames += 1
+            self.last_bad_frame = f"{axis.label()}, id {msg.arbitration_id:#05x}: {exc}"
+            return
+        if self._frame_event is not None:
+            self._frame_event.set()
+
+    def _on_receive_error(self, exc: Exception) -> None:
+        self.report_fault(f"CAN receive on {self._where()} failed: {exc}")
+
+    def _link_fault(self, now: float) -> str | None:
+        """Why the ODrives cannot be trusted right now, or ``None``."""
+        limit = float(self.options["heartbeat_period_s"]) * self.options["heartbeat_misses"]
+        encoder_limit = float(self.options["encoder_timeout_s"])
+        for axis in self._axes.values():
+            age = now - (axis.heartbeat_mono or 0.0)
+            if axis.heartbeat is None or age > limit:
+                return (f"no heartbeat from {axis.label()} for {age * 1e3:.0f} ms "
+                        f"(limit {limit * 1e3:.0f} ms)")
+            if axis.heartbeat.axis_error:
+                return (f"{axis.label()} reports axis error {axis.heartbeat.axis_error:#010x} "
+                        f"in state {axis_state_name(axis.heartbeat.axis_state)}")
+            if axis.heartbeat.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL:
+                return (f"{axis.label()} left closed-loop control "
+                        f"(axis state {axis_state_name(axis.heartbeat.axis_state)})")
+            estimate_age = now - (axis.estimate_mono or 0.0)
+            if encoder_limit > 0 and estimate_age > encoder_limit:
+                return (f"no encoder estimates from {axis.label()} for "
+                        f"{estimate_age * 1e3:.0f} ms (limit {encoder_limit * 1e3:.0f} ms)")
+        return None
+
+    async def _monitor(self) -> None:
+        period = float(self.options["heartbeat_period_s"]) / 2
+        while True:
+            await asyncio.sleep(period)
+            reason = self._link_fault(time.monotonic())
+            if reason and self.fault is None:
+                self.report_fault(reason)
+                if self._bus is not None:
+                    self._zero_inputs(self._bus)
+
+    def _zero_inputs(self, bus: can.BusABC) -> None:
+        for axis in self._axes.values():
+            axis.command_rev_s = 0.0
+            with contextlib.suppress(can.CanError, OSError):
+                bus.send(_frame(axis.node_id, CMD_SET_INPUT_VEL, encode_set_input_vel(0.0)),
+                         timeout=self.SEND_TIMEOUT_S)
+                self.frames_tx += 1
+
+    async def _keepalive(self) -> None:
+        period = float(self.options["keepalive_period_s"])
+        while True:
+            await asyncio.sleep(period)
+            if self.fault is not None:
+                continue
+            try:
+                for axis in self._axes.values():
+                    self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(axis.command_rev_s))
+            except DriverFault as exc:
+                self.report_fault(str(exc))
+
+    # -- reporting --------------------------------------------------------------------------
+
+    def _where(self) -> str:
+        return f"{self.options['interface']} channel {self.options['channel']!r}"
+
+    def _axes_summary(self) -> str:
+        parts = []
+        for axis in self._axes.values():
+            hb = axis.heartbeat
+            if hb is None:
+                parts.append(f"{axis.label()}: no heartbeat")
+            else:
+                parts.append(f"{axis.label()}: state {axis_state_name(hb.axis_state)}, "
+                             f"axis error {hb.axis_error:#010x}, "
+                             f"encoder estimates {'yes' if axis.estimate else 'none'}")
+        return "; ".join(parts)
+
+    def _health(self) -> dict[str, Any]:
+        now = time.monotonic()
+        return {
+            "interface": self.options["interface"],
+            "channel": self.options["channel"],
+            "frames_rx": self.frames_rx,
+            "frames_tx": self.frames_tx,
+            "bad_frames": self.bad_frames,
+            "last_bad_frame": self.last_bad_frame,
+            "axes": {axis.side: _axis_health(axis, now) for axis in self._axes.values()},
+        }
+
+
+def _axis_health(axis: _Axis, now: float) -> dict[str, Any]:
+    hb = axis.heartbeat
+    return {
+        "node_id": axis.node_id,
+        "axis_state": axis_state_name(hb.axis_state) if hb else None,
+        "axis_error": f"{hb.axis_error:#010x}" if hb else None,
+        "heartbeat_age_ms": round((now - axis.heartbeat_mono) * 1e3, 1)
+        if axis.heartbeat_mono is not None else None,
+        "encoder_age_ms": round((now - axis.estimate_mono) * 1e3, 1)
+        if axis.estimate_mono is not None else None,
+        "input_vel_rev_s": axis.command_rev_s,
+    }
+
+
+def _in_closed_loop(axis: _Axis) -> bool:
+    hb = axis.heartbeat
+    return hb is not None and hb.axis_error == 0 and hb.axis_state == AXIS_STATE_CLOSED_LOOP_CONTROL
+
+
+def _frame(node_id: int, cmd: int, data: bytes, *, remote: bool = False) -> can.Message:
+    if remote:
+        return can.Message(arbitration_id=arbitration_id(node_id, cmd), is_extended_id=False,
+                           is_remote_frame=True, dlc=8)
+    return can.Message(arbitration_id=arbitration_id(node_id, cmd), data=data,
+                       is_extended_id=False)
