@@ -1,0 +1,442 @@
+# Motor driver for an Arduino running ROSArduinoBridge firmware: CR-terminated lines over serial.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar
+
+from daemon.options import Options, defaults
+from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+
+MAX_REPLY_LINE = 64  # longest sane reply ("-2147483648 -2147483648" is 23 bytes)
+
+
+class ProtocolError(DriverFault):
+    """The board answered something that is not a ROSArduinoBridge reply."""
+
+
+# -- the wire protocol: pure functions, no I/O ------------------------------------------------
+
+def encode_command(letter: str, *args: int | str) -> bytes:
+    """A command line as the firmware reads it: letter, space-separated args, CR."""
+    return " ".join([letter, *map(str, args)]).encode("ascii") + b"\r"
+
+
+def encode_pid(kp: int, kd: int, ki: int, ko: int) -> bytes:
+    return encode_command("u", f"{kp}:{kd}:{ki}:{ko}")
+
+
+def rad_s_to_ticks(rad_s: float, counts_per_rev: int, pid_rate: float) -> int:
+    """Wheel speed as encoder ticks per PID frame, the unit of ``m L R``."""
+    return round(rad_s * counts_per_rev / (2 * math.pi) / pid_rate)
+
+
+def rad_s_to_pwm(rad_s: float, full_speed: float, max_pwm: int) -> int:
+    """Wheel speed as a raw PWM value for ``o L R`` (linear, clamped to ``±max_pwm``)."""
+    pwm = round(rad_s / full_speed * max_pwm) if full_speed > 0 else 0
+    return max(-max_pwm, min(max_pwm, pwm))
+
+
+def decode_line(raw: bytes) -> str:
+    """One reply line without its CRLF; anything but printable ASCII is a garbled reply."""
+    text = raw.rstrip(b"\r")
+    if not all(0x20 <= byte < 0x7F for byte in text):
+        raise ProtocolError(f"garbled reply {raw!r}: non-printable byte")
+    return text.decode("ascii")
+
+
+def parse_ok(command: str, line: str) -> None:
+    if line != "OK":
+        raise ProtocolError(f"reply to {command!r} was {line!r}, expected 'OK'")
+
+
+def parse_counts(line: str) -> tuple[int, int]:
+    """The reply to ``e``: two signed encoder counts."""
+    parts = line.split()
+    if len(parts) != 2 or not all(_is_integer(part) for part in parts):
+        raise ProtocolError(f"reply to 'e' was {line!r}, expected two integers")
+    return int(parts[0]), int(parts[1])
+
+
+def parse_baud(line: str) -> int:
+    if not _is_integer(line.strip()):
+        raise ProtocolError(f"reply to 'b' was {line!r}, expected the baud rate")
+    return int(line)
+
+
+def _is_integer(text: str) -> bool:
+    return text.lstrip("+-").isdigit() and len(text) <= 11
+
+
+def count_delta(new: int, old: int) -> int:
+    """Counts moved between two readings of a signed 32-bit counter, across wrap-around."""
+    return (new - old + 2**31) % 2**32 - 2**31
+
+
+class LineSplitter:
+    """Bytes in, complete ``\\n``-terminated lines out; an endless line is a garbled stream."""
+
+    def __init__(self, max_line: int = MAX_REPLY_LINE) -> None:
+        self.max_line = max_line
+        self._buffer = bytearray()
+
+    def feed(self, data: bytes) -> list[bytes]:
+        self._buffer += data
+        *lines, rest = self._buffer.split(b"\n")
+        self._buffer = bytearray(rest)
+        if len(self._buffer) > self.max_line:
+            raise ProtocolError(f"garbled reply: {len(self._buffer)} bytes without a line end")
+        return [bytes(line) for line in lines]
+
+
+# -- I/O: one serial port, driven by the event loop --------------------------------------------
+
+class BridgeLink:
+    """Request/reply over an open serial port, without threads: non-blocking fd + add_reader.
+
+    Requests are written at once (never queued behind a slow one) and replies are matched to
+    them in order, as the firmware answers one line per command. A timeout, a garbled line or
+    an unexpected line poisons the link (``error`` set); a read error or EOF marks it lost.
+    """
+
+    def __init__(self, port: Any, on_fault: Callable[[str], None]) -> None:
+        self._port = port
+        self._fd: int = port.fileno()
+        self._loop = asyncio.get_running_loop()
+        self._on_fault = on_fault
+        self._splitter = LineSplitter()
+        self._pending: deque[tuple[str, asyncio.Future[str]]] = deque()
+        self._out = bytearray()
+        self.error: str | None = None
+        self.lost = False
+        self.last_rx_mono = 0.0
+        self._loop.add_reader(self._fd, self._on_readable)
+
+    async def request(self, line: bytes, reply_within_s: float) -> str:
+        """Send one command and return its reply line."""
+        command = line.decode("ascii").rstrip("\r")
+        if self.error is not None:
+            raise DriverFault(self.error)
+        future: asyncio.Future[str] = self._loop.create_future()
+        self._pending.append((command, future))
+        self.send(line)
+        try:
+            return await asyncio.wait_for(asyncio.shield(future), reply_within_s)
+        except TimeoutError:
+            self._poison(f"no reply to {command!r} within {reply_within_s:g} s")
+            raise DriverFault(self.error or "timeout") from None
+
+    def send(self, data: bytes) -> None:
+        """Write bytes without waiting for a reply (also used on a poisoned link to stop)."""
+        if self.lost:
+            raise DriverFault(self.error or "serial port lost")
+        if not self._out:
+            try:
+                written = os.write(self._fd, data)
+            except BlockingIOError:
+                written = 0
+            except OSError as exc:
+                self._lose(f"serial write failed: {exc}")
+                raise DriverFault(self.error or str(exc)) from None
+            data = data[written:]
+            if not data:
+                return
+            self._loop.add_writer(self._fd, self._on_writable)
+        self._out += data
+
+    def close(self) -> None:
+        self._loop.remove_reader(self._fd)
+        self._loop.remove_writer(self._fd)
+        self._fail_pending(DriverFault("serial link closed"))
+        self._port.close()
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self._fd, 1024)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._lose(f"serial port vanished: {exc}")
+            return
+        if not data:
+            self._lose("serial port vanished (end of file)")
+            return
+        self.last_rx_mono = time.monotonic()
+        try:
+            for raw in self._splitter.feed(data):
+                self._dispatch(decode_line(raw))
+        except ProtocolError as exc:
+            self._poison(str(exc))
+
+    def _dispatch(self, line: str) -> None:
+        if not self._pending:
+            raise ProtocolError(f"unexpected line from the board: {line!r}")
+        _, future = self._pending.popleft()
+        if not future.done():
+            future.set_result(line)
+
+    def _on_writable(self) -> None:
+        try:
+            written = os.write(self._fd, self._out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._lose(f"serial write failed: {exc}")
+            return
+        del self._out[:written]
+        if not self._out:
+            self._loop.remove_writer(self._fd)
+
+    def _poison(self, reason: str) -> None:
+        if self.error is None:
+            self.error = reason
+        self._fail_pending(DriverFault(reason))
+        self._on_fault(reason)
+
+    def _lose(self, reason: str) -> None:
+        self.lost = True
+        self._loop.remove_reader(self._fd)
+        self._loop.remove_writer(self._fd)
+        self._out.clear()
+        self._poison(reason)
+
+    def _fail_pending(self, exc: DriverFault) -> None:
+        while self._pending:
+            _, future = self._pending.popleft()
+            if not future.done():
+                future.set_exception(exc)
+                future.exception()  # mark retrieved: nobody may be waiting any more
+
+
+# -- the driver ---------------------------------------------------------------------------------
+
+class SerialBridgeDriver(MotorDriver):
+    """Drives an Arduino running ROSArduinoBridge over USB serial.
+
+    Closed loop (default): ``m L R`` in encoder ticks per PID frame; open loop: ``o L R`` raw
+    PWM. Encoders are polled with ``e`` in the background; a held speed is re-sent before the
+    firmware's 2 s auto-stop. A timeout, a garbled reply or a vanished port marks the driver
+    faulted; ``close()`` + ``open()`` reconnects (opening resets the board, so ``open`` waits
+    ``reset_wait_s``). Wheel positions stay continuous across reconnects.
+    """
+
+    OPTIONS: ClassVar[Options] = {
+        "port": option(str, "/dev/ttyACM0", "serial device of the board (a udev symlink is best)"),
+        "baudrate": option(int, 57600, "serial speed, the firmware's BAUDRATE", minval=300),
+        "mode": option(str, "closed_loop", "closed_loop: 'm' ticks per PID frame; "
+                       "open_loop: 'o' raw PWM", choices=("closed_loop", "open_loop")),
+        "pid_rate": option(float, 30.0, "the firmware's PID_RATE in Hz ('m' is ticks per frame)",
+                           above=0),
+        "counts_per_rev": option(int, 1440, "encoder counts per wheel revolution", minval=1),
+        "pid_p": option(int, 20, "Kp sent with 'u' on open; 0 keeps the firmware's gains",
+                        minval=0),
+        "pid_d": option(int, 12, "Kd sent with 'u' on open", minval=0),
+        "pid_i": option(int, 0, "Ki sent with 'u' on open", minval=0),
+        "pid_o": option(int, 50, "Ko (output divisor) sent with 'u' on open", minval=1),
+        "max_pwm": option(int, 255, "PWM value at full speed (open_loop)", minval=1, maxval=255),
+        "full_pwm_speed": option(float, 0.0, "wheel speed in rad/s at max_pwm (open_loop); "
+                                 "0 = the robot's max wheel speed", minval=0),
+        "encoders": option(bool, True, "poll 'e' for wheel positions (closed-loop odometry)"),
+        "poll_rate": option(float, 0.0, "encoder polls per second; 0 = pid_rate", minval=0),
+        "timeout_s": option(float, 0.25, "seconds to wait for a reply before faulting", above=0),
+        "reset_wait_s": option(float, 2.0, "seconds to wait after opening the port while the "
+                               "board resets", minval=0),
+        "keepalive_s": option(float, 0.5, "re-send a held non-zero speed after this many "
+                              "seconds (the firmware auto-stops after 2 s)", above=0),
+        "invert_left": option(bool, False, "left motor and encoder mounted mirrored"),
+        "invert_right": option(bool, False, "right motor and encoder mounted mirrored"),
+    }
+
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        super().__init__(_validated(self.OPTIONS, options), max_wheel_speed=max_wheel_speed)
+        opts = self.options
+        self._signs = (-1 if opts["invert_left"] else 1, -1 if opts["invert_right"] else 1)
+        self._link: BridgeLink | None = None
+        self._poll_task: asyncio.Task[None] | None = None
+        self._wire_command = encode_command("m", 0, 0)
+        self._wire_sent_mono = 0.0
+        self._last_counts: tuple[int, int] | None = None
+        self._position_counts = [0, 0]
+        self._reading: EncoderReading | None = None
+        self.opens = 0
+        self.polls = 0
+        self.keepalives = 0
+        self.last_rtt_s = 0.0
+
+    @classmethod
+    def name(cls) -> str:
+        return "serial"
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        port = await asyncio.to_thread(self._open_port)
+        self.fault = None
+        try:
+            await asyncio.sleep(self.options["reset_wait_s"])
+            port.reset_input_buffer()
+            self._link = BridgeLink(port, self.report_fault)
+            await self._handshake()
+        except BaseException:
+            self._drop_link() if self._link is not None else port.close()
+            raise
+        self.opens += 1
+        self._poll_task = asyncio.create_task(self._poll_loop(), name="serial-driver-poll")
+
+    def _open_port(self) -> Any:
+        import serial  # pyserial; imported here so the module imports without it
+
+        try:
+            return serial.Serial(self.options["port"], self.options["baudrate"], timeout=0,
+                                 write_timeout=0, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DriverFault(f"cannot open serial port {self.options['port']}: {exc}") from None
+
+    async def _handshake(self) -> None:
+        """Check the board answers, take an encoder baseline, set the gains, stop the motors."""
+        self._last_counts = None
+        await self._poll_encoders()
+        opts = self.options
+        if opts["pid_p"] > 0:
+            line = encode_pid(opts["pid_p"], opts["pid_d"], opts["pid_i"], opts["pid_o"])
+            parse_ok("u", await self._request(line))
+        await self._send_speeds(0.0, 0.0)
+
+    async def _close(self) -> None:
+        if self._poll_task is not None:
+            self._poll_task.cancel()
+            await asyncio.gather(self._poll_task, return_exceptions=True)
+            self._poll_task = None
+        if self._link is not None and self.fault is not None:
+            self._stop_without_reply()
+        self._drop_link()
+
+    def _drop_link(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    def _stop_without_reply(self) -> None:
+        """Best effort after a fault: the port may still carry a stop the board understands."""
+        if self._link is not None and not self._link.lost:
+            with contextlib.suppress(DriverFault):
+                self._link.send(self._stop_command())
+
+    # -- commands ----------------------------------------------------------------------------
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        if self.fault is not None:
+            self._refuse_after_fault(left_rad_s, right_rad_s)
+        await self._send_speeds(left_rad_s, right_rad_s)
+
+    def _refuse_after_fault(self, left_rad_s: float, right_rad_s: float) -> None:
+        if left_rad_s == 0 and right_rad_s == 0:
+            self._stop_without_reply()
+        raise DriverFault(f"driver faulted: {self.fault}")
+
+    async def _send_speeds(self, left_rad_s: float, right_rad_s: float) -> None:
+        line = self._speed_command(left_rad_s * self._signs[0], right_rad_s * self._signs[1])
+        command = line.decode("ascii").rstrip("\r")
+        self._wire_command, self._wire_sent_mono = line, time.monotonic()
+        parse_ok(command.split()[0], await self._request(line))
+
+    def _speed_command(self, left: float, right: float) -> bytes:
+        opts = self.options
+        if opts["mode"] == "open_loop":
+            full = opts["full_pwm_speed"] or self.max_wheel_speed
+            return encode_command("o", rad_s_to_pwm(left, full, opts["max_pwm"]),
+                                  rad_s_to_pwm(right, full, opts["max_pwm"]))
+        cpr, rate = opts["counts_per_rev"], opts["pid_rate"]
+        return encode_command("m", rad_s_to_ticks(left, cpr, rate),
+                              rad_s_to_ticks(right, cpr, rate))
+
+    def _stop_command(self) -> bytes:
+        return encode_command("o" if self.options["mode"] == "open_loop" else "m", 0, 0)
+
+    async def _request(self, line: bytes) -> str:
+        if self._link is None:
+            raise DriverFault("serial link is not open")
+        start = time.monotonic()
+        reply = await self._link.request(line, self.options["timeout_s"])
+        self.last_rtt_s = time.monotonic() - start
+        return reply
+
+    # -- encoders and keep-alive -------------------------------------------------------------
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        if not self.options["encoders"]:
+            return None
+        if self.fault is not None:
+            raise DriverFault(f"driver faulted: {self.fault}")
+        return self._reading
+
+    async def _poll_loop(self) -> None:
+        period = 1.0 / (self.options["poll_rate"] or self.options["pid_rate"])
+        deadline = time.monotonic()
+        while self.fault is None:
+            deadline = max(deadline + period, time.monotonic())
+            await asyncio.sleep(deadline - time.monotonic())
+            try:
+                if self.options["encoders"]:
+                    await self._poll_encoders()
+                await self._keep_alive()
+            except DriverFault as exc:
+                self.report_fault(str(exc))
+
+    async def _poll_encoders(self) -> None:
+        sent = time.monotonic()
+        counts = parse_counts(await self._request(encode_command("e")))
+        self.polls += 1
+        self._absorb_counts(counts, (sent + time.monotonic()) / 2)
+
+    def _absorb_counts(self, counts: tuple[int, int], t_mono: float) -> None:
+        """Accumulate counts as deltas, so a board reset or a reconnect causes no jump."""
+        if self._last_counts is not None:
+            for side in (0, 1):
+                moved = count_delta(counts[side], self._last_counts[side])
+                self._position_counts[side] += moved * self._signs[side]
+        self._last_counts = counts
+        cpr = self.options["counts_per_rev"]
+        left, right = (2 * math.pi * c / cpr for c in self._position_counts)
+        self._reading = EncoderReading(left, right, t_mono)
+
+    async def _keep_alive(self) -> None:
+        """Re-send a held non-zero command before the firmware's auto-stop fires."""
+        held = time.monotonic() - self._wire_sent_mono
+        if self._wire_command == self._stop_command() or held < self.options["keepalive_s"]:
+            return
+        line = self._wire_command
+        self._wire_sent_mono = time.monotonic()
+        parse_ok(line[:1].decode(), await self._request(line))
+        self.keepalives += 1
+
+    def _health(self) -> dict[str, Any]:
+        return {
+            "port": self.options["port"],
+            "mode": self.options["mode"],
+            "opens": self.opens,
+            "encoder_polls": self.polls,
+            "keepalives": self.keepalives,
+            "last_reply_ms": round(self.last_rtt_s * 1e3, 3),
+            "wire_command": self._wire_command.decode("ascii").rstrip("\r"),
+        }
+
+
+def _validated(declared: Options, given: Mapping[str, Any]) -> dict[str, Any]:
+    """Defaults plus the given options, each checked (a driver may be built without the loader)."""
+    unknown = sorted(set(given) - set(declared))
+    if unknown:
+        raise ValueError(f"[driver.serial] unknown option(s): {', '.join(unknown)}; "
+                         f"valid: {', '.join(sorted(declared))}")
+    values = defaults(declared)
+    for key, value in given.items():
+        normalised, error = declared[key].validate(value)
+        if error:
+            raise ValueError(f"[driver.serial] {key}: {error}")
+        values[key] = normalised
+    return values
