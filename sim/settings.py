@@ -1,0 +1,129 @@
+# The [sim] config section: option declarations and the validated simulator settings.
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from daemon.options import Option, Options, defaults
+from sim.noise import NoiseConfig
+from sim.world import Pose
+
+SIM_DRIVERS = ("mock", "l298n", "pigpio", "serial", "odrive_can")
+
+SIM_OPTIONS: Options = {
+    "driver": Option(str, "serial", "which emulator --sim wires to the real driver",
+                     choices=SIM_DRIVERS),
+    "seed": Option(int, 1, "seed of the obstacle placement and of every noise stream",
+                   minval=0),
+    "world_file": Option(str, "", "world file (.toml or .json) to load; '' = generated arena"),
+    "arena_size": Option(float, 16.0, "side of the generated square arena (m)", above=2.0,
+                         maxval=1000.0),
+    "obstacles": Option(int, 8, "number of circular obstacles in the generated arena",
+                        minval=0, maxval=200),
+    "obstacle_radius_min": Option(float, 0.3, "smallest generated obstacle radius (m)",
+                                  above=0.0),
+    "obstacle_radius_max": Option(float, 0.6, "largest generated obstacle radius (m)",
+                                  above=0.0),
+    "start_clearance": Option(float, 1.5, "no generated obstacle within this distance of the "
+                              "start position (m)", minval=0.0),
+    "start_pose": Option(list, [0.0, 0.0, 0.0], "start pose [x m, y m, theta rad] of the "
+                         "generated arena", item=float, length=3),
+    "footprint_radius": Option(float, 0.2, "radius of the robot's round footprint (m)",
+                               above=0.0),
+    "physics_rate": Option(float, 50.0, "physics steps per second of simulated time",
+                           minval=10.0, maxval=2000.0),
+    "lidar_rate": Option(float, 10.0, "lidar revolutions per second", minval=1.0,
+                         maxval=50.0),
+    "lidar_rays": Option(int, 360, "rays per lidar revolution", minval=8, maxval=8192),
+    "range_min": Option(float, 0.1, "nearest lidar return (m)", minval=0.0),
+    "range_max": Option(float, 10.0, "farthest lidar return (m)", above=0.0),
+    "noise": Option(bool, True, "inject noise and slip (false: exact runs)"),
+    "lidar_noise": Option(float, 0.02, "Gaussian lidar range noise sigma (m)", minval=0.0),
+    "odom_noise": Option(float, 0.005, "Gaussian encoder noise sigma per step (m)",
+                         minval=0.0),
+    "wheel_slip": Option(float, 0.0, "fraction of wheel travel lost at the ground",
+                         minval=0.0, below=1.0),
+    "motor_time_constant": Option(float, 0.05, "first-order wheel motor time constant (s)",
+                                  minval=0.0, maxval=5.0),
+    "motor_max_speed": Option(float, 40.0, "wheel motor saturation speed (rad/s)",
+                              above=0.0),
+    "metrics_csv": Option(str, "", "stream run metrics to this CSV file ('' = off)"),
+    "metrics_rate": Option(float, 10.0, "metrics CSV rows per second of simulated time",
+                           above=0.0, maxval=1000.0),
+}
+
+
+class SimConfigError(ValueError):
+    """A [sim] setting that is invalid on its own or together with another key."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Validated [sim] settings, ready for :class:`sim.stepper.SimWorld`."""
+
+    driver: str = "serial"
+    seed: int = 1
+    world_file: str = ""
+    arena_size: float = 16.0
+    obstacles: int = 8
+    obstacle_radius_min: float = 0.3
+    obstacle_radius_max: float = 0.6
+    start_clearance: float = 1.5
+    start_pose: Pose = field(default_factory=Pose)
+    footprint_radius: float = 0.2
+    physics_rate: float = 50.0
+    lidar_rate: float = 10.0
+    lidar_rays: int = 360
+    range_min: float = 0.1
+    range_max: float = 10.0
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    motor_time_constant: float = 0.05
+    motor_max_speed: float = 40.0
+    metrics_csv: str = ""
+    metrics_rate: float = 10.0
+
+    @classmethod
+    def from_section(cls, section: Mapping[str, Any] | None = None) -> SimConfig:
+        """Build from a [sim] section (missing keys take their defaults); every value is
+        checked against :data:`SIM_OPTIONS` and the keys are checked against each other."""
+        values = _validated(section or {})
+        _check_pairs(values)
+        x, y, theta = values.pop("start_pose")
+        noise = NoiseConfig(enabled=values.pop("noise"), lidar_sigma=values.pop("lidar_noise"),
+                            odom_sigma=values.pop("odom_noise"),
+                            wheel_slip=values.pop("wheel_slip"), seed=values["seed"])
+        return cls(start_pose=Pose(x, y, theta), noise=noise, **values)
+
+    @property
+    def physics_dt(self) -> float:
+        return 1.0 / self.physics_rate
+
+    def exact(self) -> SimConfig:
+        """The same settings with every noise source switched off."""
+        return replace(self, noise=replace(self.noise, enabled=False))
+
+
+def _validated(section: Mapping[str, Any]) -> dict[str, Any]:
+    values = defaults(SIM_OPTIONS)
+    for key, raw in section.items():
+        option = SIM_OPTIONS.get(key)
+        if option is None:
+            raise SimConfigError(f"[sim] {key}: unknown key (valid keys: "
+                                 f"{', '.join(sorted(SIM_OPTIONS))})")
+        value, error = option.validate(raw)
+        if error:
+            raise SimConfigError(f"[sim] {key}: {error}")
+        values[key] = value
+    return values
+
+
+def _check_pairs(values: Mapping[str, Any]) -> None:
+    if values["range_min"] >= values["range_max"]:
+        raise SimConfigError(f"[sim] range_min ({values['range_min']}) must be < range_max "
+                             f"({values['range_max']})")
+    if values["obstacle_radius_min"] > values["obstacle_radius_max"]:
+        raise SimConfigError(f"[sim] obstacle_radius_min ({values['obstacle_radius_min']}) "
+                             f"must be <= obstacle_radius_max "
+                             f"({values['obstacle_radius_max']})")
+

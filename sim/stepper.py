@@ -1,0 +1,262 @@
+# SimWorld: world, physics, motors, lidar, noise and metrics behind one fixed-rate stepper.
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from sim.metrics import RunMetrics
+from sim.motor_model import MotorPair
+from sim.noise import Noise
+from sim.physics import DiffDrivePhysics, RobotGeometry, make_motors
+from sim.raycast import RayCaster, ray_angles
+from sim.settings import SimConfig
+from sim.world import Pose, World, generated_world, load_world
+
+log = logging.getLogger(__name__)
+
+#: Fall this far behind real time (s) and the real-time runner skips ahead instead of racing.
+MAX_LAG_S = 0.5
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """The robot's true state at simulated time ``t`` (s since the world was built)."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+    v: float
+    w: float
+    collisions: int
+    in_contact: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"t": round(self.t, 6), "x": self.x, "y": self.y, "theta": self.theta,
+                "v": self.v, "w": self.w, "collisions": self.collisions,
+                "in_contact": self.in_contact}
+
+
+def build_world(config: SimConfig) -> World:
+    """The world the settings describe: the world file, or the seeded arena."""
+    if config.world_file:
+        return load_world(config.world_file)
+    return generated_world(config.seed, size=config.arena_size, obstacles=config.obstacles,
+                           radius_min=config.obstacle_radius_min,
+                           radius_max=config.obstacle_radius_max, start=config.start_pose,
+                           start_clearance=config.start_clearance)
+
+
+class SimWorld:
+    """The simulated robot in its world, stepped at ``physics_rate``.
+
+    Step it yourself (:meth:`step`, :meth:`advance`) for exact, reproducible runs faster than
+    real time, or :meth:`start` a thread that steps it in real time for the daemon. The
+    emulators share :attr:`motors` (a :class:`MotorPair` with ``clock=None``): they command
+    and read it, the world advances it. ``wheel_sign`` is -1 when the emulated hardware turns
+    the wheels backwards to drive forwards. With ``internal_scans`` the world also casts a
+    full scan at ``lidar_rate`` into :attr:`latest_scan` (tests and benchmarks; the daemon's
+    lidar asks :meth:`scan_ranges` instead). Every public method is thread-safe.
+    """
+
+    def __init__(self, config: SimConfig | None = None, *, wheel_radius: float = 0.05,
+                 wheel_separation: float = 0.30, motors: MotorPair | None = None,
+                 world: World | None = None, wheel_sign: int = 1,
+                 internal_scans: bool = False) -> None:
+        self.config = config or SimConfig()
+        if motors is not None and getattr(motors, "_clock", None) is not None:
+            raise ValueError("the world steps the motors: pass a MotorPair made with clock=None")
+        self.world = world or build_world(self.config)
+        self.motors = motors or make_motors(self.config.motor_max_speed,
+                                            self.config.motor_time_constant)
+        self.geometry = RobotGeometry(wheel_radius, wheel_separation,
+                                      self.config.footprint_radius)
+        self.noise = Noise(self.config.noise)
+        self.physics = DiffDrivePhysics(self.world, self.motors, self.geometry, self.noise,
+                                        wheel_sign=wheel_sign)
+        self.lidar = RayCaster(self.world, ray_angles(self.config.lidar_rays),
+                               self.config.range_min, self.config.range_max)
+        self.metrics = RunMetrics(self.config.metrics_csv or None, self.config.metrics_rate)
+        self.internal_scans = internal_scans
+        self.latest_scan: np.ndarray | None = None
+        self.latest_scan_time = 0.0
+        self.steps = 0
+        self.overruns = 0
+        self.error: str | None = None
+        self._dt = self.config.physics_dt
+        self._next_scan = 0.0
+        self._device_caster: RayCaster | None = None
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- stepping -------------------------------------------------------------------------
+
+    @property
+    def time(self) -> float:
+        """Simulated seconds since the world was built."""
+        return self.steps * self._dt
+
+    def step(self) -> None:
+        """One physics step of ``1/physics_rate`` seconds (and a scan when one is due)."""
+        with self._cond:
+            self.physics.step(self._dt)
+            self.steps += 1
+            state = self.physics.state
+            self.metrics.record(self._dt, state.x, state.y, state.theta, state.v, state.w,
+                                state.travelled, state.collisions)
+            if self.internal_scans and self.time + 1e-9 >= self._next_scan:
+                self.latest_scan = self.noise.lidar(self.lidar.cast(state.x, state.y,
+                                                                    state.theta))
+                self.latest_scan_time = self.time
+                self._next_scan = self.time + 1.0 / self.config.lidar_rate
+            self._cond.notify_all()
+
+    def advance(self, seconds: float) -> None:
+        """Step ``round(seconds * physics_rate)`` times, as fast as possible."""
+        for _ in range(round(seconds * self.config.physics_rate)):
+            self.step()
+
+    def command_twist(self, v: float, w: float) -> None:
+        """Set the wheel motors' targets for a body twist (tests and benchmarks; the daemon
+        commands the motors through a driver and an emulator instead)."""
+        half = w * self.geometry.wheel_separation / 2.0
+        sign, radius = self.physics.wheel_sign, self.geometry.wheel_radius
+        self.motors.set_targets(sign * (v - half) / radius, sign * (v + half) / radius)
+
+    # -- real time ------------------------------------------------------------------------
+
+    def start(self, speed: float = 1.0) -> None:
+        """Step on a background thread at ``speed`` x real time (1.0 for the daemon)."""
+        if speed <= 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        if self._thread is not None and self._thread.is_alive():
+            raise RuntimeError("the simulated world is already running")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, args=(speed,), name="sim-world",
+                                        daemon=True)
+        self._thread.start()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def stop(self) -> None:
+        """Stop the real-time thread (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def close(self) -> None:
+        """Stop stepping and close the metrics CSV."""
+        self.stop()
+        with self._cond:
+            self.metrics.close()
+
+    def _run(self, speed: float) -> None:
+        period = self._dt / speed
+        deadline = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                self.step()
+                deadline += period
+                delay = deadline - time.monotonic()
+                if delay > 0:
+                    self._stop.wait(delay)
+                elif delay < -MAX_LAG_S:
+                    self.overruns += 1
+                    deadline = time.monotonic()
+        except Exception as exc:  # reported in health(); the daemon keeps running
+            log.exception("simulated world stopped")
+            self.error = f"world step failed: {exc}"
+
+    def wait_until(self, sim_time: float, timeout: float) -> bool:
+        """Block until simulated time reaches ``sim_time``; False after ``timeout`` real s."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self.time + 1e-9 >= sim_time, timeout)
+
+    # -- what the daemon and the emulators read -------------------------------------------
+
+    def ground_truth(self) -> GroundTruth:
+        with self._cond:
+            s = self.physics.state
+            return GroundTruth(self.time, s.x, s.y, s.theta, s.v, s.w, s.collisions,
+                               s.in_contact)
+
+    def scan_ranges(self, angles_rad: np.ndarray, t: float) -> np.ndarray:
+        """Ranges (m, ``inf`` = no return) at the lidar's own angles, for the RPLIDAR emulator.
+
+        ``angles_rad`` follow the RPLIDAR convention: clockwise from straight ahead, seen from
+        above. ``t`` is accepted for the emulator's signature; the pose used is the current
+        one (the world runs in real time beside the emulator). Noise is added when enabled.
+        """
+        del t
+        angles = np.asarray(angles_rad, dtype=float)
+        caster = self._device_caster
+        if caster is None or not np.array_equal(caster.angles, -angles):
+            caster = RayCaster(self.world, -angles, self.config.range_min,
+                               self.config.range_max)
+            self._device_caster = caster
+        return self.noise.lidar(caster.cast(*self._pose()))
+
+    def scan(self) -> np.ndarray:
+        """A full scan now: ``lidar_rays`` ranges counter-clockwise from straight ahead
+        (the ROS LaserScan convention), with noise when enabled."""
+        return self.noise.lidar(self.lidar.cast(*self._pose()))
+
+    def exact_range(self, angle_ccw: float) -> float:
+        """The noise-free ray-cast distance along one angle (rad, counter-clockwise)."""
+        caster = RayCaster(self.world, np.array([angle_ccw]), self.config.range_min,
+                           self.config.range_max)
+        return float(caster.cast(*self._pose())[0])
+
+    def _pose(self) -> tuple[float, float, float]:
+        with self._cond:
+            s = self.physics.state
+            return s.x, s.y, s.theta
+
+    def reset(self, pose: Pose | None = None) -> GroundTruth:
+        """Teleport the robot (default: the world's start pose) and start a new metrics run.
+
+        Raises ``ValueError`` naming the problem when the pose is not finite or puts the
+        footprint on an obstacle. The motors are left as they are (the driver owns them).
+        """
+        target = pose or self.world.start
+        with self._cond:
+            self.physics.place(target)
+            self.metrics.reset()
+            self.latest_scan = None
+        return self.ground_truth()
+
+    def metrics_summary(self) -> dict[str, Any]:
+        """The current run's metrics, for ``GET /api/sim/metrics``."""
+        with self._cond:
+            return {**self.metrics.summary(), "sim_time_s": round(self.time, 6)}
+
+    def health(self) -> dict[str, Any]:
+        """State for ``/api/health`` (status error when the real-time thread died)."""
+        with self._cond:
+            state = self.physics.state
+            return {
+                "status": "error" if self.error else "ok",
+                "error": self.error,
+                "running": self.running,
+                "sim_time_s": round(self.time, 3),
+                "overruns": self.overruns,
+                "collisions": state.collisions,
+                "noise": self.config.noise.enabled,
+                "obstacles": len(self.world.circles),
+                "walls": len(self.world.segments),
+            }
+
+
+def heading_error(a: float, b: float) -> float:
+    """Smallest absolute difference between two headings (rad)."""
+    return abs(math.atan2(math.sin(a - b), math.cos(a - b)))
