@@ -22,8 +22,8 @@ from daemon.http_api import HttpServer, json_response
 from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
-from daemon.security import Security
 from daemon.probe import build_driver
+from daemon.security import Security
 from drivers import DriverError
 
 log = logging.getLogger("arbiterd")

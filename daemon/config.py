@@ -1,6 +1,7 @@
 # Strict TOML configuration: every key declared, typed and range-checked; every problem reported.
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
 import tomllib
@@ -203,15 +204,9 @@ def _validate(flat: dict[str, dict[str, Any]], tables: dict[str, Options], sourc
 
 
 def _unknown_key(source: str, section: str, key: str, options: Options) -> str:
-    close = [k for k in options if _similar(k, key)]
+    close = difflib.get_close_matches(key, list(options), n=1, cutoff=0.7)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
     return f"{source}: [{section}] {key}: unknown key{hint}"
-
-
-def _similar(a: str, b: str) -> bool:
-    import difflib
-
-    return difflib.SequenceMatcher(None, a, b).ratio() > 0.8
 
 
 def _read_token(security: Mapping[str, Any], source: str, problems: list[str]) -> str:

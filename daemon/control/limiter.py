@@ -53,8 +53,8 @@ class AxisLimiter:
     def _rate_limit(self, target: float, emergency: bool) -> float:
         if emergency:
             return self.limits.emergency_deceleration
-        slowing = abs(target) < abs(self.velocity) or math.copysign(1, target) != math.copysign(
-            1, self.velocity) and self.velocity != 0.0
+        slowing = abs(target) < abs(self.velocity) or (math.copysign(1, target) != math.copysign(
+            1, self.velocity) and self.velocity != 0.0)
         return self.limits.max_deceleration if slowing else self.limits.max_acceleration
 
     def reset(self) -> None:

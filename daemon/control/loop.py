@@ -113,14 +113,15 @@ class ControlLoop:
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
                      priority: int = 10) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
-        if self._stopping:
-            return Applied(False, None, self.wheels, [], None, "daemon is shutting down")
+        refusal = self._refusal_reason()
+        if refusal:
+            return Applied(False, self.decision.source, self.wheels, [], None, refusal)
         self.arbiter.submit(source, twist, time.monotonic(), priority)
         async with self._lock:
             written = await self._step(time.monotonic())
         t_exec = time.monotonic()
         if not written:
-            reason = self._refusal_reason()
+            reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)
         report = self.latency.record_command(t_recv, t_exec, source=source, cmd_id=cmd_id,
                                              t_sent_ms=t_sent_ms)
@@ -128,12 +129,14 @@ class ControlLoop:
             self.bus.publish("latency_report", report)
         return Applied(True, self.decision.source, self.wheels, self.last_clamped, report)
 
-    def _refusal_reason(self) -> str:
+    def _refusal_reason(self) -> str | None:
+        if self._stopping:
+            return "daemon is shutting down"
         if self.arbiter.estop_engaged:
             return "e-stop engaged"
         if self.fault:
             return f"driver fault: {self.fault}"
-        return "command not applied"
+        return None
 
     async def drop_source(self, source: str) -> None:
         """A command source went away (WebSocket closed): brake now if it was in charge."""
