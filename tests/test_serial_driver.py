@@ -3,11 +3,15 @@ from __future__ import annotations
 
 import asyncio
 import math
+import signal
+import socket
+import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
+import aiohttp
 import pytest
 
 from drivers.arduino_serial import (
@@ -463,3 +467,156 @@ async def test_silent_board_is_a_read_timeout(serial_rig: SerialRig) -> None:
     await drv.open()
     assert drv.health()["status"] == "ok"
     await drv.close()
+
+
+# -- end to end: the real daemon as a subprocess, the emulated Arduino in this process ------------
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def daemon_config(tmp_path: Path, emulator: ArduinoEmulator, http_port: int) -> Path:
+    path = tmp_path / "arbiterd.toml"
+    path.write_text(f"""
+[driver]
+type = "serial"
+
+[driver.serial]
+port = "{emulator.link}"
+counts_per_rev = {COUNTS_PER_REV}
+reset_wait_s = 0.05
+timeout_s = 1.0
+
+[control]
+cmd_vel_timeout = 5.0
+reconnect_min_s = 0.1
+reconnect_max_s = 0.4
+
+[http]
+host = "127.0.0.1"
+port = {http_port}
+
+[rosbridge]
+enabled = false
+""")
+    return path
+
+
+class DaemonClient:
+    """Talks to a daemon subprocess over its HTTP API."""
+
+    def __init__(self, process: asyncio.subprocess.Process, port: int,
+                 session: aiohttp.ClientSession) -> None:
+        self.process, self.base, self.session = process, f"http://127.0.0.1:{port}", session
+
+    async def health(self) -> tuple[int, dict[str, Any]]:
+        async with self.session.get(self.base + "/api/health") as response:
+            return response.status, await response.json()
+
+    async def cmd_vel(self, linear_x: float, angular_z: float = 0.0) -> int:
+        body = {"linear": {"x": linear_x}, "angular": {"z": angular_z}}
+        async with self.session.post(self.base + "/api/cmd_vel", json=body) as response:
+            return response.status
+
+    async def wait_health(self, status: str, within_s: float = 10.0) -> dict[str, Any]:
+        deadline = time.monotonic() + within_s
+        while True:
+            assert self.process.returncode is None, "the daemon exited"
+            try:
+                code, body = await self.health()
+                if body["status"] == status:
+                    assert code == (503 if status == "error" else 200)
+                    return body
+            except aiohttp.ClientConnectionError:
+                pass
+            if time.monotonic() > deadline:
+                raise AssertionError(f"daemon health never became {status!r}")
+            await asyncio.sleep(0.05)
+
+
+@pytest.fixture
+async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, ArduinoEmulator]]:
+    emulator = ArduinoEmulator(tmp_path / "arduino", make_motors(), auto_stop_s=1.0).start()
+    port = free_tcp_port()
+    config = daemon_config(tmp_path, emulator, port)
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
+        stdout=asyncio.subprocess.DEVNULL, stderr=(tmp_path / "daemon.log").open("wb"))
+    try:
+        async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
+            client = DaemonClient(process, port, session)
+            await client.wait_health("ok", within_s=20.0)
+            yield client, emulator
+            process.send_signal(signal.SIGTERM)
+            assert await asyncio.wait_for(process.wait(), 10) == 0
+            assert emulator.motors.targets() == (0.0, 0.0)
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()
+        emulator.stop()
+
+
+async def drive_and_expect_motion(client: DaemonClient, emulator: ArduinoEmulator) -> None:
+    assert await client.cmd_vel(0.2) == 200
+    await wait_until(lambda: min(emulator.motors.targets()) > 0, what="wheels to turn")
+
+
+async def recover_and_stay_still(client: DaemonClient, emulator: ArduinoEmulator,
+                                 since: float) -> None:
+    body = await client.wait_health("ok")
+    assert body["components"]["control"]["reconnects"] >= 1
+    await asyncio.sleep(0.5)  # several ticks and keep-alive periods
+    assert motion_commands(emulator, since) == []
+    assert emulator.motors.targets() == (0.0, 0.0)
+    await drive_and_expect_motion(client, emulator)
+
+
+async def test_daemon_survives_the_port_vanishing(
+        daemon: tuple[DaemonClient, ArduinoEmulator]) -> None:
+    client, emulator = daemon
+    await drive_and_expect_motion(client, emulator)
+    emulator.unplug()
+    body = await client.wait_health("error")
+    assert "vanished" in str(body["components"]["control"]["fault"])
+    await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), what="board auto-stop")
+    assert await client.cmd_vel(0.2) == 409  # refused while faulted, not queued
+    await asyncio.sleep(0.5)  # several failed reconnects with back-off
+    assert client.process.returncode is None
+    replugged = time.monotonic()
+    emulator.replug()
+    await recover_and_stay_still(client, emulator, replugged)
+
+
+async def test_daemon_survives_garbage_from_the_board(
+        daemon: tuple[DaemonClient, ArduinoEmulator]) -> None:
+    client, emulator = daemon
+    await drive_and_expect_motion(client, emulator)
+    emulator.garbage = True
+    body = await client.wait_health("error")
+    assert "garbled" in str(body["components"]["control"]["fault"])
+    # the port still works, so the daemon's stop reached the motors
+    await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), within_s=0.8,
+                     what="motors zeroed by the daemon (before the board's auto-stop)")
+    cleared = time.monotonic()
+    emulator.garbage = False
+    await recover_and_stay_still(client, emulator, cleared)
+
+
+async def test_safe_stop_command_zeroes_the_motors(tmp_path: Path) -> None:
+    with ArduinoEmulator(tmp_path / "arduino", make_motors(), reset_on_open=False) as emulator:
+        emulator.firmware.feed(b"m 40 40\r")
+        config = daemon_config(tmp_path, emulator, free_tcp_port())
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "daemon.cli", "safe-stop", "--config", str(config), cwd=REPO,
+            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+        _, stderr = await asyncio.wait_for(process.communicate(), 30)
+        assert process.returncode == 0, stderr.decode()
+        assert emulator.motors.targets() == (0.0, 0.0)
+        assert emulator.firmware.history[-1].text == "m 0 0"
