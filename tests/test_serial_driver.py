@@ -620,3 +620,14 @@ async def test_safe_stop_command_zeroes_the_motors(tmp_path: Path) -> None:
         assert process.returncode == 0, stderr.decode()
         assert emulator.motors.targets() == (0.0, 0.0)
         assert emulator.firmware.history[-1].text == "m 0 0"
+
+
+def test_bench_reports_command_latency_percentiles() -> None:
+    from drivers.bench_serial import run
+
+    results = {r.name: r for r in run(quick=True)}
+    assert all(r.suite == "drivers" and r.unit == "ms" for r in results.values())
+    for stage in ("ack", "board"):
+        p50 = results[f"serial command->{stage} p50"].value
+        p99 = results[f"serial command->{stage} p99"].value
+        assert math.isfinite(p50) and 0 < p50 <= p99
