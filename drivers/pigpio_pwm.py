@@ -1,0 +1,446 @@
+# pigpio driver: L298N bridges driven through pigpiod (hardware or DMA PWM), encoder callbacks.
+from __future__ import annotations
+
+import asyncio
+import atexit
+import contextlib
+import math
+import socket
+import threading
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, ClassVar, TypeVar
+
+from daemon.options import Options
+from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+
+T = TypeVar("T")
+
+#: GPIO => hardware PWM channel (12/18 share channel 0, 13/19 channel 1).
+HARDWARE_PWM_CHANNEL = {12: 0, 18: 0, 13: 1, 19: 1}
+HARDWARE_DUTY_FULL = 1_000_000
+EITHER_EDGE, PI_TIMEOUT_LEVEL = 2, 2
+MODE_INPUT, MODE_OUTPUT, PUD_UP = 0, 1, 2
+
+
+def _gpio(default: int, doc: str) -> Any:
+    return option(int, default, doc, minval=0, maxval=27)
+
+
+# -- pure helpers (shared with the l298n driver) --------------------------------------------------
+
+
+def speed_to_duty(speed: float, full_speed: float, min_duty: float, deadband: float) -> float:
+    """Open-loop map of a wheel speed (rad/s) to a signed duty in -1..1.
+
+    Speeds within ``deadband`` stop the wheel; any other speed maps linearly into
+    ``min_duty..1`` so that a small command still overcomes the motor's static friction.
+    """
+    if speed == 0.0 or abs(speed) <= deadband:
+        return 0.0
+    fraction = min(1.0, abs(speed) / full_speed)
+    return math.copysign(min_duty + (1.0 - min_duty) * fraction, speed)
+
+
+class QuadratureDecoder:
+    """Counts a quadrature encoder from its A and B levels, one edge at a time (x4 decoding).
+
+    Counting up, the (A, B) levels go 11 -> 01 -> 00 -> 10 -> 11 (A falls first). A jump that
+    changes both levels at once (a missed edge) is counted in ``errors``, not guessed.
+    """
+
+    _UP = {(3, 1), (1, 0), (0, 2), (2, 3)}
+    _DOWN = {(1, 3), (0, 1), (2, 0), (3, 2)}
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.errors = 0
+        self.state = 3
+
+    def reset_levels(self, a: int, b: int) -> None:
+        """Take the current levels as the new reference without counting (after a reconnect)."""
+        self.state = (a << 1) | b
+
+    def update(self, a: int, b: int) -> None:
+        new = (a << 1) | b
+        step = (self.state, new)
+        if step in self._UP:
+            self.count += 1
+        elif step in self._DOWN:
+            self.count -= 1
+        elif new != self.state:
+            self.errors += 1
+        self.state = new
+
+
+@dataclass(frozen=True)
+class Side:
+    """One wheel's wiring as the pigpio driver uses it."""
+
+    name: str
+    pwm: int
+    in1: int
+    in2: int
+    invert: bool
+    encoder: tuple[int, int] | None
+    encoder_invert: bool
+
+
+# -- connection helpers (shared with the l298n driver) ---------------------------------------------
+
+
+def probe_tcp(host: str, port: int, timeout: float) -> None:
+    """Fail fast with a clear message when nothing listens at host:port.
+
+    The pigpio client connects without a timeout; probing first keeps an unreachable pigpiod
+    from blocking a reconnect attempt for minutes.
+    """
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise DriverFault(f"pigpiod unreachable at {host}:{port}: {exc}") from None
+
+
+def connect_pigpio(host: str, port: int, timeout: float) -> Any:
+    """Connect the unmodified pigpio client; raise DriverFault when pigpiod is not there."""
+    import pigpio
+
+    probe_tcp(host, port, timeout)
+    pi = pigpio.pi(host, port, show_errors=False)
+    if not pi.connected:
+        raise DriverFault(f"pigpiod unreachable at {host}:{port}")
+    pi.sl.s.settimeout(timeout)  # command replies: a hung pigpiod becomes an error, not a hang
+    return pi
+
+
+def drop_pigpio(pi: Any, *, peer_alive: bool) -> None:
+    """Release a pigpio connection; with a dead or hung peer, without waiting for it.
+
+    With a live peer, ``pi.stop()`` sends NC and the client's notification thread ends on the
+    reply. Otherwise that thread would spin on (or block in) a dead socket, so it is told to
+    stop and its socket is shut down.
+    """
+    notify = getattr(pi, "_notify", None)
+    if peer_alive:
+        with contextlib.suppress(Exception):
+            pi.stop()
+    if notify is not None and notify.go:
+        notify.go = False
+        with contextlib.suppress(OSError):
+            notify.sl.s.shutdown(socket.SHUT_RDWR)
+    sock = getattr(pi.sl, "s", None)
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.close()
+        pi.sl.s = None
+    pi._notify, pi.connected = None, False
+    atexit.unregister(pi.stop)
+
+
+class SerialExecutor:
+    """One worker thread for a driver's blocking socket calls, in order, off the event loop."""
+
+    def __init__(self, name: str) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
+
+    async def call(self, fn: Callable[..., T], *args: Any) -> T:
+        return await asyncio.get_running_loop().run_in_executor(self._pool, fn, *args)
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+# -- the driver ------------------------------------------------------------------------------------
+
+
+class PigpioDriver(MotorDriver):
+    """Two L298N channels (EN = PWM, IN1/IN2 = direction) through pigpiod's socket interface.
+
+    PWM pins 12/13/18/19 get hardware PWM (one per channel), other pins DMA PWM. With
+    ``encoders`` on, quadrature edges arrive as pigpio callbacks and are decoded x4. A lost
+    pigpiod (a failed write, or the keep-alive poll failing) is a fault; ``close()`` then
+    ``open()`` reconnects, keeping the encoder totals.
+    """
+
+    OPTIONS: ClassVar[Options] = {
+        "host": option(str, "localhost", "host running pigpiod"),
+        "port": option(int, 8888, "pigpiod TCP port", minval=1, maxval=65535),
+        "left_pwm": _gpio(12, "left EN (PWM) GPIO; 12/13/18/19 get hardware PWM"),
+        "left_in1": _gpio(23, "left IN1 GPIO (high = forward)"),
+        "left_in2": _gpio(24, "left IN2 GPIO (high = backward)"),
+        "right_pwm": _gpio(13, "right EN (PWM) GPIO; 12/13/18/19 get hardware PWM"),
+        "right_in1": _gpio(27, "right IN1 GPIO (high = forward)"),
+        "right_in2": _gpio(22, "right IN2 GPIO (high = backward)"),
+        "left_invert": option(bool, False, "reverse the left motor's direction"),
+        "right_invert": option(bool, False, "reverse the right motor's direction"),
+        "hardware_pwm": option(bool, True, "use hardware PWM on GPIO 12/13/18/19"),
+        "pwm_frequency": option(int, 1000, "PWM frequency, Hz (DMA PWM rounds to pigpiod's "
+                                "nearest allowed value)", minval=10, maxval=40000),
+        "pwm_range": option(int, 1000, "DMA PWM duty steps", minval=25, maxval=40000),
+        "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
+                                  "(0 = the robot's maximum wheel speed)", minval=0.0),
+        "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
+                           minval=0.0, below=1.0),
+        "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
+                           minval=0.0),
+        "encoders": option(bool, False, "read quadrature encoders through pigpio callbacks"),
+        "left_encoder_a": _gpio(5, "left encoder channel A GPIO"),
+        "left_encoder_b": _gpio(6, "left encoder channel B GPIO"),
+        "right_encoder_a": _gpio(20, "right encoder channel A GPIO"),
+        "right_encoder_b": _gpio(21, "right encoder channel B GPIO"),
+        "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
+        "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
+        "encoder_counts_per_rev": option(int, 1440, "encoder edges (4 per quadrature cycle) per "
+                                         "wheel revolution", minval=1),
+        "glitch_filter_us": option(int, 100, "ignore encoder level changes shorter than this, us",
+                                   minval=0, maxval=300000),
+        "timeout": option(float, 1.0, "connect and reply timeout, s", above=0.0, maxval=30.0),
+        "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
+                                 "(0 = only when writing)", minval=0.0),
+    }
+
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
+        super().__init__(opts, max_wheel_speed=max_wheel_speed)
+        self.full_duty_speed = float(opts["max_wheel_speed"]) or max_wheel_speed
+        self.sides = (self._side("left"), self._side("right"))
+        check_pins(opts, self._pin_keys(), "pigpio")
+        self.hw_pins = self._hardware_pwm_pins()
+        self.decoders = (QuadratureDecoder(), QuadratureDecoder())
+        self._decoder_lock = threading.Lock()
+        self._pi: Any = None
+        self._io: SerialExecutor | None = None
+        self._watch: asyncio.Task[None] | None = None
+        self._written: dict[int, int] = {}
+        self._callbacks: list[Any] = []
+        self.connects = 0
+        self.real_pwm_frequency: dict[int, int] = {}
+        self.pigpio_version: int | None = None
+        self.hardware_revision: str | None = None
+
+    @classmethod
+    def name(cls) -> str:
+        return "pigpio"
+
+    def _side(self, name: str) -> Side:
+        o = self.options
+        encoder = (o[f"{name}_encoder_a"], o[f"{name}_encoder_b"]) if o["encoders"] else None
+        return Side(name, o[f"{name}_pwm"], o[f"{name}_in1"], o[f"{name}_in2"],
+                    o[f"{name}_invert"], encoder, o[f"{name}_encoder_invert"])
+
+    def _pin_keys(self) -> list[str]:
+        keys = [f"{side}_{pin}" for side in ("left", "right") for pin in ("pwm", "in1", "in2")]
+        if self.options["encoders"]:
+            keys += [f"{side}_encoder_{ch}" for side in ("left", "right") for ch in "ab"]
+        return keys
+
+    def _hardware_pwm_pins(self) -> set[int]:
+        if not self.options["hardware_pwm"]:
+            return set()
+        pins = {s.pwm for s in self.sides if s.pwm in HARDWARE_PWM_CHANNEL}
+        channels = [HARDWARE_PWM_CHANNEL[p] for p in pins]
+        if len(channels) != len(set(channels)):
+            raise ValueError(
+                f"[driver.pigpio] left_pwm={self.sides[0].pwm} and right_pwm={self.sides[1].pwm} "
+                "share one hardware PWM channel; use 12/18 for one side and 13/19 for the other, "
+                "or set hardware_pwm = false")
+        return pins
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        self._io = SerialExecutor("pigpio")
+        try:
+            await self._io.call(self._connect)
+        except BaseException:
+            self._io.shutdown()
+            self._io = None
+            raise
+        if self.options["watch_interval"] > 0:
+            self._watch = asyncio.create_task(self._watch_peer(), name="pigpio-watch")
+
+    def _connect(self) -> None:
+        o = self.options
+        pi = connect_pigpio(o["host"], o["port"], o["timeout"])
+        try:
+            self.pigpio_version = pi.get_pigpio_version()
+            self.hardware_revision = f"{pi.get_hardware_revision():x}"
+            self._written = {}
+            for side in self.sides:
+                self._setup_side(pi, side)
+            self._callbacks = [self._setup_encoder(pi, i, s) for i, s in enumerate(self.sides)
+                               if s.encoder is not None]
+        except Exception as exc:
+            drop_pigpio(pi, peer_alive=True)
+            raise DriverFault(f"pigpiod at {o['host']}:{o['port']}: setup failed: {exc}") from exc
+        self._pi = pi
+        self.connects += 1
+
+    def _setup_side(self, pi: Any, side: Side) -> None:
+        for pin in (side.in1, side.in2):
+            pi.set_mode(pin, MODE_OUTPUT)
+            self._write_pin(pi, pin, 0)
+        if side.pwm in self.hw_pins:
+            pi.hardware_PWM(side.pwm, self.options["pwm_frequency"], 0)
+            self.real_pwm_frequency[side.pwm] = self.options["pwm_frequency"]
+        else:
+            pi.set_mode(side.pwm, MODE_OUTPUT)
+            self.real_pwm_frequency[side.pwm] = pi.set_PWM_frequency(
+                side.pwm, self.options["pwm_frequency"])
+            pi.set_PWM_range(side.pwm, self.options["pwm_range"])
+            pi.set_PWM_dutycycle(side.pwm, 0)
+        self._written[side.pwm] = 0
+
+    def _setup_encoder(self, pi: Any, index: int, side: Side) -> Any:
+        assert side.encoder is not None
+        pin_a, pin_b = side.encoder
+        for pin in (pin_a, pin_b):
+            pi.set_mode(pin, MODE_INPUT)
+            pi.set_pull_up_down(pin, PUD_UP)
+            pi.set_glitch_filter(pin, self.options["glitch_filter_us"])
+        levels = {pin_a: pi.read(pin_a), pin_b: pi.read(pin_b)}
+        decoder = self.decoders[index]
+        with self._decoder_lock:
+            decoder.reset_levels(levels[pin_a], levels[pin_b])
+
+        def on_edge(gpio: int, level: int, tick: int) -> None:
+            if level == PI_TIMEOUT_LEVEL:
+                return
+            with self._decoder_lock:
+                levels[gpio] = level
+                decoder.update(levels[pin_a], levels[pin_b])
+
+        return [pi.callback(pin, EITHER_EDGE, on_edge) for pin in (pin_a, pin_b)]
+
+    async def _close(self) -> None:
+        if self._watch is not None:
+            self._watch.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._watch
+            self._watch = None
+        io, self._io = self._io, None
+        if io is not None:
+            with contextlib.suppress(Exception):
+                await io.call(self._disconnect)
+            io.shutdown()
+
+    def _disconnect(self) -> None:
+        pi, self._pi = self._pi, None
+        self._callbacks = []
+        if pi is not None:
+            drop_pigpio(pi, peer_alive=self.fault is None)
+
+    # -- commands -----------------------------------------------------------------------------
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        duties = (self._duty(left_rad_s, self.sides[0]), self._duty(right_rad_s, self.sides[1]))
+        if self._io is None:
+            raise DriverFault("pigpio: not connected")
+        await self._io.call(self._write_duties, duties)
+
+    def _duty(self, speed: float, side: Side) -> float:
+        o = self.options
+        duty = speed_to_duty(speed, self.full_duty_speed, o["min_duty"], o["deadband"])
+        return -duty if side.invert else duty
+
+    def _write_duties(self, duties: tuple[float, float]) -> None:
+        pi = self._pi
+        if pi is None:
+            raise DriverFault("pigpio: connection already lost")
+        try:
+            for side, duty in zip(self.sides, duties, strict=True):
+                self._write_side(pi, side, duty)
+        except DriverFault:
+            raise
+        except Exception as exc:
+            self._lost(pi, f"write failed: {exc or type(exc).__name__}")
+            raise DriverFault(self.fault or "pigpiod lost") from exc
+
+    def _write_side(self, pi: Any, side: Side, duty: float) -> None:
+        forward, backward = (1, 0) if duty > 0 else ((0, 1) if duty < 0 else (0, 0))
+        if (self._written.get(side.in1), self._written.get(side.in2)) != (forward, backward) \
+                and self._written.get(side.pwm):
+            self._write_pwm(pi, side.pwm, 0.0)  # no full-power glitch while direction flips
+        self._write_pin(pi, side.in1, forward)
+        self._write_pin(pi, side.in2, backward)
+        self._write_pwm(pi, side.pwm, abs(duty))
+
+    def _write_pin(self, pi: Any, pin: int, level: int) -> None:
+        if self._written.get(pin) != level:
+            pi.write(pin, level)
+            self._written[pin] = level
+
+    def _write_pwm(self, pi: Any, pin: int, duty: float) -> None:
+        if pin in self.hw_pins:
+            value = round(duty * HARDWARE_DUTY_FULL)
+            if self._written.get(pin) != value:
+                pi.hardware_PWM(pin, self.options["pwm_frequency"], value)
+        else:
+            value = round(duty * self.options["pwm_range"])
+            if self._written.get(pin) != value:
+                pi.set_PWM_dutycycle(pin, value)
+        self._written[pin] = value
+
+    # -- faults -------------------------------------------------------------------------------
+
+    def _lost(self, pi: Any, reason: str) -> None:
+        """pigpiod is gone: mark the fault and stop the client's notification thread now."""
+        o = self.options
+        self.report_fault(f"pigpiod at {o['host']}:{o['port']} lost: {reason}")
+        drop_pigpio(pi, peer_alive=False)
+
+    async def _watch_peer(self) -> None:
+        interval = self.options["watch_interval"]
+        while self.fault is None and self._io is not None:
+            await asyncio.sleep(interval)
+            pi, io = self._pi, self._io
+            if pi is None or io is None:
+                return
+            try:
+                await io.call(pi.get_current_tick)
+            except Exception as exc:
+                self._lost(pi, f"keep-alive failed: {exc or type(exc).__name__}")
+                return
+
+    # -- encoders and health ------------------------------------------------------------------
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        if not self.options["encoders"]:
+            return None
+        left, right = (self._position(i) for i in range(2))
+        return EncoderReading(left, right, time.monotonic())
+
+    def _position(self, index: int) -> float:
+        side, decoder = self.sides[index], self.decoders[index]
+        with self._decoder_lock:
+            count = decoder.count
+        sign = -1.0 if side.encoder_invert else 1.0
+        return sign * count / self.options["encoder_counts_per_rev"] * 2.0 * math.pi
+
+    def _health(self) -> dict[str, Any]:
+        return {
+            "pigpiod": f"{self.options['host']}:{self.options['port']}",
+            "connects": self.connects,
+            "pigpio_version": self.pigpio_version,
+            "hardware_revision": self.hardware_revision,
+            "hardware_pwm_pins": sorted(self.hw_pins),
+            "pwm_frequency_hz": {str(k): v for k, v in self.real_pwm_frequency.items()},
+            "encoder_counts": [d.count for d in self.decoders] if self.options["encoders"]
+            else None,
+            "encoder_errors": sum(d.errors for d in self.decoders),
+        }
+
+
+def check_pins(opts: Mapping[str, Any], keys: list[str], section: str) -> None:
+    """Refuse a GPIO used twice, naming both config keys (negative = not wired)."""
+    seen: dict[int, str] = {}
+    for key in keys:
+        pin = opts[key]
+        if pin < 0:
+            continue
+        if pin in seen:
+            raise ValueError(f"[driver.{section}] {key} = {pin} is already used by {seen[pin]}")
+        seen[pin] = key
