@@ -31,6 +31,9 @@ RigFactory = Callable[[Any], AbstractAsyncContextManager[Rig]]
 # the function takes pytest's tmp_path.
 RIGS: dict[str, str] = {
     "mock": "tests.rigs.mock:rig",
+    "serial": "tests.rigs.serial:rig",
+    "pigpio": "tests.rigs.pigpio:rig",
+    "odrive_can": "tests.rigs.odrive_can:rig",
 }
 
 
