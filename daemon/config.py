@@ -26,7 +26,7 @@ SECTIONS: dict[str, str] = {
     "http": "daemon.settings:HTTP_OPTIONS",
     "rosbridge": "daemon.settings:ROSBRIDGE_OPTIONS",
     "security": "daemon.settings:SECURITY_OPTIONS",
-    "sim": "daemon.settings:SIM_OPTIONS",
+    "sim": "sim.settings:SIM_OPTIONS",
     "logging": "daemon.settings:LOGGING_OPTIONS",
 }
 

@@ -104,15 +104,11 @@ ROSBRIDGE_OPTIONS: Options = {
                                 minval=1024, maxval=64 * 1048576),
 }
 
-# Interim tables until the lidar and simulator packages declare their own sections.
+# Interim table until the lidar package declares its own section.
 LIDAR_OPTIONS: Options = {
     "enabled": Option(bool, False, "read an RPLIDAR"),
     "port": Option(str, "/dev/rplidar", "serial port of the lidar"),
     "baudrate": Option(int, 115200, "serial speed", choices=None, minval=9600, maxval=2000000),
     "scan_mode": Option(str, "express", "scan mode: a name the device reports, or "
                         "standard | express"),
-}
-SIM_OPTIONS: Options = {
-    "driver": Option(str, "serial", "which emulator --sim wires", choices=DRIVER_NAMES),
-    "seed": Option(int, 1, "seed of the simulated world and its noise"),
 }
