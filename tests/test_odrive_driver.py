@@ -1,0 +1,523 @@
+# The odrive_can driver against the emulated ODrive: wire format, control, odometry and faults.
+from __future__ import annotations
+
+import asyncio
+import itertools
+import math
+import struct
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import AsyncIterator, Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+from daemon.options import Option
+from drivers.base import DriverFault
+from drivers.odrive_can import (
+    CMD_CLEAR_ERRORS,
+    CMD_SET_AXIS_STATE,
+    CMD_SET_CONTROLLER_MODE,
+    CMD_SET_INPUT_VEL,
+    FrameError,
+    ODriveCanDriver,
+    arbitration_id,
+    decode_encoder_estimates,
+    decode_heartbeat,
+    encode_set_axis_state,
+    encode_set_controller_mode,
+    encode_set_input_vel,
+    split_arbitration_id,
+)
+from sim.motor_model import MotorPair
+from sim.odrive_emulator import (
+    ERROR_MOTOR_FAILED,
+    STATE_CLOSED_LOOP_CONTROL,
+    STATE_IDLE,
+)
+from tests.rigs.odrive_can import LEFT_NODE, RIGHT_NODE, ODriveRig, rig
+
+REPO = Path(__file__).resolve().parent.parent
+WHEEL_RADIUS = 0.05
+WHEEL_SEPARATION = 0.30
+MAX_WHEEL_SPEED = 30.0
+
+
+async def eventually(condition: Callable[[], Any], within_s: float = 3.0,
+                     what: str = "condition") -> Any:
+    """Poll ``condition`` on the event loop until it is truthy; fail after ``within_s``."""
+    deadline = time.monotonic() + within_s
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
+        await asyncio.sleep(0.005)
+    return value
+
+
+def close_to(pair: tuple[float, float], expected: tuple[float, float], tol: float = 1e-4) -> bool:
+    return all(abs(a - b) <= tol for a, b in zip(pair, expected, strict=True))
+
+
+@pytest.fixture
+async def odrive(tmp_path: Path) -> AsyncIterator[ODriveRig]:
+    async with rig(tmp_path) as odrive_rig:
+        yield odrive_rig
+
+
+@pytest.fixture
+async def make_driver(odrive: ODriveRig) -> AsyncIterator[Callable[..., ODriveCanDriver]]:
+    made: list[ODriveCanDriver] = []
+
+    def make(**overrides: Any) -> ODriveCanDriver:
+        driver = ODriveCanDriver(odrive.options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
+        made.append(driver)
+        return driver
+
+    yield make
+    for driver in made:
+        await driver.close()
+
+
+# -- wire format -------------------------------------------------------------------------------
+
+
+def test_frame_ids_and_payloads_match_cansimple() -> None:
+    assert arbitration_id(3, CMD_SET_INPUT_VEL) == 0x6D
+    assert arbitration_id(1, 0x0C) == 0x2C
+    assert split_arbitration_id(0x6D) == (3, CMD_SET_INPUT_VEL)
+    assert encode_set_input_vel(1.5) == struct.pack("<ff", 1.5, 0.0)
+    assert encode_set_input_vel(1.5) == bytes.fromhex("0000c03f00000000")
+    assert encode_set_axis_state(8) == bytes.fromhex("08000000")
+    assert encode_set_controller_mode(2, 1) == bytes.fromhex("0200000001000000")
+
+
+def test_decoders_read_heartbeat_and_estimates() -> None:
+    heartbeat = decode_heartbeat(bytes.fromhex("4000000008000100"))
+    assert (heartbeat.axis_error, heartbeat.axis_state) == (0x40, 8)
+    estimate = decode_encoder_estimates(struct.pack("<ff", -2.25, 0.5))
+    assert (estimate.pos_rev, estimate.vel_rev_s) == (-2.25, 0.5)
+
+
+def test_bad_frames_are_refused_with_the_reason() -> None:
+    with pytest.raises(FrameError, match="at least 5 data bytes, got 3"):
+        decode_heartbeat(b"\x00\x00\x00")
+    with pytest.raises(FrameError, match="8 data bytes, got 4"):
+        decode_encoder_estimates(b"\x00" * 4)
+    with pytest.raises(FrameError, match=r"position \(bytes 0-3\) is not finite"):
+        decode_encoder_estimates(struct.pack("<ff", math.nan, 0.0))
+    with pytest.raises(FrameError, match=r"node id must be 0\.\.63, got 64"):
+        arbitration_id(64, 1)
+    with pytest.raises(FrameError, match="finite"):
+        encode_set_input_vel(math.inf)
+
+
+def test_config_errors_name_the_problem() -> None:
+    with pytest.raises(ValueError, match="left_node_id and right_node_id must differ"):
+        ODriveCanDriver({"left_node_id": 2, "right_node_id": 2}, max_wheel_speed=1.0)
+    interface: Option = ODriveCanDriver.OPTIONS["interface"]
+    assert interface.validate("virtual")[1] is None
+    _, err = interface.validate("vcan")
+    assert err is not None and "unknown python-can interface 'vcan'" in err
+    assert "socketcan" in err
+
+
+# -- control -----------------------------------------------------------------------------------
+
+
+async def test_open_zeroes_input_then_enters_velocity_closed_loop(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    # a set-point left over from an earlier run must not move the wheels on arming
+    for axis in emulator.axes.values():
+        axis.input_vel_rev_s = 3.0
+    seen: list[tuple[int, int]] = []
+    emulator.frame_hooks.append(lambda node, cmd, data, t: seen.append((node, cmd)))
+    driver = make_driver(input_mode="vel_ramp")
+    await driver.open()
+    for node in (LEFT_NODE, RIGHT_NODE):
+        axis = emulator.axes[node]
+        assert axis.axis_state == STATE_CLOSED_LOOP_CONTROL
+        assert (axis.control_mode, axis.input_mode) == (2, 2)
+        assert axis.input_vel_rev_s == 0.0
+        commands = [cmd for n, cmd in seen if n == node]
+        assert commands[:4] == [CMD_CLEAR_ERRORS, CMD_SET_INPUT_VEL, CMD_SET_CONTROLLER_MODE,
+                                CMD_SET_AXIS_STATE]
+    assert emulator.wheel_targets() == (0.0, 0.0)
+    assert driver.health()["status"] == "ok"
+
+
+async def test_set_input_vel_is_in_turns_per_second_with_inversion_and_gearing(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    emulator.gear_ratio = 2.0
+    driver = make_driver(gear_ratio=2.0)
+    await driver.open()
+    await driver.set_wheel_speeds(2 * math.pi, math.pi)
+    left, right = emulator.axis("left"), emulator.axis("right")
+    await eventually(lambda: left.input_vel_rev_s != 0 and right.input_vel_rev_s != 0,
+                     what="Set_Input_Vel on both axes")
+    # one wheel turn per second is two motor turns; the mirrored right motor turns backwards
+    assert left.input_vel_rev_s == pytest.approx(2.0)
+    assert right.input_vel_rev_s == pytest.approx(-1.0)
+    assert emulator.wheel_targets() == pytest.approx((2 * math.pi, math.pi))
+
+
+TWISTS = {
+    "forward": (0.4, 0.0),
+    "reverse": (-0.3, 0.0),
+    "turn_in_place": (0.0, 1.2),
+    "arc": (0.25, -0.5),
+    "stop": (0.0, 0.0),
+}
+
+
+@pytest.mark.parametrize("name", list(TWISTS))
+async def test_wheels_follow_the_commanded_twist(
+        name: str, odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    linear, angular = TWISTS[name]
+    left = (linear - angular * WHEEL_SEPARATION / 2) / WHEEL_RADIUS
+    right = (linear + angular * WHEEL_SEPARATION / 2) / WHEEL_RADIUS
+    driver = make_driver()
+    await driver.open()
+    await driver.set_wheel_speeds(1.0, 1.0)  # so "stop" has something to stop
+    await eventually(lambda: close_to(odrive.observed_targets(), (1.0, 1.0)), what="warm-up")
+    await driver.set_wheel_speeds(left, right)
+    await eventually(lambda: close_to(odrive.observed_targets(), (left, right)),
+                     what=f"wheel targets {left:.3f}, {right:.3f}")
+    await eventually(lambda: close_to(odrive.motors.speeds(), (left, right), 1e-3),
+                     what="the motors to reach the set-points")
+
+
+async def test_speeds_beyond_the_limit_are_clamped(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    driver = make_driver()
+    await driver.open()
+    assert await driver.set_wheel_speeds(100.0, -100.0) == (MAX_WHEEL_SPEED, -MAX_WHEEL_SPEED)
+    await eventually(lambda: close_to(odrive.observed_targets(),
+                                      (MAX_WHEEL_SPEED, -MAX_WHEEL_SPEED)))
+
+
+async def test_close_zeroes_and_idles_both_axes(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    driver = make_driver()
+    await driver.open()
+    await driver.set_wheel_speeds(5.0, 5.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((5.0, 5.0)))
+    await driver.close()
+    axes = odrive.emulator.axes.values()
+    await eventually(lambda: all(a.axis_state == STATE_IDLE for a in axes), what="IDLE")
+    assert all(a.input_vel_rev_s == 0.0 for a in axes)
+    assert odrive.observed_targets() == (0.0, 0.0)
+
+
+async def test_keepalive_feeds_the_odrive_watchdog(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    emulator.watchdog_timeout_s = 0.5
+    fed = make_driver(keepalive_period_s=0.05)
+    await fed.open()
+    await fed.set_wheel_speeds(2.0, 2.0)
+    frames_before = emulator.axis("left").frames[CMD_SET_INPUT_VEL]
+    await eventually(lambda: emulator.axis("left").frames[CMD_SET_INPUT_VEL] >= frames_before + 25,
+                     what="keep-alive frames over more than two watchdog periods")
+    assert fed.fault is None
+    assert emulator.axis("left").axis_state == STATE_CLOSED_LOOP_CONTROL
+    await fed.close()
+
+    starved = make_driver(keepalive_period_s=0.0)
+    await starved.open()
+    await starved.set_wheel_speeds(2.0, 2.0)
+    reason = await eventually(lambda: starved.fault, what="the watchdog trip to be noticed")
+    assert "axis error 0x00000800" in reason
+    assert odrive.observed_targets() == (0.0, 0.0)
+
+
+# -- odometry ----------------------------------------------------------------------------------
+
+
+def integrate_pose(samples: list[tuple[float, float]]) -> tuple[float, float, float]:
+    """Diff-drive dead reckoning over a series of wheel positions (rad)."""
+    x = y = theta = 0.0
+    for (l0, r0), (l1, r1) in itertools.pairwise(samples):
+        d_left, d_right = (l1 - l0) * WHEEL_RADIUS, (r1 - r0) * WHEEL_RADIUS
+        distance, turn = (d_left + d_right) / 2, (d_right - d_left) / WHEEL_SEPARATION
+        x += distance * math.cos(theta + turn / 2)
+        y += distance * math.sin(theta + turn / 2)
+        theta += turn
+    return x, y, theta
+
+
+class ScaledClock:
+    """Monotonic time running ``scale`` times faster, so the drive takes a fraction of real time."""
+
+    def __init__(self, scale: float) -> None:
+        self.scale, self.origin = scale, time.monotonic()
+
+    def __call__(self) -> float:
+        return self.origin + (time.monotonic() - self.origin) * self.scale
+
+
+async def test_odometry_of_1m_straight_and_90_degree_turn_matches_ground_truth(
+        tmp_path: Path) -> None:
+    motors = MotorPair(clock=ScaledClock(5.0))
+    tau = motors.left.time_constant_s  # after a stop command a wheel still turns speed * tau
+    async with rig(tmp_path, motors) as odrive:
+        driver = ODriveCanDriver(odrive.options, max_wheel_speed=MAX_WHEEL_SPEED)
+        await driver.open()
+        try:
+            start = await driver.read_encoders()
+            assert start is not None
+            measured = [(start.left_rad, start.right_rad)]
+            truth = [motors.positions()]
+
+            async def drive(left: float, right: float, done: Callable[[], bool]) -> None:
+                await driver.set_wheel_speeds(left, right)
+                while not done():
+                    await sample()
+                await driver.set_wheel_speeds(0.0, 0.0)
+                await eventually(lambda: close_to(motors.speeds(), (0.0, 0.0), 1e-6),
+                                 what="the wheels to stop")
+                # the settled estimate must reach the driver before the last sample
+                await eventually(lambda: _reading_matches(driver, motors), what="estimates")
+                await sample()
+
+            async def sample() -> None:
+                await asyncio.sleep(0.003)
+                reading = await driver.read_encoders()
+                assert reading is not None
+                measured.append((reading.left_rad, reading.right_rad))
+                truth.append(motors.positions())
+
+            def travelled() -> float:
+                return integrate_pose(truth)[0]
+
+            def turned() -> float:
+                return integrate_pose(truth)[2]
+
+            coast_m = 10.0 * tau * WHEEL_RADIUS
+            await drive(10.0, 10.0, lambda: travelled() + coast_m >= 1.0)
+            coast_rad = 2 * 5.0 * tau * WHEEL_RADIUS / WHEEL_SEPARATION
+            await drive(-5.0, 5.0, lambda: turned() + coast_rad >= math.radians(90))
+        finally:
+            await driver.close()
+
+    x, y, theta = integrate_pose(measured)
+    x_true, y_true, theta_true = integrate_pose(truth)
+    assert x_true == pytest.approx(1.0, abs=0.06)
+    assert math.degrees(theta_true) == pytest.approx(90.0, abs=3.0)
+    assert math.hypot(x - x_true, y - y_true) <= 0.02 * math.hypot(x_true, y_true)
+    assert abs(math.degrees(theta - theta_true)) <= 2.0
+    left_true, right_true = motors.positions()
+    assert measured[-1] == pytest.approx((left_true, right_true), rel=1e-4, abs=1e-4)
+
+
+def _reading_matches(driver: ODriveCanDriver, motors: MotorPair) -> bool:
+    left, right = driver._left, driver._right
+    if left.estimate is None or right.estimate is None:
+        return False
+    positions = (driver._rev_to_rad(left, left.estimate.pos_rev),
+                 driver._rev_to_rad(right, right.estimate.pos_rev))
+    return close_to(positions, motors.positions(), 1e-4)
+
+
+# -- faults ------------------------------------------------------------------------------------
+
+
+async def test_heartbeat_loss_faults_zeroes_and_recovers(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    driver = make_driver(startup_timeout_s=0.5)
+    await driver.open()
+    await driver.set_wheel_speeds(6.0, 6.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((6.0, 6.0)))
+
+    emulator.set_heartbeat(False)
+    reason = await eventually(lambda: driver.fault, what="the heartbeat loss to be noticed")
+    assert f"no heartbeat from ODrive node {LEFT_NODE} (left)" in reason
+    assert driver.health()["status"] == "error"
+    # the ODrive still listens: the driver zeroed its velocity inputs on noticing
+    await eventually(lambda: odrive.observed_targets() == (0.0, 0.0), what="wheels zeroed")
+    with pytest.raises(DriverFault, match="refusing motion: no heartbeat"):
+        await driver.set_wheel_speeds(3.0, 3.0)
+    await driver.set_wheel_speeds(0.0, 0.0)  # zero is always sent
+    await driver.close()
+
+    with pytest.raises(DriverFault, match=r"waited 0\.5 s for a heartbeat"):
+        await driver.open()
+    await driver.close()
+
+    emulator.set_heartbeat(True)
+    await driver.open()
+    assert driver.fault is None and driver.health()["status"] == "ok"
+    assert odrive.observed_targets() == (0.0, 0.0)  # still until a fresh command
+    reading = await driver.read_encoders()
+    assert reading is not None
+    assert close_to((reading.left_rad, reading.right_rad), odrive.motors.positions(), 0.05)
+    await driver.set_wheel_speeds(2.0, 2.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((2.0, 2.0)))
+
+
+async def test_axis_error_faults_and_reopen_clears_it_once_the_cause_is_gone(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    driver = make_driver(startup_timeout_s=0.5)
+    await driver.open()
+    await driver.set_wheel_speeds(4.0, -4.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((4.0, -4.0)))
+
+    emulator.inject_axis_error(ERROR_MOTOR_FAILED, RIGHT_NODE, persistent=True)
+    reason = await eventually(lambda: driver.fault, what="the axis error to be noticed")
+    assert reason == (f"ODrive node {RIGHT_NODE} (right) reports axis error 0x00000040 "
+                      "in state IDLE")
+    await eventually(lambda: odrive.observed_targets() == (0.0, 0.0), what="wheels zeroed")
+    await driver.close()
+
+    with pytest.raises(DriverFault, match=r"closed-loop control.*axis error 0x00000040"):
+        await driver.open()
+    await driver.close()
+
+    emulator.clear_error_condition()
+    await driver.open()  # Clear_Errors clears the latched error, then the axis arms again
+    assert emulator.axis("right").axis_error == 0
+    assert odrive.observed_targets() == (0.0, 0.0)
+    await driver.set_wheel_speeds(1.0, 1.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((1.0, 1.0)))
+
+
+async def test_node_off_the_bus_faults_and_reconnects_when_back(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    emulator = odrive.emulator
+    driver = make_driver(startup_timeout_s=0.5)
+    await driver.open()
+    await driver.set_wheel_speeds(3.0, 3.0)
+    emulator.set_online(False, LEFT_NODE)
+    reason = await eventually(lambda: driver.fault)
+    assert "no heartbeat" in reason or "no encoder estimates" in reason
+    await eventually(lambda: emulator.axis("right").input_vel_rev_s == 0.0,
+                     what="the reachable axis to be zeroed")
+    await driver.close()
+    emulator.set_online(True, LEFT_NODE)
+    await driver.open()
+    assert odrive.observed_targets() == (0.0, 0.0)
+
+
+async def test_garbled_frames_are_counted_not_trusted(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    driver = make_driver()
+    await driver.open()
+    with can.Bus(interface="virtual", channel=odrive.emulator.channel) as bus:
+        bus.send(can.Message(arbitration_id=arbitration_id(LEFT_NODE, 0x09),
+                             data=struct.pack("<ff", math.nan, 0.0), is_extended_id=False))
+        bus.send(can.Message(arbitration_id=arbitration_id(RIGHT_NODE, 0x01), data=b"\x01",
+                             is_extended_id=False))
+        await eventually(lambda: driver.bad_frames == 2, what="two bad frames")
+    assert "not finite" in driver.health()["last_bad_frame"] or "5 data bytes" in \
+        driver.health()["last_bad_frame"]
+    reading = await driver.read_encoders()
+    assert reading is not None and math.isfinite(reading.left_rad)
+    assert driver.fault is None
+
+
+async def test_open_without_an_odrive_names_the_missing_nodes(tmp_path: Path) -> None:
+    driver = ODriveCanDriver({"interface": "virtual", "channel": f"empty-{uuid.uuid4().hex}",
+                              "startup_timeout_s": 0.3}, max_wheel_speed=1.0)
+    with pytest.raises(DriverFault, match=r"ODrive node 0 \(left\): no heartbeat"):
+        await driver.open()
+    await driver.close()
+
+
+async def test_open_on_a_missing_can_device_is_a_driver_fault() -> None:
+    driver = ODriveCanDriver({"interface": "socketcan", "channel": "arbiterd-none0"},
+                             max_wheel_speed=1.0)
+    with pytest.raises(DriverFault, match="open failed"):
+        await driver.open()
+
+
+# -- safe-stop ---------------------------------------------------------------------------------
+
+
+async def test_safe_stop_idles_axes_left_running_by_a_dead_daemon(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    abandoned = make_driver(keepalive_period_s=0.0)
+    await abandoned.open()
+    await abandoned.set_wheel_speeds(5.0, 5.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((5.0, 5.0)))
+
+    await make_driver().safe_stop()
+    assert odrive.observed_targets() == (0.0, 0.0)
+    assert all(a.axis_state == STATE_IDLE for a in odrive.emulator.axes.values())
+
+
+async def test_safe_stop_without_an_answer_says_so() -> None:
+    driver = ODriveCanDriver({"interface": "virtual", "channel": f"empty-{uuid.uuid4().hex}"},
+                             max_wheel_speed=1.0)
+    with pytest.raises(DriverFault, match="no IDLE heartbeat came back from ODrive node 0"):
+        await driver.safe_stop()
+
+
+# -- across processes: the standalone emulator on udp_multicast ---------------------------------
+
+
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@pytest.fixture
+def emulator_process() -> Iterator[tuple[subprocess.Popen[str], int]]:
+    port = _free_udp_port()
+    try:
+        probe = can.Bus(interface="udp_multicast", channel="239.74.163.2", port=port)
+    except (can.CanError, OSError, ImportError) as exc:
+        pytest.skip(f"python-can udp_multicast unusable here: {exc}")
+    probe.shutdown()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.odrive_emulator", "--interface", "udp_multicast",
+         "--channel", "239.74.163.2", "--port", str(port), "--left-node", "5",
+         "--right-node", "6"], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        text=True)
+    assert proc.stdout is not None
+    assert "ODrive emulator on interface udp_multicast" in proc.stdout.readline()
+    assert "multicast_port" in proc.stdout.readline()
+    yield proc, port
+    proc.terminate()
+    assert proc.wait(10) == 0
+
+
+async def test_standalone_emulator_in_another_process_over_udp_multicast(
+        emulator_process: tuple[subprocess.Popen[str], int]) -> None:
+    proc, port = emulator_process
+    assert proc.stdin is not None and proc.stdout is not None
+    driver = ODriveCanDriver({"interface": "udp_multicast", "channel": "239.74.163.2",
+                              "multicast_port": port, "left_node_id": 5, "right_node_id": 6},
+                             max_wheel_speed=MAX_WHEEL_SPEED)
+    await driver.open()
+    try:
+        await driver.set_wheel_speeds(2 * math.pi, 2 * math.pi)
+
+        def command(line: str) -> str:
+            proc.stdin.write(line + "\n")  # type: ignore[union-attr]
+            proc.stdin.flush()  # type: ignore[union-attr]
+            return proc.stdout.readline()  # type: ignore[union-attr]
+
+        status = await asyncio.to_thread(command, "status")
+        assert "node 5 state 8" in status and "vel 1.000" in status and "vel -1.000" in status
+        assert (await asyncio.to_thread(command, "heartbeat off")).startswith("ok")
+        reason = await eventually(lambda: driver.fault, what="heartbeat loss across processes")
+        assert "no heartbeat from ODrive node 5" in reason
+        await driver.close()
+        assert (await asyncio.to_thread(command, "heartbeat on")).startswith("ok")
+        await driver.open()
+        assert driver.fault is None
+        status = await asyncio.to_thread(command, "status")
+        assert "vel 0.000" in status
+    finally:
+        await driver.close()
