@@ -1,0 +1,2 @@
+# Sensors of arbiterd: the RPLIDAR stack and the LaserScan type.
+from __future__ import annotations

@@ -1,0 +1,698 @@
+# RPLIDAR wire protocol: request encoder and a pure, resynchronising byte-stream parser (no I/O).
+from __future__ import annotations
+
+import itertools
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from sensors.rplidar import records
+from sensors.rplidar.records import U8
+
+SYNC = 0xA5
+DESCRIPTOR_SYNC = b"\xa5\x5a"
+DESCRIPTOR_SIZE = 7
+BANNER_PREFIX = b"RP LIDAR System"
+
+
+class Cmd(IntEnum):
+    """Request codes (commands with bit 7 set carry a payload)."""
+
+    STOP = 0x25
+    RESET = 0x40
+    SCAN = 0x20
+    FORCE_SCAN = 0x21
+    EXPRESS_SCAN = 0x82
+    HQ_SCAN = 0x83
+    GET_INFO = 0x50
+    GET_HEALTH = 0x52
+    GET_SAMPLERATE = 0x59
+    GET_LIDAR_CONF = 0x84
+    SET_LIDAR_CONF = 0x85
+    SET_MOTOR_PWM = 0xF0
+    HQ_MOTOR_SPEED_CTRL = 0xA8
+    GET_ACC_BOARD_FLAG = 0xFF
+    NEW_BAUDRATE_CONFIRM = 0x90
+
+
+class Ans(IntEnum):
+    """Reply data types (the last descriptor byte)."""
+
+    INFO = 0x04
+    HEALTH = 0x06
+    SAMPLERATE = 0x15
+    LIDAR_CONF = 0x20
+    SET_LIDAR_CONF = 0x21
+    ACC_BOARD_FLAG = 0xFF
+    NODE = 0x81
+    CAPSULE = 0x82
+    HQ_CAPSULE = 0x83
+    ULTRA_CAPSULE = 0x84
+    DENSE_CAPSULE = 0x85
+    ULTRA_DENSE_CAPSULE = 0x86
+
+
+class Conf(IntEnum):
+    """GET_LIDAR_CONF types."""
+
+    SCAN_MODE_COUNT = 0x70
+    SCAN_MODE_US_PER_SAMPLE = 0x71
+    SCAN_MODE_MAX_DISTANCE = 0x74
+    SCAN_MODE_ANS_TYPE = 0x75
+    SCAN_MODE_TYPICAL = 0x7C
+    SCAN_MODE_NAME = 0x7F
+    DESIRED_ROT_FREQ = 0x01
+    SCAN_MODE_ALIAS = 0x81
+    DETECTED_BAUDRATE = 0xA1
+
+
+# (length, multi-response) for replies the parser knows; None length = variable (bounded).
+_REPLY_SHAPES: dict[int, tuple[int | None, bool]] = {
+    Ans.INFO: (20, False), Ans.HEALTH: (3, False), Ans.SAMPLERATE: (4, False),
+    Ans.LIDAR_CONF: (None, False), Ans.SET_LIDAR_CONF: (None, False),
+    Ans.ACC_BOARD_FLAG: (4, False), Ans.NODE: (5, True), Ans.CAPSULE: (84, True),
+    Ans.HQ_CAPSULE: (781, True), Ans.ULTRA_CAPSULE: (132, True), Ans.DENSE_CAPSULE: (84, True),
+    Ans.ULTRA_DENSE_CAPSULE: (170, True),
+}
+_MAX_VARIABLE_REPLY = 256
+
+# ---------------------------------------------------------------- request encoder
+
+
+def request(cmd: int, payload: bytes = b"") -> bytes:
+    """Encode a request; commands with bit 7 set get size, payload and an XOR checksum."""
+    if not cmd & 0x80:
+        if payload:
+            raise ValueError(f"command 0x{cmd:02X} takes no payload, got {len(payload)} bytes")
+        return bytes((SYNC, cmd))
+    if len(payload) > 255:
+        raise ValueError(f"payload of command 0x{cmd:02X} is {len(payload)} bytes (max 255)")
+    frame = bytes((SYNC, cmd, len(payload))) + payload
+    checksum = 0
+    for byte in frame:
+        checksum ^= byte
+    return frame + bytes((checksum,))
+
+
+def stop() -> bytes:
+    return request(Cmd.STOP)
+
+
+def reset() -> bytes:
+    return request(Cmd.RESET)
+
+
+def scan() -> bytes:
+    return request(Cmd.SCAN)
+
+
+def force_scan() -> bytes:
+    return request(Cmd.FORCE_SCAN)
+
+
+def express_scan(working_mode: int = 0, flags: int = 0, param: int = 0) -> bytes:
+    return request(Cmd.EXPRESS_SCAN, struct.pack("<BHH", working_mode, flags, param))
+
+
+def hq_scan(flag: int = 0) -> bytes:
+    return request(Cmd.HQ_SCAN, bytes((flag,)) + bytes(32))
+
+
+def get_info() -> bytes:
+    return request(Cmd.GET_INFO)
+
+
+def get_health() -> bytes:
+    return request(Cmd.GET_HEALTH)
+
+
+def get_samplerate() -> bytes:
+    return request(Cmd.GET_SAMPLERATE)
+
+
+def get_lidar_conf(conf_type: int, mode: int | None = None) -> bytes:
+    extra = b"" if mode is None else struct.pack("<H", mode)
+    return request(Cmd.GET_LIDAR_CONF, struct.pack("<I", conf_type) + extra)
+
+
+def set_lidar_conf(conf_type: int, data: bytes) -> bytes:
+    return request(Cmd.SET_LIDAR_CONF, struct.pack("<I", conf_type) + data)
+
+
+def set_motor_pwm(pwm: int) -> bytes:
+    if not 0 <= pwm <= 1023:
+        raise ValueError(f"motor PWM must be 0..1023, got {pwm}")
+    return request(Cmd.SET_MOTOR_PWM, struct.pack("<H", pwm))
+
+
+def hq_motor_speed(rpm: int) -> bytes:
+    if not 0 <= rpm <= 0xFFFF:
+        raise ValueError(f"motor rpm must be 0..65535, got {rpm}")
+    return request(Cmd.HQ_MOTOR_SPEED_CTRL, struct.pack("<H", rpm))
+
+
+def get_acc_board_flag() -> bytes:
+    return request(Cmd.GET_ACC_BOARD_FLAG, struct.pack("<I", 0))
+
+
+def new_baudrate_confirm(bps: int) -> bytes:
+    return request(Cmd.NEW_BAUDRATE_CONFIRM, struct.pack("<HIH", 0x5F5F, bps, 0))
+
+
+def parse_request(frame: bytes) -> tuple[int, bytes] | None:
+    """Decode one request frame (for emulators): (cmd, payload), or None when malformed."""
+    if len(frame) < 2 or frame[0] != SYNC:
+        return None
+    cmd = frame[1]
+    if not cmd & 0x80:
+        return (cmd, b"") if len(frame) == 2 else None
+    if len(frame) < 4 or len(frame) != frame[2] + 4:
+        return None
+    return (cmd, frame[3:-1]) if request(cmd, frame[3:-1]) == frame else None
+
+
+# ---------------------------------------------------------------- events
+
+
+@dataclass(frozen=True)
+class Descriptor:
+    length: int
+    multi: bool
+    data_type: int
+
+    def encode(self) -> bytes:
+        word = (self.length & 0x3FFFFFFF) | ((1 if self.multi else 0) << 30)
+        return DESCRIPTOR_SYNC + struct.pack("<IB", word, self.data_type)
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    model: int
+    firmware_major: int
+    firmware_minor: int
+    hardware: int
+    serial: str  # uppercase hex, in byte order
+
+    @property
+    def firmware(self) -> str:
+        return f"{self.firmware_major}.{self.firmware_minor:02d}"
+
+    @property
+    def firmware_version(self) -> tuple[int, int]:
+        return (self.firmware_major, self.firmware_minor)
+
+    @property
+    def family(self) -> str:
+        return model_family(self.model)
+
+    @property
+    def model_name(self) -> str:
+        return f"{self.family}M{self.model & 0xF}"
+
+
+@dataclass(frozen=True)
+class Health:
+    status: int  # 0 ok, 1 warning, 2 error (protection stop)
+    error_code: int
+
+    @property
+    def status_name(self) -> str:
+        return {0: "ok", 1: "warning", 2: "error"}.get(self.status, f"unknown({self.status})")
+
+
+@dataclass(frozen=True)
+class SampleRate:
+    standard_us: int
+    express_us: int
+
+
+@dataclass(frozen=True)
+class LidarConf:
+    conf_type: int
+    data: bytes
+
+    def as_int(self) -> int:
+        return int.from_bytes(self.data[:4], "little")
+
+    def as_name(self) -> str:
+        return self.data.split(b"\x00", 1)[0].decode("ascii", "replace")
+
+
+@dataclass(frozen=True)
+class AccBoardFlag:
+    flags: int
+
+    @property
+    def has_pwm(self) -> bool:
+        return bool(self.flags & 1)
+
+
+@dataclass(frozen=True)
+class RawReply:
+    """A single reply of a known type the parser does not interpret (e.g. SET_LIDAR_CONF)."""
+
+    data_type: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class UnsupportedStream:
+    """A measurement stream of a type this parser does not decode; its bytes are skipped."""
+
+    data_type: int
+
+
+@dataclass(frozen=True)
+class EncoderReset:
+    """A capsule with S set mid-stream: the device reset its encoder; the revolution restarts."""
+
+
+@dataclass
+class Samples:
+    """A run of decoded samples in device order; ``new_rev`` marks the first sample of a turn."""
+
+    data_type: int
+    angle_deg: records.F64
+    distance_mm: records.F64
+    quality: U8
+    new_rev: records.Bools
+
+    def __len__(self) -> int:
+        return len(self.angle_deg)
+
+
+Event = (Descriptor | DeviceInfo | Health | SampleRate | LidarConf | AccBoardFlag | RawReply
+         | UnsupportedStream | EncoderReset | Samples)
+
+
+def model_family(model: int) -> str:
+    """Model byte → family name (A1..A3, C, S1..S3, T) following the SDK's major numbers."""
+    major = model >> 4
+    families = {1: "A1", 2: "A2", 3: "A3", 4: "C1", 5: "C", 6: "S1", 7: "S2", 8: "S3"}
+    return families.get(major, "T" if major >= 9 else f"unknown(0x{model:02X})")
+
+
+# ---------------------------------------------------------------- single replies
+
+
+def parse_descriptor(raw: bytes) -> Descriptor | None:
+    """A 7-byte descriptor of a known reply type with a consistent length, or None."""
+    if len(raw) < DESCRIPTOR_SIZE or raw[:2] != DESCRIPTOR_SYNC:
+        return None
+    word, data_type = struct.unpack_from("<IB", raw, 2)
+    desc = Descriptor(word & 0x3FFFFFFF, bool(word >> 30 & 1), data_type)
+    shape = _REPLY_SHAPES.get(data_type)
+    if shape is None or word >> 31:
+        return None
+    length, multi = shape
+    if multi != desc.multi:
+        return None
+    if length is None:
+        return desc if 4 <= desc.length <= _MAX_VARIABLE_REPLY else None
+    return desc if desc.length == length else None
+
+
+def parse_reply(desc: Descriptor, data: bytes) -> Event:
+    """Interpret the body of a single reply."""
+    if desc.data_type == Ans.INFO:
+        model, fw_minor, fw_major, hw = struct.unpack_from("<BBBB", data)
+        return DeviceInfo(model, fw_major, fw_minor, hw, data[4:20].hex().upper())
+    if desc.data_type == Ans.HEALTH:
+        status, code = struct.unpack_from("<BH", data)
+        return Health(status, code)
+    if desc.data_type == Ans.SAMPLERATE:
+        return SampleRate(*struct.unpack_from("<HH", data))
+    if desc.data_type == Ans.LIDAR_CONF:
+        return LidarConf(struct.unpack_from("<I", data)[0], bytes(data[4:]))
+    if desc.data_type == Ans.ACC_BOARD_FLAG:
+        return AccBoardFlag(struct.unpack_from("<I", data)[0])
+    return RawReply(desc.data_type, bytes(data))
+
+
+# ---------------------------------------------------------------- measurement streams
+
+
+class _RecordStream:
+    """Per-type record decoder: locked to a byte phase, or hunting for one.
+
+    ``backtrack``: after a record fails its check, how many bytes back the hunt restarts
+    (0 = one byte after the failed record).
+    """
+
+    size = 1
+    backtrack = 0
+
+    def __init__(self, data_type: int) -> None:
+        self.data_type = data_type
+        self.locked = False
+        self.resyncs = 0
+
+    def valid(self, recs: U8) -> records.Bools:
+        raise NotImplementedError
+
+    def find_lock(self, buf: U8, pos: int) -> tuple[int | None, int]:
+        """(lock position or None, first position still undecided)."""
+        raise NotImplementedError
+
+    def emit(self, recs: U8) -> list[Event]:
+        raise NotImplementedError
+
+    def lose_sync(self) -> None:
+        self.locked = False
+        self.resyncs += 1
+
+    def shift(self, dropped: int) -> None:
+        """The parser dropped ``dropped`` bytes from the front of its buffer."""
+
+    def emitted(self, start: int, end: int) -> None:
+        """Records from ``start`` to ``end`` (buffer positions) were emitted."""
+
+
+class _NodeStream(_RecordStream):
+    """Standard nodes. After a failed node the hunt restarts ``backtrack_nodes`` back, in the
+    byte phases not yet emitted there: a slipped phase can pass the 2 check bits for a few nodes and
+    swallow intact ones. A lock needs ``lock_nodes`` valid nodes whose angle steps are within
+    [``min_step``, ``max_step``] and within a factor ``STEP_SPREAD`` of each other."""
+
+    size = records.NODE_SIZE
+    STEP_SPREAD = 4
+    MIN_STEP_Q6 = 3  # 0.047°: finer than any standard-mode device samples
+
+    def __init__(self, lock_nodes: int, max_step_q6: int, backtrack_nodes: int = 8) -> None:
+        super().__init__(Ans.NODE)
+        self.lock_nodes = lock_nodes
+        self.max_step_q6 = max_step_q6
+        self.backtrack = backtrack_nodes * self.size - 1
+        self.emitted_end: dict[int, int] = {}  # byte phase -> end of the records emitted in it
+
+    def valid(self, recs: U8) -> records.Bools:
+        return records.node_check(recs[:, 0], recs[:, 1], recs[:, 2])
+
+    def find_lock(self, buf: U8, pos: int) -> tuple[int | None, int]:
+        count = len(buf) - pos - self.size * self.lock_nodes + 1
+        if count <= 0:
+            return None, pos
+        tail = buf[pos:]
+        ok = records.node_check(tail[:-4], tail[1:-3], tail[2:-2])
+        angle = records.node_angle_q6(tail[1:-3], tail[2:-2])
+        cand = ok[:count].copy()
+        lo = np.full(count, records.FULL_TURN_Q6, dtype=np.int64)
+        hi = np.zeros(count, dtype=np.int64)
+        for j in range(1, self.lock_nodes):
+            at, before = j * self.size, (j - 1) * self.size
+            step = np.mod(angle[at:at + count] - angle[before:before + count], records.FULL_TURN_Q6)
+            cand &= ok[at:at + count]
+            lo, hi = np.minimum(lo, step), np.maximum(hi, step)
+        cand &= (lo >= self.MIN_STEP_Q6) & (hi <= self.max_step_q6) & (hi <= self.STEP_SPREAD * lo)
+        self._exclude_failed_phase(cand, pos)
+        hits = np.flatnonzero(cand)
+        if len(hits):
+            return pos + int(hits[0]), pos + int(hits[0])
+        return None, pos + count
+
+    def _exclude_failed_phase(self, cand: records.Bools, pos: int) -> None:
+        """Never lock where a record of the same byte phase was already emitted."""
+        for end in self.emitted_end.values():
+            if end > pos:
+                first = (end - pos) % self.size
+                cand[first:min(end - pos, len(cand)):self.size] = False
+
+    def emitted(self, start: int, end: int) -> None:
+        self.emitted_end[start % self.size] = end
+
+    def shift(self, dropped: int) -> None:
+        self.emitted_end = {(end - dropped) % self.size: end - dropped
+                            for end in self.emitted_end.values() if end - dropped > 0}
+
+    def emit(self, recs: U8) -> list[Event]:
+        angle, dist, quality, start = records.decode_nodes(recs)
+        return [Samples(self.data_type, angle, dist, quality, start)]
+
+
+_CAPSULE_DECODERS: dict[int, tuple[int, Callable[[U8, U8], records.DecodedSamples]]] = {
+    Ans.CAPSULE: (records.LEGACY_SIZE, records.decode_legacy),
+    Ans.DENSE_CAPSULE: (records.DENSE_SIZE, records.decode_dense),
+    Ans.ULTRA_CAPSULE: (records.ULTRA_SIZE, records.decode_ultra),
+}
+
+
+class _CapsuleStream(_RecordStream):
+    """Capsules decode in pairs (a capsule needs its successor's start angle): one of latency."""
+
+    def __init__(self, data_type: int) -> None:
+        super().__init__(data_type)
+        self.size, self._decode = _CAPSULE_DECODERS[data_type]
+        self.previous: U8 | None = None
+        self.last_base_q16: int | None = None
+        self.dropped = 0
+
+    def valid(self, recs: U8) -> records.Bools:
+        return records.capsule_check(recs)
+
+    def find_lock(self, buf: U8, pos: int) -> tuple[int | None, int]:
+        tail = buf[pos:]
+        marks = np.flatnonzero(((tail[:-1] >> 4) == 0xA) & ((tail[1:] >> 4) == 0x5))
+        for mark in marks.tolist():
+            at = pos + mark
+            if at + self.size > len(buf):
+                return None, at
+            if records.capsule_check(buf[at:at + self.size][None, :])[0]:
+                return at, at
+        return None, max(pos, len(buf) - 1)
+
+    def lose_sync(self) -> None:
+        super().lose_sync()
+        self.dropped += 1
+        self.previous = None
+
+    def emit(self, recs: U8) -> list[Event]:
+        caps = recs if self.previous is None else np.concatenate([self.previous[None, :], recs])
+        events: list[Event] = []
+        resets = np.flatnonzero(records.capsule_sync(caps[1:])) + 1
+        bounds = [0, *resets.tolist(), len(caps)]
+        for first, end in itertools.pairwise(bounds):
+            if first > 0:
+                events.append(EncoderReset())
+                self.last_base_q16 = None
+            if end - first >= 2:
+                events.append(self._samples(caps[first:end - 1], caps[first + 1:end]))
+        self.previous = caps[-1].copy()
+        return events
+
+    def _samples(self, cur: U8, nxt: U8) -> Samples:
+        decoded = self._decode(cur, nxt)
+        base = decoded.base_q16
+        previous = base[0] if self.last_base_q16 is None else self.last_base_q16
+        new_rev = base < np.concatenate([[previous], base[:-1]])
+        self.last_base_q16 = int(base[-1])
+        return Samples(self.data_type, decoded.angle_deg, decoded.distance_mm, decoded.quality,
+                       new_rev)
+
+
+# ---------------------------------------------------------------- the parser
+
+
+@dataclass
+class ParserStats:
+    junk_bytes: int = 0
+    resyncs: int = 0
+    dropped_capsules: int = 0
+    records: int = 0
+    samples: int = 0
+    descriptors: int = 0
+
+
+@dataclass
+class StreamParser:
+    """Bytes in (any chunking), events out. Never raises on device bytes.
+
+    Skips banners and junk by hunting ``A5 5A``; reads single replies; follows measurement
+    streams with per-type resynchronisation. ``lock_nodes`` consecutive valid standard nodes,
+    each advancing the angle by more than 0 and at most ``max_node_step_deg``, are needed
+    before a byte phase is accepted.
+    """
+
+    lock_nodes: int = 4
+    max_node_step_deg: float = 20.0
+    stats: ParserStats = field(default_factory=ParserStats)
+    _buf: bytes = b""
+    _single: Descriptor | None = None
+    _stream: _RecordStream | None = None
+    _skip_stream: bool = False
+    _resume: int = 0
+
+    def reset(self) -> None:
+        """Forget any stream and buffered bytes: the next thing expected is a descriptor."""
+        self._fold_stream_stats()
+        self._buf, self._single, self._stream, self._skip_stream = b"", None, None, False
+        self._resume = 0
+
+    @property
+    def streaming(self) -> int | None:
+        """The data type of the measurement stream being followed, if any."""
+        return self._stream.data_type if self._stream else None
+
+    @property
+    def resyncs(self) -> int:
+        return self.stats.resyncs + (self._stream.resyncs if self._stream else 0)
+
+    @property
+    def dropped_capsules(self) -> int:
+        live = self._stream.dropped if isinstance(self._stream, _CapsuleStream) else 0
+        return self.stats.dropped_capsules + live
+
+    def feed(self, data: bytes) -> list[Event]:
+        self._buf += data
+        events: list[Event] = []
+        while self._step(events):
+            pass
+        for event in events:
+            if isinstance(event, Samples):
+                self.stats.samples += len(event)
+        return events
+
+    # -- states
+
+    def _step(self, events: list[Event]) -> bool:
+        if self._skip_stream:
+            self.stats.junk_bytes += len(self._buf)
+            self._buf = b""
+            return False
+        if self._single is not None:
+            return self._read_single(events)
+        if self._stream is not None:
+            return self._read_stream(events)
+        return self._hunt_descriptor(events)
+
+    def _hunt_descriptor(self, events: list[Event]) -> bool:
+        start = 0
+        while True:
+            at = self._buf.find(DESCRIPTOR_SYNC, start)
+            if at < 0:
+                keep = 1 if self._buf.endswith(b"\xa5") else 0
+                self._consume_junk(len(self._buf) - keep)
+                return False
+            if len(self._buf) - at < DESCRIPTOR_SIZE:
+                self._consume_junk(at)
+                return False
+            desc = parse_descriptor(self._buf[at:at + DESCRIPTOR_SIZE])
+            if desc is None:
+                start = at + 1
+                continue
+            self._consume_junk(at)
+            self._buf = self._buf[DESCRIPTOR_SIZE:]
+            self._start(desc, events)
+            return True
+
+    def _start(self, desc: Descriptor, events: list[Event]) -> None:
+        self.stats.descriptors += 1
+        events.append(desc)
+        self._fold_stream_stats()
+        self._stream = None
+        if not desc.multi:
+            self._single = desc
+        elif desc.data_type == Ans.NODE:
+            step_q6 = int(self.max_node_step_deg * 64)
+            self._stream = _NodeStream(self.lock_nodes, step_q6)
+        elif desc.data_type in _CAPSULE_DECODERS:
+            self._stream = _CapsuleStream(desc.data_type)
+        else:
+            events.append(UnsupportedStream(desc.data_type))
+            self._skip_stream = True
+
+    def _read_single(self, events: list[Event]) -> bool:
+        assert self._single is not None
+        if len(self._buf) < self._single.length:
+            return False
+        body, self._buf = self._buf[:self._single.length], self._buf[self._single.length:]
+        events.append(parse_reply(self._single, body))
+        self._single = None
+        return True
+
+    def _read_stream(self, events: list[Event]) -> bool:
+        stream = self._stream
+        assert stream is not None
+        buf = np.frombuffer(self._buf, dtype=np.uint8)
+        pos = self._resume
+        while True:
+            if not stream.locked:
+                lock, undecided = stream.find_lock(buf, pos)
+                switched = self._descriptor_in(pos, lock if lock is not None else undecided)
+                if switched is not None:
+                    return self._switch(switched, pos, events)
+                if lock is None:
+                    self.stats.junk_bytes += max(undecided - pos, 0)
+                    self._buf, self._resume = self._buf[undecided:], 0
+                    stream.shift(undecided)
+                    return False
+                self.stats.junk_bytes += max(lock - pos, 0)
+                pos, stream.locked = lock, True
+            pos = self._decode_locked(stream, buf, pos, events)
+            if len(buf) - pos < stream.size:
+                break
+            verdict = self._descriptor_at(pos)
+            if verdict == "wait":
+                break
+            if verdict == "yes":
+                return self._switch(pos, pos, events)
+            stream.lose_sync()
+            pos = max(pos - stream.backtrack, 0) if stream.backtrack else pos + 1
+        keep = max(pos - stream.backtrack, 0)
+        self._buf, self._resume = self._buf[keep:], pos - keep
+        stream.shift(keep)
+        return False
+
+    def _decode_locked(self, stream: _RecordStream, buf: U8, pos: int,
+                       events: list[Event]) -> int:
+        count = (len(buf) - pos) // stream.size
+        if count == 0:
+            return pos
+        recs = buf[pos:pos + count * stream.size].reshape(count, stream.size)
+        valid = stream.valid(recs)
+        good = count if valid.all() else int(np.argmin(valid))
+        if good:
+            events.extend(stream.emit(recs[:good]))
+            stream.emitted(pos, pos + good * stream.size)
+            self.stats.records += good
+        return pos + good * stream.size
+
+    def _descriptor_at(self, pos: int) -> str:
+        """Is a new descriptor at ``pos`` (a record boundary that failed its check)?"""
+        head = self._buf[pos:pos + DESCRIPTOR_SIZE]
+        if not DESCRIPTOR_SYNC.startswith(head[:2]):
+            return "no"
+        if len(head) < DESCRIPTOR_SIZE:
+            return "wait"
+        return "yes" if parse_descriptor(head) else "no"
+
+    def _descriptor_in(self, start: int, end: int) -> int | None:
+        at = self._buf.find(DESCRIPTOR_SYNC, start, end + 2)
+        while at >= 0:
+            if parse_descriptor(self._buf[at:at + DESCRIPTOR_SIZE]):
+                return at
+            at = self._buf.find(DESCRIPTOR_SYNC, at + 1, end + 2)
+        return None
+
+    def _switch(self, at: int, pos: int, events: list[Event]) -> bool:
+        self.stats.junk_bytes += max(at - pos, 0)
+        self._buf, self._resume = self._buf[at:], 0
+        self._fold_stream_stats()
+        self._stream = None
+        return True
+
+    def _consume_junk(self, count: int) -> None:
+        self._resume = 0
+        if count > 0:
+            self.stats.junk_bytes += count
+            self._buf = self._buf[count:]
+
+    def _fold_stream_stats(self) -> None:
+        if self._stream is not None:
+            self.stats.resyncs += self._stream.resyncs
+            self._stream.resyncs = 0
+            if isinstance(self._stream, _CapsuleStream):
+                self.stats.dropped_capsules += self._stream.dropped
+                self._stream.dropped = 0
