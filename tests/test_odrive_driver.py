@@ -521,3 +521,14 @@ async def test_standalone_emulator_in_another_process_over_udp_multicast(
         assert "vel 0.000" in status
     finally:
         await driver.close()
+
+
+def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
+    from drivers.bench_odrive import run
+
+    results = {r.name: r for r in run(quick=True)}
+    sent = results["odrive_can virtual command->sent p99"]
+    reached = results["odrive_can virtual command->ODrive p50"]
+    assert sent.suite == "drivers" and sent.unit == "ms"
+    assert math.isfinite(sent.value) and sent.value > 0
+    assert "(300 matched)" in reached.note
