@@ -275,6 +275,8 @@ class SerialBridgeDriver(MotorDriver):
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def _open(self) -> None:
+        if self._link is not None:  # opened twice without close(): drop the old link first
+            await self._close()
         port = await asyncio.to_thread(self._open_port)
         self.fault = None
         try:

@@ -382,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
         stopped = threading.Event()
         signal.signal(signal.SIGTERM, lambda *_: stopped.set())
         with contextlib.suppress(KeyboardInterrupt):
-            while not stopped.wait(1.0):
+            while not stopped.wait(0.2):
                 pass
     return 0
 
