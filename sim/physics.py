@@ -64,6 +64,7 @@ class DiffDrivePhysics:
         self.wheel_sign = wheel_sign
         self.state = BodyState()
         self._offsets = [0.0, 0.0]  # encoder error currently applied to each motor (rad)
+        self._written = (0.0, 0.0)  # motor positions as this class last left them
         self._free = 0.0  # distance the centre can still move without any contact check
         self.place(world.start)
 
@@ -91,10 +92,13 @@ class DiffDrivePhysics:
         pair = self.motors
         with pair.lock:
             before = (pair.left.position_rad, pair.right.position_rad)
+            if before != self._written:  # someone re-zeroed the encoders: no error applied
+                self._offsets = [0.0, 0.0]
             pair.advance(dt)
             turned = (pair.left.position_rad - before[0], pair.right.position_rad - before[1])
             if self.noise.odom_on:
                 self._apply_encoder_noise(turned)
+            self._written = (pair.left.position_rad, pair.right.position_rad)
         return turned
 
     def _apply_encoder_noise(self, turned: tuple[float, float]) -> None:
