@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import math
 import struct
 import subprocess
@@ -38,6 +39,7 @@ from sim.odrive_emulator import (
     ERROR_MOTOR_FAILED,
     STATE_CLOSED_LOOP_CONTROL,
     STATE_IDLE,
+    ODriveEmulator,
 )
 from tests.rigs.odrive_can import LEFT_NODE, RIGHT_NODE, ODriveRig, rig
 
@@ -45,6 +47,7 @@ REPO = Path(__file__).resolve().parent.parent
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30
 MAX_WHEEL_SPEED = 30.0
+MULTICAST_GROUP = "239.74.163.2"
 
 
 async def eventually(condition: Callable[[], Any], within_s: float = 3.0,
@@ -475,13 +478,13 @@ def _free_udp_port() -> int:
 def emulator_process() -> Iterator[tuple[subprocess.Popen[str], int]]:
     port = _free_udp_port()
     try:
-        probe = can.Bus(interface="udp_multicast", channel="239.74.163.2", port=port)
+        probe = can.Bus(interface="udp_multicast", channel=MULTICAST_GROUP, port=port)
     except (can.CanError, OSError, ImportError) as exc:
         pytest.skip(f"python-can udp_multicast unusable here: {exc}")
     probe.shutdown()
     proc = subprocess.Popen(
         [sys.executable, "-m", "sim.odrive_emulator", "--interface", "udp_multicast",
-         "--channel", "239.74.163.2", "--port", str(port), "--left-node", "5",
+         "--channel", MULTICAST_GROUP, "--port", str(port), "--left-node", "5",
          "--right-node", "6"], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
         text=True)
     assert proc.stdout is not None
@@ -496,7 +499,7 @@ async def test_standalone_emulator_in_another_process_over_udp_multicast(
         emulator_process: tuple[subprocess.Popen[str], int]) -> None:
     proc, port = emulator_process
     assert proc.stdin is not None and proc.stdout is not None
-    driver = ODriveCanDriver({"interface": "udp_multicast", "channel": "239.74.163.2",
+    driver = ODriveCanDriver({"interface": "udp_multicast", "channel": MULTICAST_GROUP,
                               "multicast_port": port, "left_node_id": 5, "right_node_id": 6},
                              max_wheel_speed=MAX_WHEEL_SPEED)
     await driver.open()
@@ -532,3 +535,70 @@ def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
     assert sent.suite == "drivers" and sent.unit == "ms"
     assert math.isfinite(sent.value) and sent.value > 0
     assert "(300 matched)" in reached.note
+
+
+# -- end to end: the real daemon as a subprocess, the ODrive emulated in this process --------
+
+
+def test_daemon_survives_odrive_heartbeat_loss(tmp_path: Path) -> None:
+    from tests.daemon_proc import DaemonProcess, wait_for
+
+    port = _free_udp_port()
+    try:
+        emulator = ODriveEmulator("udp_multicast", MULTICAST_GROUP, node_ids=(7, 8),
+                                  bus_kwargs={"port": port}).start()
+    except (can.CanError, OSError, ImportError) as exc:
+        pytest.skip(f"python-can udp_multicast unusable here: {exc}")
+    config = f"""
+[driver]
+type = "odrive_can"
+[driver.odrive_can]
+interface = "udp_multicast"
+channel = "{MULTICAST_GROUP}"
+multicast_port = {port}
+left_node_id = 7
+right_node_id = 8
+[control]
+reconnect_min_s = 0.2
+reconnect_max_s = 0.5
+"""
+    drive = {"linear": {"x": 0.2}}  # 4 rad/s on both 0.05 m wheels
+    try:
+        with DaemonProcess(tmp_path, config, use_mock_log=False) as daemon:
+            wait_for(lambda: daemon.get("/api/health")[0] == 200, 10, "a healthy daemon")
+
+            def driving() -> bool:
+                assert daemon.post("/api/cmd_vel", drive)[0] == 200
+                return close_to(emulator.wheel_targets(), (4.0, 4.0), 0.05)
+
+            wait_for(driving, 5, "the emulated wheels to turn at 4 rad/s")
+
+            emulator.set_heartbeat(False)
+            status, health = wait_for(lambda: _health_if(daemon, 503), 5, "health error")
+            assert health["status"] == "error"
+            assert "no heartbeat from ODrive node 7" in json.dumps(health)
+            wait_for(lambda: emulator.wheel_targets() == (0.0, 0.0), 2, "wheels zeroed")
+            status, body = daemon.post("/api/cmd_vel", drive)
+            assert status == 409 and "fault" in body["error"]
+
+            emulator.set_heartbeat(True)
+            wait_for(lambda: _health_if(daemon, 200), 10, "recovery after the heartbeat returns")
+            left = emulator.axis("left")
+            frames = left.frames[CMD_SET_INPUT_VEL]
+            assert left.axis_state == STATE_CLOSED_LOOP_CONTROL
+            wait_for(lambda: left.frames[CMD_SET_INPUT_VEL] >= frames + 5, 5,
+                     "keep-alive frames after the reconnect")
+            assert emulator.wheel_targets() == (0.0, 0.0)  # still until a fresh command
+            wait_for(driving, 5, "motion after a fresh command")
+
+            assert daemon.proc is not None and daemon.proc.poll() is None
+            assert daemon.stop() == 0
+        wait_for(lambda: all(a.axis_state == STATE_IDLE for a in emulator.axes.values()), 2,
+                 "both axes IDLE after the daemon's shutdown")
+    finally:
+        emulator.stop()
+
+
+def _health_if(daemon: Any, wanted: int) -> tuple[int, Any] | None:
+    status, body = daemon.get("/api/health")
+    return (status, body) if status == wanted else None
