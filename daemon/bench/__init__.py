@@ -24,4 +24,5 @@ class BenchResult:
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`
 SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
+    "drivers": "daemon.bench.drivers",
 }
