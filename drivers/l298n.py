@@ -1,0 +1,302 @@
+# L298N driver through gpiozero: a Motor per side, pin factory from config, RotaryEncoder odometry.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar, TypeVar
+
+from daemon.options import Options
+from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.pigpio_pwm import SerialExecutor, check_pins, drop_pigpio, probe_tcp, speed_to_duty
+
+T = TypeVar("T")
+PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
+PI4B_REVISION = "c03111"
+
+_mock_factory: Any = None
+
+
+def mock_pin_factory() -> Any:
+    """The process-wide gpiozero MockFactory (PWM-capable pins, a Pi 4B) behind ``mock``.
+
+    Tests and the simulator read and drive its pins to see what the driver does.
+    """
+    global _mock_factory
+    if _mock_factory is None:
+        from gpiozero.pins.mock import MockFactory, MockPWMPin
+
+        _mock_factory = MockFactory(revision=PI4B_REVISION, pin_class=MockPWMPin)
+    return _mock_factory
+
+
+def _pin(default: int, doc: str, *, optional: bool = False) -> Any:
+    return option(int, default, doc, minval=-1 if optional else 0, maxval=27)
+
+
+def build_pin_factory(opts: Mapping[str, Any]) -> Any:
+    """The gpiozero pin factory the config names; DriverFault when it cannot work here."""
+    kind = opts["pin_factory"]
+    try:
+        if kind == "mock":
+            return mock_pin_factory()
+        if kind == "pigpio":
+            return _pigpio_factory(opts)
+        if kind == "lgpio":
+            # importing lgpio creates a notification FIFO in $LG_WD (default: the cwd)
+            os.environ.setdefault("LG_WD", os.environ.get("RUNTIME_DIRECTORY",
+                                                          tempfile.gettempdir()))
+            from gpiozero.pins.lgpio import LGPIOFactory
+
+            return LGPIOFactory()
+        if kind == "rpigpio":
+            from gpiozero.pins.rpigpio import RPiGPIOFactory
+
+            return RPiGPIOFactory()
+        from gpiozero.pins.native import NativeFactory
+
+        return NativeFactory()
+    except DriverFault:
+        raise
+    except Exception as exc:
+        raise DriverFault(f"[driver.l298n] pin_factory = {kind!r} unavailable: "
+                          f"{type(exc).__name__}: {exc}") from exc
+
+
+def _pigpio_factory(opts: Mapping[str, Any]) -> Any:
+    from gpiozero.pins.pigpio import PiGPIOFactory
+
+    host, port, timeout = opts["pigpio_host"], opts["pigpio_port"], opts["timeout"]
+    probe_tcp(host, port, timeout)
+    factory = PiGPIOFactory(host=host, port=port)
+    factory.connection.sl.s.settimeout(timeout)
+    return factory
+
+
+class L298NDriver(MotorDriver):
+    """Two L298N channels as gpiozero ``Motor`` devices (IN1/IN2 PWM, optional EN held high).
+
+    Speeds map open loop to duty (``max_wheel_speed`` at full duty, ``min_duty``,
+    ``deadband``); optional quadrature encoders are gpiozero ``RotaryEncoder`` devices. With
+    the ``pigpio`` pin factory every pin access is a pigpiod round trip, so those run on a
+    worker thread and a lost pigpiod is a fault.
+    """
+
+    OPTIONS: ClassVar[Options] = {
+        "pin_factory": option(str, "lgpio", "gpiozero pin factory", choices=PIN_FACTORIES),
+        "pigpio_host": option(str, "localhost", "pigpiod host (pin_factory = 'pigpio')"),
+        "pigpio_port": option(int, 8888, "pigpiod port (pin_factory = 'pigpio')",
+                              minval=1, maxval=65535),
+        "left_forward": _pin(17, "left IN1 GPIO (PWM, forward)"),
+        "left_backward": _pin(18, "left IN2 GPIO (PWM, backward)"),
+        "left_enable": _pin(-1, "left ENA GPIO held high (-1 = jumpered)", optional=True),
+        "right_forward": _pin(22, "right IN3 GPIO (PWM, forward)"),
+        "right_backward": _pin(23, "right IN4 GPIO (PWM, backward)"),
+        "right_enable": _pin(-1, "right ENB GPIO held high (-1 = jumpered)", optional=True),
+        "left_invert": option(bool, False, "reverse the left motor's direction"),
+        "right_invert": option(bool, False, "reverse the right motor's direction"),
+        "pwm_frequency": option(int, 500, "PWM frequency, Hz", minval=10, maxval=20000),
+        "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
+                                  "(0 = the robot's maximum wheel speed)", minval=0.0),
+        "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
+                           minval=0.0, below=1.0),
+        "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
+                           minval=0.0),
+        "encoders": option(bool, False, "read quadrature encoders with gpiozero RotaryEncoder"),
+        "left_encoder_a": _pin(5, "left encoder channel A GPIO"),
+        "left_encoder_b": _pin(6, "left encoder channel B GPIO"),
+        "right_encoder_a": _pin(20, "right encoder channel A GPIO"),
+        "right_encoder_b": _pin(21, "right encoder channel B GPIO"),
+        "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
+        "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
+        "encoder_counts_per_rev": option(int, 360, "full quadrature cycles (RotaryEncoder steps)"
+                                         " per wheel revolution", minval=1),
+        "encoder_bounce": option(float, 0.0, "encoder debounce time, s (0 = off)",
+                                 minval=0.0, maxval=0.3),
+        "timeout": option(float, 1.0, "pigpiod connect and reply timeout, s",
+                          above=0.0, maxval=30.0),
+        "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
+                                 "(pin_factory = 'pigpio'; 0 = only when writing)", minval=0.0),
+    }
+
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
+        super().__init__(opts, max_wheel_speed=max_wheel_speed)
+        self.full_duty_speed = float(opts["max_wheel_speed"]) or max_wheel_speed
+        keys = [f"{s}_{p}" for s in ("left", "right") for p in ("forward", "backward", "enable")]
+        if opts["encoders"]:
+            keys += [f"{s}_encoder_{c}" for s in ("left", "right") for c in "ab"]
+        check_pins(opts, keys, "l298n")
+        self.remote = opts["pin_factory"] == "pigpio"
+        self._factory: Any = None
+        self._motors: list[Any] = []
+        self._encoders: list[Any] = []
+        self._offsets = [0, 0]
+        self._values: list[float | None] = [None, None]
+        self._io: SerialExecutor | None = None
+        self._watch: asyncio.Task[None] | None = None
+        self.connects = 0
+
+    @classmethod
+    def name(cls) -> str:
+        return "l298n"
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        if self.remote:
+            self._io = SerialExecutor("l298n-pigpio")
+        try:
+            await self._call(self._build)
+        except BaseException:
+            if self._io is not None:
+                self._io.shutdown()
+                self._io = None
+            raise
+        if self.remote and self.options["watch_interval"] > 0:
+            self._watch = asyncio.create_task(self._watch_peer(), name="l298n-pigpio-watch")
+
+    async def _call(self, fn: Callable[..., T], *args: Any) -> T:
+        """Run pin I/O: inline for local factories, on the worker thread for pigpiod."""
+        if self._io is None:
+            return fn(*args)
+        return await self._io.call(fn, *args)
+
+    def _build(self) -> None:
+        factory = build_pin_factory(self.options)
+        try:
+            self._motors = [self._motor(factory, side) for side in ("left", "right")]
+            if self.options["encoders"]:
+                self._encoders = [self._encoder(factory, side) for side in ("left", "right")]
+        except Exception as exc:
+            self._factory = factory
+            self._release(peer_alive=True)
+            raise DriverFault(f"[driver.l298n] pin setup failed: {type(exc).__name__}: "
+                              f"{exc}") from exc
+        self._factory, self._values = factory, [0.0, 0.0]
+        self.connects += 1
+
+    def _motor(self, factory: Any, side: str) -> Any:
+        from gpiozero import Motor
+
+        o = self.options
+        enable = o[f"{side}_enable"] if o[f"{side}_enable"] >= 0 else None
+        motor = Motor(o[f"{side}_forward"], o[f"{side}_backward"], enable=enable, pwm=True,
+                      pin_factory=factory)
+        try:
+            motor.forward_device.frequency = o["pwm_frequency"]
+            motor.backward_device.frequency = o["pwm_frequency"]
+            motor.stop()
+        except Exception:
+            motor.close()
+            raise
+        return motor
+
+    def _encoder(self, factory: Any, side: str) -> Any:
+        from gpiozero import RotaryEncoder
+
+        o = self.options
+        return RotaryEncoder(o[f"{side}_encoder_a"], o[f"{side}_encoder_b"], max_steps=0,
+                             bounce_time=o["encoder_bounce"] or None, pin_factory=factory)
+
+    async def _close(self) -> None:
+        if self._watch is not None:
+            self._watch.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._watch
+            self._watch = None
+        await self._call(self._release, self.fault is None)
+        if self._io is not None:
+            self._io.shutdown()
+            self._io = None
+
+    def _release(self, peer_alive: bool) -> None:
+        factory, self._factory = self._factory, None
+        connection = getattr(factory, "_connection", None) if self.remote else None
+        if connection is not None and not peer_alive:
+            # gpiozero would talk to the dead pigpiod while closing pins; cut it loose first
+            drop_pigpio(connection, peer_alive=False)
+        for index, encoder in enumerate(self._encoders):
+            with contextlib.suppress(Exception):
+                self._offsets[index] += encoder.steps
+        for device in [*self._encoders, *self._motors]:
+            with contextlib.suppress(Exception):
+                device.close()
+        self._encoders, self._motors, self._values = [], [], [None, None]
+        if factory is not None and self.options["pin_factory"] != "mock":
+            with contextlib.suppress(Exception):
+                factory.close()
+        if connection is not None:
+            drop_pigpio(connection, peer_alive=False)  # idempotent; forgets its atexit hook
+
+    # -- commands -----------------------------------------------------------------------------
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        o = self.options
+        values = []
+        for side, speed in (("left", left_rad_s), ("right", right_rad_s)):
+            duty = speed_to_duty(speed, self.full_duty_speed, o["min_duty"], o["deadband"])
+            values.append(-duty if o[f"{side}_invert"] else duty)
+        if not self._motors:
+            raise DriverFault("l298n: motors are not set up")
+        await self._call(self._write, values)
+
+    def _write(self, values: list[float]) -> None:
+        try:
+            for index, value in enumerate(values):
+                if self._values[index] != value:
+                    self._motors[index].value = value
+                    self._values[index] = value
+        except Exception as exc:
+            self._values = [None, None]
+            if self.remote:
+                self._lost(f"write failed: {type(exc).__name__}: {exc}")
+                raise DriverFault(self.fault or "pigpiod lost") from exc
+            raise DriverFault(f"l298n: GPIO write failed: {type(exc).__name__}: {exc}") from exc
+
+    def _lost(self, reason: str) -> None:
+        o = self.options
+        self.report_fault(f"pigpiod at {o['pigpio_host']}:{o['pigpio_port']} lost: {reason}")
+        factory = self._factory
+        if factory is not None and factory._connection is not None:
+            drop_pigpio(factory._connection, peer_alive=False)
+
+    async def _watch_peer(self) -> None:
+        interval = self.options["watch_interval"]
+        while self.fault is None:
+            await asyncio.sleep(interval)
+            factory, io = self._factory, self._io
+            if factory is None or io is None:
+                return
+            try:
+                await io.call(factory._connection.get_current_tick)
+            except Exception as exc:
+                self._lost(f"keep-alive failed: {type(exc).__name__}: {exc}")
+                return
+
+    # -- encoders and health ------------------------------------------------------------------
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        if not self.options["encoders"]:
+            return None
+        left, right = (self._position(i, side) for i, side in enumerate(("left", "right")))
+        return EncoderReading(left, right, time.monotonic())
+
+    def _position(self, index: int, side: str) -> float:
+        steps = self._offsets[index]
+        if self._encoders:
+            steps += self._encoders[index].steps
+        sign = -1.0 if self.options[f"{side}_encoder_invert"] else 1.0
+        return sign * steps / self.options["encoder_counts_per_rev"] * 2.0 * math.pi
+
+    def _health(self) -> dict[str, Any]:
+        o = self.options
+        extra: dict[str, Any] = {"pin_factory": o["pin_factory"], "connects": self.connects,
+                                 "duty": list(self._values)}
+        if self.remote:
+            extra["pigpiod"] = f"{o['pigpio_host']}:{o['pigpio_port']}"
+        return extra
