@@ -4,6 +4,7 @@
 #   ./install.sh dev                 developer venv (.venv) with the package editable + extras
 #   ./install.sh sim [ARGS...]       dev, then run the daemon on the simulated robot
 #   ./install.sh test [ARGS...]      dev, then run the whole test suite (pytest ARGS...)
+#   sudo ./install.sh systemd [--hardware] [--driver NAME]   the supervised service on a Pi
 #
 # Every setting can come from the environment (ARBITERD_*) or a flag; see usage below and
 # docs/deploy.md.
@@ -157,6 +158,591 @@ cmd_test() {
 }
 
 ######################################################################
+# Service install on the robot (systemd, uninstall, status, logs, health, rollback)
+######################################################################
+
+# Fixed locations: the unit file and the daemon's default config path name them.
+PREFIX=/opt/arbiterd
+CONFIG_DIR=/etc/arbiterd
+UNIT_DIR=/etc/systemd/system
+UDEV_DIR=/etc/udev/rules.d
+SERVICE=arbiterd.service
+TARGET=robot.target
+SERVICE_USER=arbiterd
+STATE_DIR=/var/lib/arbiterd
+
+ROOT="${ARBITERD_ROOT:-}"                       # staging root ('' = this machine)
+SYSTEMCTL="${ARBITERD_SYSTEMCTL:-}"             # systemctl to run ('' = systemctl; staging: none)
+HEALTH_TIMEOUT="${ARBITERD_HEALTH_TIMEOUT:-60}" # seconds to wait for /api/health
+KEEP_RELEASES="${ARBITERD_KEEP_RELEASES:-5}"    # releases kept under /opt/arbiterd/releases
+MODE_FLAG="${ARBITERD_MODE:-}"                  # hardware | sim | '' (keep the current choice)
+INSTALL_DRIVER="${ARBITERD_INSTALL_DRIVER:-}"   # [driver] type for a new config
+NO_START="${ARBITERD_NO_START:-0}"              # 1 = install only, do not (re)start
+PIP_ARGS="${ARBITERD_PIP_ARGS:-}"               # extra pip install arguments
+WHEEL="" RELEASE="" PURGE=0
+EXIT_UNHEALTHY=3                                # activated release failed its health check
+
+CHANGED=0          # something the running service depends on changed: restart it
+UNITS_CHANGED=0
+UDEV_CHANGED=0
+declare -A MANIFEST=()   # staging only: path -> "owner:group mode"
+
+staging() { [[ -n "${ROOT}" ]]; }
+r() { printf '%s%s' "${ROOT}" "$1"; }       # a system path inside the (staging) root
+
+require_root() {
+    staging && return 0
+    [[ "${DRY_RUN}" == 1 ]] && return 0
+    is_root || die "'./install.sh $1' changes the system and must run as root: sudo ./install.sh $1 ...
+       (for a trial run: ./install.sh $1 --dry-run, or --root DIR to lay it out in a staging dir)"
+}
+
+# record_action TEXT: note a system change the staging mode does not make (useradd, udevadm...).
+record_action() {
+    report_status "staging: would run: $*"
+    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "$*" >>"$(r /.arbiterd-actions)"
+}
+
+# own PATH OWNER:GROUP MODE: set the mode; set the owner (or record it, in staging).
+own() {
+    local path="$1" owner="$2" mode="$3"
+    if [[ "${mode}" == link || -L "$(r "${path}")" ]]; then
+        if staging; then MANIFEST["${path}"]="${owner} link"; else run chown -h "${owner}" "${path}"; fi
+        return 0
+    fi
+    if [[ "$(stat -c '%04a' "$(r "${path}")" 2>/dev/null)" != "${mode}" ]]; then
+        run chmod "${mode}" "$(r "${path}")"
+    fi
+    if staging; then
+        MANIFEST["${path}"]="${owner} ${mode}"
+    else
+        run chown "${owner}" "${path}"
+    fi
+}
+
+ensure_dir() {  # PATH OWNER:GROUP MODE
+    [[ -d "$(r "$1")" ]] || run mkdir -p "$(r "$1")"
+    own "$@"
+}
+
+# put_file SRC DEST OWNER:GROUP MODE: install SRC at DEST when different; returns 0 if changed.
+put_file() {
+    local src="$1" dest="$2" owner="$3" mode="$4"
+    if [[ -f "$(r "${dest}")" ]] && cmp -s "${src}" "$(r "${dest}")"; then
+        own "${dest}" "${owner}" "${mode}"
+        return 1
+    fi
+    report_status "installing ${dest}"
+    run install -D -m "${mode}" "${src}" "$(r "${dest}")"
+    own "${dest}" "${owner}" "${mode}"
+    return 0
+}
+
+# remove PATH...: delete files or trees inside the root, forgetting them in the manifest.
+remove() {
+    local path
+    for path in "$@"; do
+        if [[ -e "$(r "${path}")" || -L "$(r "${path}")" ]]; then
+            report_status "removing ${path}"
+            run rm -rf -- "$(r "${path}")"
+        fi
+        local key
+        for key in "${!MANIFEST[@]}"; do
+            [[ "${key}" == "${path}" || "${key}" == "${path}/"* ]] && unset "MANIFEST[${key}]"
+        done
+    done
+    return 0
+}
+
+manifest_load() {
+    staging || return 0
+    local file path rest
+    file="$(r /.arbiterd-manifest)"
+    [[ -f "${file}" ]] || return 0
+    while IFS=$'\t' read -r path rest; do MANIFEST["${path}"]="${rest}"; done <"${file}"
+}
+
+manifest_save() {
+    staging && [[ "${DRY_RUN}" != 1 ]] || return 0
+    local file path
+    file="$(r /.arbiterd-manifest)"
+    if (( ${#MANIFEST[@]} == 0 )); then rm -f -- "${file}"; return 0; fi
+    for path in "${!MANIFEST[@]}"; do printf '%s\t%s\n' "${path}" "${MANIFEST[${path}]}"; done \
+        | LC_ALL=C sort >"${WORKDIR}/manifest"
+    cmp -s "${WORKDIR}/manifest" "${file}" || cp "${WORKDIR}/manifest" "${file}"
+}
+
+# systemctl_do ARGS...: systemctl on this machine; in staging recorded, and run through
+# ARBITERD_SYSTEMCTL when that is set (the deploy test's fake systemd).
+systemctl_do() {
+    if staging; then
+        record_action "systemctl $*"
+        [[ -n "${SYSTEMCTL}" ]] || return 0
+    fi
+    run "${SYSTEMCTL:-systemctl}" "$@"
+}
+
+can_start() { ! staging || [[ -n "${SYSTEMCTL}" ]]; }
+
+# py CODE ARGS...: a small Python helper (tomllib needs 3.11, which install checks).
+py() { "${PYTHON}" -c "$@"; }
+
+config_path() { r "${CONFIG_DIR}/arbiterd.toml"; }
+
+# config_get SECTION KEY DEFAULT: a value of the installed config, or DEFAULT.
+config_get() {
+    py 'import sys, tomllib
+path, section, key, default = sys.argv[1:5]
+try:
+    with open(path, "rb") as f:
+        data = tomllib.load(f)
+except (OSError, tomllib.TOMLDecodeError):
+    data = {}
+print(data.get(section, {}).get(key, default))' "$(config_path)" "$1" "$2" "$3"
+}
+
+# toml_set FILE SECTION KEY VALUE: set KEY (TOML literal VALUE) in [SECTION], replacing an
+# assignment or a commented-out one, else adding it under the header (or a new section).
+toml_set() {
+    py 'import re, sys
+path, section, key, value = sys.argv[1:5]
+lines = open(path, encoding="utf-8").read().splitlines()
+header = re.compile(r"^\s*\[([^\]]+)\]\s*$")
+assign = re.compile(r"^\s*#?\s*" + re.escape(key) + r"\s*=")
+current, start, hit = None, None, None
+for i, line in enumerate(lines):
+    m = header.match(line)
+    if m:
+        current = m.group(1).strip()
+        if current == section and start is None:
+            start = i
+    elif current == section and hit is None and assign.match(line):
+        hit = i
+new = f"{key} = {value}"
+if hit is not None:
+    lines[hit] = new
+elif start is not None:
+    lines.insert(start + 1, new)
+else:
+    lines += ["", f"[{section}]", new]
+open(path, "w", encoding="utf-8").write("\n".join(lines) + "\n")' "$@"
+}
+
+source_version() {
+    py 'import sys, tomllib
+print(tomllib.load(open(sys.argv[1], "rb"))["project"]["version"])' "${SRCDIR}/pyproject.toml"
+}
+
+# A content hash of the package sources, so re-installing unchanged sources is a no-op.
+source_hash() {
+    (cd "${SRCDIR}" && find pyproject.toml daemon drivers sensors sim -type f \
+        \( -name '*.py' -o -name '*.toml' -o -name '*.json' -o -name 'py.typed' \) \
+        -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum) \
+        | sha256sum | cut -c1-12
+}
+
+# Step 1: the apt packages the service needs (python venv; pigpiod / lgpio for hardware).
+svc_step_packages() {
+    local wanted=(python3-venv) driver
+    driver="$(effective_driver)"
+    if [[ "$(effective_mode)" == hardware ]]; then
+        case "${driver}" in
+            pigpio) wanted+=(pigpiod) ;;
+            l298n) wanted+=(python3-lgpio) ;;
+            odrive_can) wanted+=(can-utils) ;;
+        esac
+    fi
+    if staging; then
+        record_action "apt-get install ${wanted[*]}"
+        return 0
+    fi
+    local missing=() pkg
+    for pkg in "${wanted[@]}"; do
+        dpkg-query -W -f='${Status}' "${pkg}" 2>/dev/null | grep -q 'ok installed' \
+            || missing+=("${pkg}")
+    done
+    if (( ${#missing[@]} )); then apt_install "${missing[@]}"; else
+        report_status "system packages: all present"; fi
+}
+
+# Step 2: the system user, in the device groups that exist on this machine.
+svc_step_user() {
+    local groups=() group
+    if staging; then
+        record_action "ensure system user ${SERVICE_USER} (home ${STATE_DIR}) in groups gpio dialout (+ i2c spi if present)"
+        return 0
+    fi
+    if ! id -u "${SERVICE_USER}" >/dev/null 2>&1; then
+        report_status "creating system user ${SERVICE_USER}"
+        run useradd --system --user-group --no-create-home --home-dir "${STATE_DIR}" \
+            --shell /usr/sbin/nologin --comment "arbiterd robot daemon" "${SERVICE_USER}"
+    fi
+    for group in gpio dialout i2c spi; do
+        if getent group "${group}" >/dev/null; then groups+=("${group}")
+        elif [[ "${group}" == gpio || "${group}" == dialout ]]; then
+            warn "group ${group} does not exist here (not a Raspberry Pi OS image?)"
+        fi
+    done
+    (( ${#groups[@]} == 0 )) || run usermod --append --groups "$(IFS=,; echo "${groups[*]}")" \
+        "${SERVICE_USER}"
+}
+
+# Step 3: the release: a venv (with the system site packages, for apt's lgpio/pigpio) holding
+# the package, under /opt/arbiterd/releases/NAME, plus this installer and the unit files.
+svc_step_release() {
+    local id reldir
+    if [[ -n "${WHEEL}" ]]; then
+        [[ -f "${WHEEL}" ]] || die "--wheel ${WHEEL}: no such file"
+        id="wheel:$(sha256_of "${WHEEL}")"
+        [[ -n "${RELEASE}" ]] || RELEASE="$(basename "${WHEEL}" | cut -d- -f2)-$(sha256_of "${WHEEL}" | cut -c1-12)"
+    else
+        id="source:$(source_hash)"
+        [[ -n "${RELEASE}" ]] || RELEASE="$(source_version)-${id#source:}"
+    fi
+    [[ "${RELEASE}" =~ ^[A-Za-z0-9][A-Za-z0-9._+-]*$ ]] || die "invalid release name: ${RELEASE}"
+    reldir="${PREFIX}/releases/${RELEASE}"
+    ensure_dir "${PREFIX}" root:root 0755
+    ensure_dir "${PREFIX}/releases" root:root 0755
+    ensure_dir "${reldir}" root:root 0755
+    if [[ -x "$(r "${reldir}")/venv/bin/arbiterd" && -f "$(r "${reldir}")/.release-id" \
+          && "$(cat "$(r "${reldir}")/.release-id")" == "${id}" ]]; then
+        report_status "release ${RELEASE}: already installed"
+        return 0
+    fi
+    report_status "installing release ${RELEASE}"
+    copy_installer_into "${reldir}"
+    run rm -rf -- "$(r "${reldir}")/venv"
+    run "${PYTHON}" -m venv --system-site-packages "$(r "${reldir}")/venv"
+    local pip=("$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check)
+    if [[ -d "$(r "${reldir}")/wheels" ]]; then   # a shipped wheelhouse: install offline
+        pip+=(--no-index --find-links "$(r "${reldir}")/wheels")
+    fi
+    # shellcheck disable=SC2206  # PIP_ARGS is a list of words on purpose
+    pip+=(${PIP_ARGS})
+    run "${pip[@]}" "${WHEEL:-${SRCDIR}}"
+    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
+    CHANGED=1
+}
+
+# The release keeps the installer and units it was installed with (used by rollback).
+copy_installer_into() {
+    local dest
+    dest="$(r "$1")"
+    [[ "$(cd "${SRCDIR}" && pwd -P)" == "$(cd "${dest}" 2>/dev/null && pwd -P)" ]] && return 0
+    run install -m 0755 "${SRCDIR}/install.sh" "${dest}/install.sh"
+    run mkdir -p "${dest}/systemd"
+    run cp -p "${SRCDIR}"/systemd/* "${dest}/systemd/"
+}
+
+history_file() { r "${PREFIX}/history"; }
+
+# activate NAME: point /opt/arbiterd/current at releases/NAME atomically; remember the order.
+activate() {
+    local name="$1" link tmp
+    link="$(r "${PREFIX}/current")"
+    [[ -d "$(r "${PREFIX}/releases/${name}")" || "${DRY_RUN}" == 1 ]] \
+        || die "no release ${name} in ${PREFIX}/releases"
+    if [[ "$(readlink "${link}" 2>/dev/null)" == "releases/${name}" ]]; then
+        report_status "current release: ${name} (unchanged)"
+    else
+        report_status "switching ${PREFIX}/current to ${name}"
+        tmp="${link}.new.$$"
+        run ln -sfn "releases/${name}" "${tmp}"
+        run mv -Tf "${tmp}" "${link}"
+        CHANGED=1
+    fi
+    own "${PREFIX}/current" root:root link
+    if [[ "$(tail -n 1 "$(history_file)" 2>/dev/null)" != "${name}" ]]; then
+        [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${name}" >>"$(history_file)"
+    fi
+    [[ -f "$(history_file)" ]] && own "${PREFIX}/history" root:root 0644
+    return 0
+}
+
+svc_step_activate() { activate "${RELEASE}"; }
+
+effective_mode() {
+    if [[ -n "${MODE_FLAG}" ]]; then echo "${MODE_FLAG}"
+    elif [[ -f "$(r "${CONFIG_DIR}/arbiterd.env")" ]] \
+         && grep -q '^ARBITERD_ARGS=$' "$(r "${CONFIG_DIR}/arbiterd.env")"; then echo hardware
+    else echo sim; fi
+}
+
+effective_driver() {
+    if [[ -f "$(config_path)" ]]; then config_get driver type mock
+    else echo "${INSTALL_DRIVER:-mock}"; fi
+}
+
+# Step 4: /etc/arbiterd: the config (never overwritten), the control token (created once,
+# printed once) and the environment file that picks hardware or simulation.
+svc_step_config() {
+    ensure_dir "${CONFIG_DIR}" "root:${SERVICE_USER}" 0750
+    write_config
+    write_token
+    write_env_file
+}
+
+write_config() {
+    local dest="${CONFIG_DIR}/arbiterd.toml" tmp="${WORKDIR}/arbiterd.toml"
+    if [[ -f "$(r "${dest}")" ]]; then
+        report_status "keeping existing ${dest}"
+        if [[ -n "${INSTALL_DRIVER}" && "$(config_get driver type mock)" != "${INSTALL_DRIVER}" ]]; then
+            warn "--driver ${INSTALL_DRIVER} ignored: ${dest} already sets [driver] type = $(config_get driver type mock); edit it by hand"
+        fi
+    else
+        if [[ -f "${SRCDIR}/systemd/arbiterd.toml.example" ]]; then
+            cp "${SRCDIR}/systemd/arbiterd.toml.example" "${tmp}"
+        else
+            printf '# arbiterd configuration (written by install.sh)\n' >"${tmp}"
+        fi
+        [[ -z "${INSTALL_DRIVER}" ]] || toml_set "${tmp}" driver type "\"${INSTALL_DRIVER}\""
+        toml_set "${tmp}" security token_file "\"${CONFIG_DIR}/token\""
+        put_file "${tmp}" "${dest}" "root:${SERVICE_USER}" 0640 || true
+        CHANGED=1
+    fi
+    own "${dest}" "root:${SERVICE_USER}" 0640
+}
+
+write_token() {
+    local dest="${CONFIG_DIR}/token" tmp="${WORKDIR}/token" token
+    if [[ -f "$(r "${dest}")" ]]; then
+        own "${dest}" "root:${SERVICE_USER}" 0640
+        return 0
+    fi
+    token="$(py 'import secrets; print(secrets.token_urlsafe(32))')"
+    (umask 077 && printf '%s\n' "${token}" >"${tmp}")
+    put_file "${tmp}" "${dest}" "root:${SERVICE_USER}" 0640 || true
+    rm -f -- "${tmp}"
+    [[ "${DRY_RUN}" == 1 ]] && return 0
+    printf '\n%s: control token (shown once; kept in %s):\n    %s\n\n' "${PROG}" "${dest}" "${token}"
+}
+
+write_env_file() {
+    local dest="${CONFIG_DIR}/arbiterd.env" tmp="${WORKDIR}/arbiterd.env" args="--sim" mode
+    mode="$(effective_mode)"
+    [[ "${mode}" == hardware ]] && args=""
+    {
+        printf '# Written by install.sh: "sim" runs the simulated robot, "hardware" the real one.\n'
+        printf '# Change it with: sudo ./install.sh systemd --hardware (or --sim)\n'
+        printf 'ARBITERD_ARGS=%s\n' "${args}"
+    } >"${tmp}"
+    if put_file "${tmp}" "${CONFIG_DIR}/arbiterd.env" root:root 0644; then CHANGED=1; fi
+    report_status "service mode: ${mode}"
+}
+
+# Step 5: the units, the pigpiod drop-ins (pigpio driver on hardware only) and the udev rule.
+svc_step_units() {
+    local unit dropin
+    for unit in "${SERVICE}" "${TARGET}"; do
+        if put_file "${SRCDIR}/systemd/${unit}" "${UNIT_DIR}/${unit}" root:root 0644; then
+            UNITS_CHANGED=1 CHANGED=1
+        fi
+    done
+    for dropin in "${SERVICE}.d" "${TARGET}.d"; do
+        if [[ "$(effective_mode)" == hardware && "$(effective_driver)" == pigpio ]]; then
+            ensure_dir "${UNIT_DIR}/${dropin}" root:root 0755
+            if put_file "${SRCDIR}/systemd/pigpiod.conf" "${UNIT_DIR}/${dropin}/pigpiod.conf" \
+                   root:root 0644; then UNITS_CHANGED=1 CHANGED=1; fi
+        elif [[ -e "$(r "${UNIT_DIR}/${dropin}/pigpiod.conf")" ]]; then
+            remove "${UNIT_DIR}/${dropin}/pigpiod.conf"
+            run rmdir --ignore-fail-on-non-empty "$(r "${UNIT_DIR}/${dropin}")"
+            UNITS_CHANGED=1 CHANGED=1
+        fi
+    done
+    if put_file "${SRCDIR}/systemd/99-rplidar.rules" "${UDEV_DIR}/99-rplidar.rules" root:root 0644
+    then UDEV_CHANGED=1; fi
+    return 0
+}
+
+# Step 6: tell systemd and udev, enable at boot, (re)start when anything changed.
+svc_step_enable() {
+    (( UNITS_CHANGED )) && systemctl_do daemon-reload
+    if (( UDEV_CHANGED )); then
+        if staging; then record_action "udevadm control --reload; udevadm trigger --subsystem-match=tty"
+        else run udevadm control --reload && run udevadm trigger --subsystem-match=tty --action=add
+        fi
+    fi
+    if [[ "$(effective_mode)" == hardware && "$(effective_driver)" == pigpio ]]; then
+        systemctl_do enable --now pigpiod.service
+    fi
+    systemctl_do enable "${SERVICE}" "${TARGET}"
+    if [[ "${NO_START}" == 1 ]]; then
+        report_status "not starting the service (--no-start)"
+    elif (( CHANGED )); then
+        systemctl_do restart "${SERVICE}"
+    else
+        systemctl_do start "${SERVICE}"
+    fi
+}
+
+# Step 7: wait for /api/health; on failure say why (exit 3: the release is active but unhealthy).
+svc_step_health() {
+    if [[ "${NO_START}" == 1 ]] || ! can_start || [[ "${DRY_RUN}" == 1 ]]; then
+        staging && report_status "staging root: service not started, health not checked"
+        return 0
+    fi
+    if ! wait_health; then
+        report_failure
+        exit "${EXIT_UNHEALTHY}"
+    fi
+    print_connect_info
+}
+
+health_url() {
+    local host port
+    port="$(config_get http port 8085)"
+    host="$(config_get http host 0.0.0.0)"
+    case "${host}" in 0.0.0.0|""|::|"[::]") host=127.0.0.1 ;; esac
+    printf 'http://%s:%s/api/health' "${host}" "${port}"
+}
+
+# Prints the health "status" field (ok/degraded/error), or nothing when unreachable.
+fetch_health() {
+    py 'import json, sys, urllib.error, urllib.request
+try:
+    with urllib.request.urlopen(sys.argv[1], timeout=2) as r:
+        body = json.load(r)
+except urllib.error.HTTPError as e:
+    body = json.load(e)
+except (OSError, ValueError):
+    sys.exit(1)
+print(body.get("status", "?"))' "$1" 2>/dev/null
+}
+
+service_failed() { "${SYSTEMCTL:-systemctl}" is-failed --quiet "${SERVICE}" 2>/dev/null; }
+
+wait_health() {
+    local url status="" deadline=$((SECONDS + HEALTH_TIMEOUT))
+    url="$(health_url)"
+    report_status "waiting up to ${HEALTH_TIMEOUT}s for ${url}"
+    while (( SECONDS < deadline )); do
+        status="$(fetch_health "${url}" || true)"
+        case "${status}" in
+            ok) report_status "health: ok"; return 0 ;;
+            degraded) warn "health: degraded (running; see ./install.sh status)"; return 0 ;;
+        esac
+        if service_failed; then
+            report_status "${SERVICE} failed while starting"
+            return 1
+        fi
+        sleep 0.5
+    done
+    report_status "no healthy answer from ${url} within ${HEALTH_TIMEOUT}s (last: ${status:-none})"
+    return 1
+}
+
+report_failure() {
+    printf '%s: error: %s is not healthy; its state and last log lines:\n' "${PROG}" "${SERVICE}" >&2
+    "${SYSTEMCTL:-systemctl}" status --no-pager --lines=30 "${SERVICE}" >&2 || true
+    staging || journalctl -u "${SERVICE}" -n 30 --no-pager >&2 || true
+}
+
+print_connect_info() {
+    local addr port ws
+    addr="$(hostname -I 2>/dev/null | awk '{print $1}')"
+    port="$(config_get http port 8085)"
+    ws="$(config_get rosbridge port 9090)"
+    report_status "arbiterd is running. Connect to:"
+    printf '    HTTP      http://%s:%s/api/health\n' "${addr:-<robot-ip>}" "${port}"
+    printf '    rosbridge ws://%s:%s   (token: %s/token, send as Bearer or ?token=)\n' \
+        "${addr:-<robot-ip>}" "${ws}" "${CONFIG_DIR}"
+}
+
+# Keep the newest KEEP_RELEASES of the activation history (and always the current one).
+svc_step_prune() {
+    local keep=() name dir current
+    current="$(basename "$(readlink "$(r "${PREFIX}/current")" 2>/dev/null || echo none)")"
+    [[ -f "$(history_file)" ]] && mapfile -t keep < <(tac "$(history_file)" | awk '!seen[$0]++' \
+        | head -n "${KEEP_RELEASES}")
+    keep+=("${current}" "${RELEASE}")
+    for dir in "$(r "${PREFIX}/releases")"/*/; do
+        [[ -d "${dir}" ]] || continue
+        name="$(basename "${dir}")"
+        printf '%s\n' "${keep[@]}" | grep -qxF -- "${name}" && continue
+        report_status "pruning old release ${name}"
+        remove "${PREFIX}/releases/${name}"
+    done
+}
+
+cmd_systemd() {
+    require_root systemd
+    check_python
+    manifest_load
+    svc_step_packages
+    svc_step_user
+    svc_step_config
+    svc_step_release
+    svc_step_activate
+    svc_step_units
+    svc_step_enable
+    manifest_save
+    svc_step_prune
+    manifest_save
+    svc_step_health
+    report_status "installed release ${RELEASE}$(staging && printf ' into staging root %s' "${ROOT}")"
+}
+
+# Roll back to the release activated before the current one (the history is a stack).
+cmd_rollback() {
+    require_root rollback
+    check_python
+    manifest_load
+    local hist current previous
+    hist="$(history_file)"
+    [[ -f "${hist}" ]] || die "no release history in ${PREFIX}: nothing to roll back to"
+    current="$(basename "$(readlink "$(r "${PREFIX}/current")" 2>/dev/null || echo none)")"
+    previous="$(grep -vxF -- "${current}" "${hist}" | tail -n 1 || true)"
+    [[ -n "${previous}" ]] || die "no release before ${current}: nothing to roll back to"
+    report_status "rolling back from ${current} to ${previous}"
+    RELEASE="${previous}"
+    if [[ "${DRY_RUN}" != 1 ]]; then   # pop the current release off the history
+        grep -vxF -- "${current}" "${hist}" >"${hist}.new" || true
+        mv -f "${hist}.new" "${hist}"
+    fi
+    activate "${previous}"
+    CHANGED=1
+    svc_step_enable
+    manifest_save
+    svc_step_health
+    report_status "rolled back to ${previous}"
+}
+
+cmd_uninstall() {
+    require_root uninstall
+    manifest_load
+    systemctl_do disable --now "${SERVICE}" "${TARGET}" || warn "could not disable ${SERVICE}"
+    remove "${UNIT_DIR}/${SERVICE}" "${UNIT_DIR}/${TARGET}" "${UNIT_DIR}/${SERVICE}.d" \
+        "${UNIT_DIR}/${TARGET}.d" "${UDEV_DIR}/99-rplidar.rules" "${PREFIX}"
+    systemctl_do daemon-reload || true
+    if staging; then record_action "udevadm control --reload"
+    else run udevadm control --reload || true; fi
+    if (( PURGE )); then
+        remove "${CONFIG_DIR}" "${STATE_DIR}"
+        if staging; then record_action "userdel ${SERVICE_USER}"
+        elif id -u "${SERVICE_USER}" >/dev/null 2>&1; then run userdel "${SERVICE_USER}"; fi
+    else
+        report_status "keeping ${CONFIG_DIR} (config and token); --purge removes it"
+    fi
+    manifest_save
+    report_status "uninstalled"
+}
+
+cmd_status() {
+    local url
+    url="$(health_url)"
+    "${SYSTEMCTL:-systemctl}" status --no-pager --lines=0 "${SERVICE}" || true
+    if [[ -x "$(r "${PREFIX}/current/venv/bin/arbiterd")" ]]; then
+        "$(r "${PREFIX}/current/venv/bin/arbiterd")" status --url "${url%/api/health}"
+    else
+        printf 'health: %s\n' "$(fetch_health "${url}" || echo unreachable)"
+    fi
+}
+
+cmd_logs() { exec journalctl -u "${SERVICE}" --no-pager -n 200 "$@"; }
+
+cmd_health() { wait_health; }
+
+######################################################################
 # Entry point
 ######################################################################
 
@@ -169,12 +755,95 @@ Developer commands (run from a clone, as a normal user; apt packages go through 
   sim [ARGS...]        dev, then run 'arbiterd run --sim ARGS...' in the foreground
   test [ARGS...]       dev, then run 'python -m pytest ARGS...'
 
+Robot commands (Raspberry Pi OS Bookworm / Debian 12, as root):
+  systemd              install or update the service: apt packages, user 'arbiterd', a release
+                       venv under /opt/arbiterd, /etc/arbiterd/{arbiterd.toml,token,arbiterd.env},
+                       units, udev rule; enable, (re)start, wait for /api/health
+  uninstall            stop and remove it all; keeps /etc/arbiterd unless --purge
+  rollback             switch back to the previously activated release and restart it
+  status               service state, health and latency
+  logs [ARGS...]       journal of the service (journalctl ARGS, e.g. -f)
+  health               wait for /api/health to answer ok (exit 0) or give up (exit 1)
+
 Options:
-  --dry-run            print every action instead of doing it       (ARBITERD_DRY_RUN=1)
+  --hardware | --sim   run the real robot / the simulated one (default: keep; first install: sim)
+  --driver NAME        [driver] type for a new config: ${DRIVERS}
+  --wheel FILE         install this wheel instead of building the source tree
+  --release NAME       name of the release directory (default: version + content hash)
+  --keep N             releases to keep (default ${KEEP_RELEASES})
+  --health-timeout S   seconds to wait for /api/health (default ${HEALTH_TIMEOUT})
+  -z, --no-start       install only; do not start or restart the service
+  --purge              uninstall: also remove /etc/arbiterd, the state dir and the user
+  --root DIR           lay everything out under DIR (a staging root): no useradd/chown/systemctl;
+                       owners and modes go to DIR/.arbiterd-manifest, system actions to
+                       DIR/.arbiterd-actions
+  --dry-run            print every action instead of doing it
   -h, --help           this help
 
-Environment: ARBITERD_PYTHON (python3), ARBITERD_DEV_VENV (.venv), ARBITERD_DEV_EXTRAS.
+Environment (same as the flags): ARBITERD_ROOT, ARBITERD_DRY_RUN=1, ARBITERD_MODE=hardware|sim,
+ARBITERD_INSTALL_DRIVER, ARBITERD_NO_START=1, ARBITERD_KEEP_RELEASES, ARBITERD_HEALTH_TIMEOUT;
+also ARBITERD_PYTHON (python3), ARBITERD_PIP_ARGS (extra pip arguments), ARBITERD_SYSTEMCTL
+(systemctl to call; with --root it is only recorded unless this is set), ARBITERD_DEV_VENV.
+Exit status: 0 ok, 1 error, 2 usage, 3 the new release is active but failed its health check.
 EOF
+}
+
+usage_error() { printf '%s: error: %s (see ./install.sh --help)\n' "${PROG}" "$*" >&2; exit 2; }
+
+DRIVERS="mock l298n pigpio serial odrive_can"
+
+need_value() { (( $1 > 1 )) || usage_error "$2 needs a value"; }
+
+# parse_service_options ARGS...: the flags of the robot commands.
+parse_service_options() {
+    while (( $# )); do
+        case "$1" in
+            --root) need_value $# "$1"; ROOT="$2"; shift ;;
+            --root=*) ROOT="${1#*=}" ;;
+            --dry-run) DRY_RUN=1 ;;
+            --hardware) MODE_FLAG=hardware ;;
+            --sim) MODE_FLAG=sim ;;
+            --driver) need_value $# "$1"; INSTALL_DRIVER="$2"; shift ;;
+            --wheel) need_value $# "$1"; WHEEL="$2"; shift ;;
+            --release) need_value $# "$1"; RELEASE="$2"; shift ;;
+            --keep) need_value $# "$1"; KEEP_RELEASES="$2"; shift ;;
+            --health-timeout|--timeout) need_value $# "$1"; HEALTH_TIMEOUT="$2"; shift ;;
+            -z|--no-start) NO_START=1 ;;
+            --purge) PURGE=1 ;;
+            -h|--help) usage; exit 0 ;;
+            *) usage_error "unknown option: $1" ;;
+        esac
+        shift
+    done
+    validate_service_options
+}
+
+validate_service_options() {
+    [[ -z "${INSTALL_DRIVER}" || " ${DRIVERS} " == *" ${INSTALL_DRIVER} "* ]] \
+        || usage_error "--driver ${INSTALL_DRIVER}: not one of: ${DRIVERS}"
+    [[ -z "${MODE_FLAG}" || "${MODE_FLAG}" == hardware || "${MODE_FLAG}" == sim ]] \
+        || usage_error "ARBITERD_MODE=${MODE_FLAG}: use hardware or sim"
+    if ! [[ "${KEEP_RELEASES}" =~ ^[0-9]+$ ]] || (( KEEP_RELEASES < 2 )); then
+        usage_error "--keep ${KEEP_RELEASES}: need a number >= 2 (the rollback target is kept)"
+    fi
+    [[ "${HEALTH_TIMEOUT}" =~ ^[0-9]+$ ]] \
+        || usage_error "--health-timeout ${HEALTH_TIMEOUT}: not a number of seconds"
+    [[ -z "${WHEEL}" ]] || WHEEL="$(realpath -- "${WHEEL}")"
+    if [[ -n "${ROOT}" ]]; then
+        ROOT="$(realpath -m -- "${ROOT}")"
+        [[ "${ROOT}" != / ]] || ROOT=""
+    fi
+    return 0
+}
+
+# Per-run scratch space, and (staging) a fresh log of the system actions this run records.
+prepare_service_run() {
+    WORKDIR="$(mktemp -d)"
+    trap 'rm -rf -- "${WORKDIR}"' EXIT
+    if staging && [[ "${DRY_RUN}" != 1 ]]; then
+        mkdir -p -- "${ROOT}"
+        : >"$(r /.arbiterd-actions)"
+    fi
 }
 
 main() {
@@ -182,26 +851,25 @@ main() {
     [[ -n "${cmd}" ]] || { usage >&2; exit 2; }
     shift
     case "${cmd}" in
-        -h|--help|help) usage; return 0 ;;
-    esac
-    local rest=()
-    if [[ "${cmd}" == dev ]]; then
-        while (( $# )); do
-            case "$1" in
-                --dry-run) DRY_RUN=1 ;;
-                -h|--help) usage; return 0 ;;
-                *) die "unknown option for dev: $1 (see ./install.sh --help)" ;;
-            esac
-            shift
-        done
-    else
-        rest=("$@")
-    fi
-    case "${cmd}" in
-        dev) cmd_dev ;;
-        sim) cmd_sim "${rest[@]}" ;;
-        test) cmd_test "${rest[@]}" ;;
-        *) printf '%s: error: unknown command %q\n' "${PROG}" "${cmd}" >&2; usage >&2; exit 2 ;;
+        -h|--help|help) usage ;;
+        dev)
+            while (( $# )); do
+                case "$1" in
+                    --dry-run) DRY_RUN=1 ;;
+                    -h|--help) usage; return 0 ;;
+                    *) usage_error "unknown option for dev: $1" ;;
+                esac
+                shift
+            done
+            cmd_dev ;;
+        sim) cmd_sim "$@" ;;
+        test) cmd_test "$@" ;;
+        logs) cmd_logs "$@" ;;
+        systemd|uninstall|rollback|status|health)
+            parse_service_options "$@"
+            prepare_service_run
+            "cmd_${cmd}" ;;
+        *) usage_error "unknown command '${cmd}'" ;;
     esac
 }
 

@@ -1,0 +1,65 @@
+# Builds, once per test session, the arbiterd wheel and an offline wheelhouse of its dependencies.
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from tests.deploy_helpers import REPO
+
+SOURCE_DIRS = ("daemon", "drivers", "sensors", "sim")
+
+
+@dataclass(frozen=True)
+class Wheels:
+    wheel: Path  # arbiterd built from this checkout
+    wheelhouse: Path  # that wheel plus every runtime dependency, for pip --no-index
+    broken_wheel: Path  # a release whose daemon dies at start-up
+
+
+_cache: dict[str, Wheels] = {}
+
+
+def pip(*args: str) -> None:
+    cmd = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q", *args]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stderr}"
+
+
+def build_wheel(source: Path, dest: Path) -> Path:
+    dest.mkdir(parents=True, exist_ok=True)
+    before = set(dest.glob("arbiterd-*.whl"))
+    pip("wheel", "--no-deps", "-w", str(dest), str(source))
+    (built,) = set(dest.glob("arbiterd-*.whl")) - before
+    return built
+
+
+def broken_source(work: Path) -> Path:
+    """A copy of the package sources whose daemon raises on import: the bad release."""
+    copy = work / "broken-src"
+    copy.mkdir(parents=True, exist_ok=True)
+    shutil.copy(REPO / "pyproject.toml", copy)
+    for name in ("README.md",):
+        if (REPO / name).exists():
+            shutil.copy(REPO / name, copy)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in SOURCE_DIRS:
+        shutil.copytree(REPO / name, copy / name, ignore=ignore)
+    init = copy / "daemon" / "__init__.py"
+    init.write_text(init.read_text() + '\nraise SystemExit("deliberately broken release")\n')
+    return copy
+
+
+def wheels(work: Path) -> Wheels:
+    """The session's wheels, built on first use under ``work``."""
+    if "wheels" not in _cache:
+        wheel = build_wheel(REPO, work / "good")
+        house = work / "wheelhouse"
+        house.mkdir()
+        shutil.copy(wheel, house)
+        pip("wheel", "-w", str(house), str(wheel))
+        broken = build_wheel(broken_source(work), work / "broken")
+        _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=house, broken_wheel=broken)
+    return _cache["wheels"]

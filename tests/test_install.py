@@ -1,0 +1,242 @@
+# install.sh systemd/uninstall in a staging root: layout, owners and modes, idempotence, refusals.
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.deploy_helpers import INSTALL_SH, SYSTEMD_DIR
+from tests.deploy_helpers.wheels import Wheels, wheels
+
+CONFIG_FILES = {
+    "/etc/arbiterd": "root:arbiterd 0750",
+    "/etc/arbiterd/arbiterd.env": "root:root 0644",
+    "/etc/arbiterd/arbiterd.toml": "root:arbiterd 0640",
+    "/etc/arbiterd/token": "root:arbiterd 0640",
+}
+SYSTEM_FILES = {
+    "/etc/systemd/system/arbiterd.service": "root:root 0644",
+    "/etc/systemd/system/robot.target": "root:root 0644",
+    "/etc/udev/rules.d/99-rplidar.rules": "root:root 0644",
+    "/opt/arbiterd": "root:root 0755",
+    "/opt/arbiterd/current": "root:root link",
+    "/opt/arbiterd/history": "root:root 0644",
+    "/opt/arbiterd/releases": "root:root 0755",
+}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> Wheels:
+    return wheels(tmp_path_factory.mktemp("wheels"))
+
+
+def install_sh(*args: str, wheelhouse: Path | None = None,
+               user: bool = False) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
+    if wheelhouse is not None:
+        env["ARBITERD_PIP_ARGS"] = f"--no-index --find-links {wheelhouse}"
+    cmd = ["bash", str(INSTALL_SH), *args]
+    if user and os.geteuid() == 0:  # run as an ordinary user, as someone forgetting sudo would
+        cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False,
+                          stdin=subprocess.DEVNULL)
+
+
+def install(root: Path, built: Wheels, *flags: str) -> subprocess.CompletedProcess[str]:
+    result = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel), *flags,
+                        wheelhouse=built.wheelhouse)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result
+
+
+def manifest(root: Path) -> dict[str, str]:
+    lines = (root / ".arbiterd-manifest").read_text().splitlines()
+    return dict(line.split("\t", 1) for line in lines)
+
+
+def actions(root: Path) -> list[str]:
+    return (root / ".arbiterd-actions").read_text().splitlines()
+
+
+def release_of(root: Path) -> str:
+    return os.readlink(root / "opt/arbiterd/current").removeprefix("releases/")
+
+
+def snapshot(root: Path) -> dict[str, tuple[int, int, int, str]]:
+    """Every path below root with its mode, size, mtime and link target."""
+    snap = {}
+    for path in sorted(root.rglob("*")):
+        if path.name == ".arbiterd-actions":
+            continue
+        st = path.lstat()
+        target = os.readlink(path) if path.is_symlink() else ""
+        snap[str(path.relative_to(root))] = (st.st_mode, st.st_size, st.st_mtime_ns, target)
+    return snap
+
+
+def disk_mode(path: Path) -> str:
+    return f"{stat.S_IMODE(path.lstat().st_mode):04o}"
+
+
+@pytest.fixture(scope="module")
+def staged(tmp_path_factory: pytest.TempPathFactory,
+           built: Wheels) -> Iterator[tuple[Path, subprocess.CompletedProcess[str]]]:
+    root = tmp_path_factory.mktemp("staging") / "root"
+    yield root, install(root, built)
+
+
+def test_lays_out_exactly_the_service_files(staged: tuple[Path, subprocess.CompletedProcess[str]],
+                                            built: Wheels) -> None:
+    root, first = staged
+    release = release_of(root)
+    expected = {**CONFIG_FILES, **SYSTEM_FILES, f"/opt/arbiterd/releases/{release}": "root:root 0755"}
+    assert manifest(root) == expected
+    for path, owner_mode in expected.items():
+        mode = owner_mode.split()[1]
+        if mode != "link":
+            assert disk_mode(root / path.lstrip("/")) == mode, path
+    top = {str(p.relative_to(root)) for p in root.iterdir()}
+    assert top == {".arbiterd-manifest", ".arbiterd-actions", "etc", "opt"}
+    for unit in ("arbiterd.service", "robot.target"):
+        assert (root / "etc/systemd/system" / unit).read_bytes() == (SYSTEMD_DIR / unit).read_bytes()
+    rules = root / "etc/udev/rules.d/99-rplidar.rules"
+    assert rules.read_bytes() == (SYSTEMD_DIR / "99-rplidar.rules").read_bytes()
+
+
+def test_release_venv_runs_the_installed_package(
+        staged: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    root, _ = staged
+    venv = root / "opt/arbiterd/current/venv"
+    assert "include-system-site-packages = true" in (venv / "pyvenv.cfg").read_text()
+    result = subprocess.run([str(venv / "bin/arbiterd"), "--version"], capture_output=True,
+                            text=True, timeout=60, check=False)
+    assert result.returncode == 0 and result.stdout.startswith("arbiterd "), result.stderr
+    shipped = root / "opt/arbiterd/current"
+    assert (shipped / "install.sh").read_bytes() == INSTALL_SH.read_bytes()
+    assert (shipped / "systemd/arbiterd.service").is_file()
+
+
+def test_config_token_and_mode(staged: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    root, first = staged
+    token = (root / "etc/arbiterd/token").read_text().strip()
+    assert len(token) >= 32
+    assert first.stdout.count(token) == 1, "the token is printed exactly once"
+    config = (root / "etc/arbiterd/arbiterd.toml").read_text()
+    assert 'token_file = "/etc/arbiterd/token"' in config
+    assert "ARBITERD_ARGS=--sim\n" in (root / "etc/arbiterd/arbiterd.env").read_text()
+    recorded = actions(root)
+    assert any(a.startswith("ensure system user arbiterd") and "gpio dialout" in a
+               for a in recorded)
+    assert "systemctl daemon-reload" in recorded
+    assert "systemctl enable arbiterd.service robot.target" in recorded
+    assert "systemctl restart arbiterd.service" in recorded
+
+
+def test_second_run_changes_nothing(staged: tuple[Path, subprocess.CompletedProcess[str]],
+                                    built: Wheels) -> None:
+    root, _ = staged
+    before = snapshot(root)
+    again = install(root, built)
+    assert snapshot(root) == before
+    token = (root / "etc/arbiterd/token").read_text().strip()
+    assert token not in again.stdout
+    recorded = actions(root)
+    assert "systemctl daemon-reload" not in recorded
+    assert "systemctl restart arbiterd.service" not in recorded
+    assert "systemctl start arbiterd.service" in recorded
+
+
+def test_units_verify_against_the_staged_exec_start(
+        staged: tuple[Path, subprocess.CompletedProcess[str]], tmp_path: Path) -> None:
+    root, _ = staged
+    check_root = tmp_path / "verify-root"
+    shutil.copytree(Path("/usr/lib/systemd/system"), check_root / "usr/lib/systemd/system",
+                    symlinks=True)
+    shutil.copytree(root / "etc/systemd", check_root / "etc/systemd")
+    # the installed releases (ExecStart included), hard-linked: verify --root resolves every
+    # path, symlinks too, inside the root
+    shutil.copytree(root / "opt", check_root / "opt", symlinks=True, copy_function=os.link)
+    exe = shutil.which("systemd-analyze")
+    assert exe
+    result = subprocess.run(
+        [exe, "verify", "--man=no", "--generators=no", f"--root={check_root}",
+         "arbiterd.service", "robot.target"],
+        capture_output=True, text=True, timeout=60, check=False)
+    assert result.returncode == 0 and not result.stderr.strip(), result.stderr
+
+
+def test_pigpio_hardware_then_existing_config_is_kept(tmp_path: Path, built: Wheels) -> None:
+    root = tmp_path / "root"
+    install(root, built, "--hardware", "--driver", "pigpio")
+    config = (root / "etc/arbiterd/arbiterd.toml").read_text()
+    assert 'type = "pigpio"' in config
+    assert "ARBITERD_ARGS=\n" in (root / "etc/arbiterd/arbiterd.env").read_text()
+    for dropin in ("arbiterd.service.d", "robot.target.d"):
+        placed = root / "etc/systemd/system" / dropin / "pigpiod.conf"
+        assert placed.read_bytes() == (SYSTEMD_DIR / "pigpiod.conf").read_bytes()
+    assert "apt-get install python3-venv pigpiod" in actions(root)
+    assert "systemctl enable --now pigpiod.service" in actions(root)
+
+    (root / "etc/arbiterd/arbiterd.toml").write_text(config + "# edited by the user\n")
+    rerun = install(root, built, "--sim", "--driver", "serial")
+    assert (root / "etc/arbiterd/arbiterd.toml").read_text() == config + "# edited by the user\n"
+    assert "--driver serial ignored" in rerun.stderr
+    assert "ARBITERD_ARGS=--sim\n" in (root / "etc/arbiterd/arbiterd.env").read_text()
+    assert not (root / "etc/systemd/system/arbiterd.service.d").exists()
+    assert "systemctl restart arbiterd.service" in actions(root)
+
+
+def test_uninstall_keeps_config_unless_purge(tmp_path: Path, built: Wheels) -> None:
+    root = tmp_path / "root"
+    install(root, built)
+    kept = {p: (root / p.lstrip("/")).read_bytes() for p in CONFIG_FILES if p != "/etc/arbiterd"}
+    removed = install_sh("uninstall", "--root", str(root))
+    assert removed.returncode == 0, removed.stderr
+    assert manifest(root) == CONFIG_FILES
+    left = {"/" + str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+    assert left == set(kept) | {"/.arbiterd-manifest", "/.arbiterd-actions"}
+    assert all((root / p.lstrip("/")).read_bytes() == data for p, data in kept.items())
+    assert "systemctl disable --now arbiterd.service robot.target" in actions(root)
+    assert not (root / "opt").exists() or not any((root / "opt").iterdir())
+
+    purged = install_sh("uninstall", "--purge", "--root", str(root))
+    assert purged.returncode == 0, purged.stderr
+    assert {p.name for p in root.rglob("*") if p.is_file()} == {".arbiterd-actions"}
+    assert "userdel arbiterd" in actions(root)
+
+
+def test_dry_run_prints_actions_and_changes_nothing(tmp_path: Path, built: Wheels) -> None:
+    root = tmp_path / "root"
+    result = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel), "--dry-run")
+    assert result.returncode == 0, result.stderr
+    assert not root.exists()
+    out = result.stdout
+    assert "[dry-run] install -D -m 0640" in out and "etc/arbiterd/token" in out
+    assert f"[dry-run] install -D -m 0644 {SYSTEMD_DIR}/arbiterd.service" in out
+    assert "-m venv --system-site-packages" in out
+    assert "[dry-run] ln -sfn releases/" in out
+
+
+@pytest.mark.parametrize("command", ["systemd", "uninstall", "rollback"])
+def test_refuses_a_normal_user_where_root_is_needed(tmp_path: Path, command: str) -> None:
+    result = install_sh(command, user=True)
+    assert result.returncode == 1
+    assert f"'./install.sh {command}' changes the system and must run as root" in result.stderr
+    assert f"sudo ./install.sh {command}" in result.stderr
+
+
+def test_bad_options_are_usage_errors() -> None:
+    for args, message in [
+        (["systemd", "--driver", "stepper"], "--driver stepper: not one of: mock l298n"),
+        (["systemd", "--keep", "1"], "--keep 1: need a number >= 2"),
+        (["systemd", "--frobnicate"], "unknown option: --frobnicate"),
+        (["launch"], "unknown command 'launch'"),
+    ]:
+        result = install_sh(*args)
+        assert result.returncode == 2, args
+        assert message in result.stderr
