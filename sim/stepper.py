@@ -5,6 +5,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -95,6 +96,15 @@ class SimWorld:
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    @classmethod
+    def from_sections(cls, sim: Mapping[str, Any], robot: Mapping[str, Any] | None = None,
+                      **kwargs: Any) -> SimWorld:
+        """Build from the daemon's ``[sim]`` and ``[robot]`` sections (the physical wheel
+        radius and separation; calibration multipliers are the daemon's business)."""
+        robot = robot or {}
+        return cls(SimConfig.from_section(sim), wheel_radius=robot.get("wheel_radius", 0.05),
+                   wheel_separation=robot.get("wheel_separation", 0.30), **kwargs)
 
     # -- stepping -------------------------------------------------------------------------
 

@@ -165,3 +165,17 @@ def test_world_file_setting_loads_the_file(tmp_path: Path) -> None:
     assert world.ground_truth().x == -4.0
     assert world.scan()[0] == pytest.approx(9.0)
     assert world.scan()[90] == pytest.approx(1.0)
+
+
+def test_builds_from_the_daemons_validated_sections(tmp_path: Path) -> None:
+    from daemon.config import load_config
+
+    path = tmp_path / "arbiterd.toml"
+    path.write_text('[robot]\nwheel_radius = 0.04\nwheel_separation = 0.25\n'
+                    '[sim]\nseed = 3\nnoise = false\nstart_pose = [1.0, -1.0, 0.5]\n')
+    config = load_config(path, sim=True, env={})
+    world = SimWorld.from_sections(config["sim"], config["robot"])
+    assert (world.geometry.wheel_radius, world.geometry.wheel_separation) == (0.04, 0.25)
+    assert world.config.seed == 3 and not world.config.noise.enabled
+    truth = world.ground_truth()
+    assert (truth.x, truth.y, truth.theta) == (1.0, -1.0, 0.5)
