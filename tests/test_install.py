@@ -92,9 +92,9 @@ def staged(tmp_path_factory: pytest.TempPathFactory,
 
 def test_lays_out_exactly_the_service_files(staged: tuple[Path, subprocess.CompletedProcess[str]],
                                             built: Wheels) -> None:
-    root, first = staged
-    release = release_of(root)
-    expected = {**CONFIG_FILES, **SYSTEM_FILES, f"/opt/arbiterd/releases/{release}": "root:root 0755"}
+    root, _ = staged
+    release_dir = f"/opt/arbiterd/releases/{release_of(root)}"
+    expected = {**CONFIG_FILES, **SYSTEM_FILES, release_dir: "root:root 0755"}
     assert manifest(root) == expected
     for path, owner_mode in expected.items():
         mode = owner_mode.split()[1]
@@ -103,7 +103,8 @@ def test_lays_out_exactly_the_service_files(staged: tuple[Path, subprocess.Compl
     top = {str(p.relative_to(root)) for p in root.iterdir()}
     assert top == {".arbiterd-manifest", ".arbiterd-actions", "etc", "opt"}
     for unit in ("arbiterd.service", "robot.target"):
-        assert (root / "etc/systemd/system" / unit).read_bytes() == (SYSTEMD_DIR / unit).read_bytes()
+        placed = root / "etc/systemd/system" / unit
+        assert placed.read_bytes() == (SYSTEMD_DIR / unit).read_bytes()
     rules = root / "etc/udev/rules.d/99-rplidar.rules"
     assert rules.read_bytes() == (SYSTEMD_DIR / "99-rplidar.rules").read_bytes()
 
