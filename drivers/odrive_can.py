@@ -375,7 +375,7 @@ class ODriveCanDriver(MotorDriver):
         reason = self.fault or self._link_fault(time.monotonic())
         if reason and moving:
             self.report_fault(reason)
-            raise DriverFault(f"refusing motion: {reason}")
+            raise DriverFault(reason)
         for axis, rad_s in ((self._left, left_rad_s), (self._right, right_rad_s)):
             rev_s = self._rad_to_rev(axis, rad_s)
             self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(rev_s))

@@ -176,6 +176,18 @@ class ODriveEmulator:
             for axis in self._select(node):
                 axis.error_condition = 0
 
+    def set_running(self, vel_rev_s: float, node: int | None = None) -> None:
+        """Arm the axes in velocity control at ``vel_rev_s``, as a controller that died
+        mid-drive leaves them (for safe-stop tests)."""
+        with self._changed:
+            for axis in self._select(node):
+                if axis.axis_error == 0:
+                    axis.axis_state = STATE_CLOSED_LOOP_CONTROL
+                    axis.control_mode = CONTROL_MODE_VELOCITY
+                    axis.input_vel_rev_s = vel_rev_s
+                    axis.last_input_vel_mono = time.monotonic()
+            self._update_targets()
+
     def _select(self, node: int | None) -> list[EmulatedAxis]:
         if node is None:
             return list(self.axes.values())
@@ -376,7 +388,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="python -m sim.odrive_emulator",
         description="Emulated ODrive (CANSimple) on a python-can bus. Reads switch commands "
                     "on stdin: heartbeat on|off [NODE], online on|off [NODE], "
-                    "error CODE [NODE] [persistent], clear-condition [NODE], status.")
+                    "error CODE [NODE] [persistent], clear-condition [NODE], "
+                    "run TURNS_PER_S [NODE], status.")
     parser.add_argument("--interface", default="udp_multicast",
                         help="python-can interface (udp_multicast reaches other processes)")
     parser.add_argument("--channel", default=DEFAULT_MULTICAST_GROUP)
@@ -408,6 +421,8 @@ def _switch(emulator: ODriveEmulator, line: str) -> str:
         elif verb == "error" and args:
             node = int(args[1], 0) if len(args) > 1 else None
             emulator.inject_axis_error(int(args[0], 0), node, persistent="persistent" in args)
+        elif verb == "run" and args:
+            emulator.set_running(float(args[0]), int(args[1], 0) if len(args) > 1 else None)
         elif verb == "clear-condition":
             emulator.clear_error_condition(int(args[0], 0) if args else None)
         elif verb == "status":

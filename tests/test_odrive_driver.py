@@ -344,7 +344,7 @@ async def test_heartbeat_loss_faults_zeroes_and_recovers(
     assert driver.health()["status"] == "error"
     # the ODrive still listens: the driver zeroed its velocity inputs on noticing
     await eventually(lambda: odrive.observed_targets() == (0.0, 0.0), what="wheels zeroed")
-    with pytest.raises(DriverFault, match="refusing motion: no heartbeat"):
+    with pytest.raises(DriverFault, match="no heartbeat from ODrive node"):
         await driver.set_wheel_speeds(3.0, 3.0)
     await driver.set_wheel_speeds(0.0, 0.0)  # zero is always sent
     await driver.close()
@@ -602,3 +602,28 @@ reconnect_max_s = 0.5
 def _health_if(daemon: Any, wanted: int) -> tuple[int, Any] | None:
     status, body = daemon.get("/api/health")
     return (status, body) if status == wanted else None
+
+
+def test_arbiterd_safe_stop_idles_a_running_odrive(tmp_path: Path) -> None:
+    port = _free_udp_port()
+    try:
+        emulator = ODriveEmulator("udp_multicast", MULTICAST_GROUP, node_ids=(9, 10),
+                                  bus_kwargs={"port": port}).start()
+    except (can.CanError, OSError, ImportError) as exc:
+        pytest.skip(f"python-can udp_multicast unusable here: {exc}")
+    try:
+        emulator.set_running(1.0)  # as a crashed daemon would leave it: armed and turning
+        assert emulator.wheel_targets() != (0.0, 0.0)
+        config = tmp_path / "arbiterd.toml"
+        config.write_text(f'[driver]\ntype = "odrive_can"\n[driver.odrive_can]\n'
+                          f'interface = "udp_multicast"\nchannel = "{MULTICAST_GROUP}"\n'
+                          f"multicast_port = {port}\nleft_node_id = 9\nright_node_id = 10\n")
+        done = subprocess.run([sys.executable, "-m", "daemon.cli", "safe-stop", "--config",
+                               str(config)], cwd=REPO, capture_output=True, text=True,
+                              timeout=30)
+        assert done.returncode == 0, done.stderr
+        assert "motors zeroed through the odrive_can driver" in done.stdout
+        assert emulator.wheel_targets() == (0.0, 0.0)
+        assert all(a.axis_state == STATE_IDLE for a in emulator.axes.values())
+    finally:
+        emulator.stop()
