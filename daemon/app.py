@@ -32,7 +32,9 @@ EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 
 # component name => "module:function"; the function takes the DaemonContext and returns a
 # Component, or None when its config section disables it. Started in this order.
-COMPONENTS: dict[str, str] = {}
+COMPONENTS: dict[str, str] = {
+    "rosbridge": "daemon.rosbridge.server:create",
+}
 
 
 class StartupError(Exception):
@@ -80,13 +82,25 @@ class Daemon:
 
     def _driver_name(self) -> str:
         if self.mode == "sim":
-            return "mock"
+            return str(self.config["sim"]["driver"])
         return str(self.config["driver"]["type"])
 
+    def _start_simulator(self) -> Any:
+        from sim.runtime import SimRuntime
+
+        runtime = SimRuntime(self.config)
+        try:
+            runtime.start_devices()
+        except Exception as exc:
+            raise StartupError(f"simulated devices: {exc}") from exc
+        runtime.apply_to(self.config)
+        return runtime
+
     def _build(self) -> DaemonContext:
-        driver_name = self.driver_name = self._driver_name()
+        runtime = self._start_simulator() if self.mode == "sim" else None
+        self.driver_name = self._driver_name()
         control = self.config["control"]
-        driver = build_driver(self.config, driver_name)
+        driver = build_driver(self.config, self.driver_name)
         loop = ControlLoop(self.config, driver, self.bus, self.latency)
         http_cfg = self.config["http"]
         http = HttpServer(http_cfg["host"], http_cfg["port"], http_cfg["max_body_bytes"])
@@ -96,6 +110,10 @@ class Daemon:
         loop.on_tick.append(self.notifier.tick)
         self._add_own_routes(http)
         self.components = [loop]
+        if runtime is not None:
+            runtime.attach(driver)
+            runtime.register(http, self.bus, loop.status_extras)
+            self.components.insert(0, runtime)
         for name, target in COMPONENTS.items():
             component = _load_factory(target)(ctx)
             if component is not None:
@@ -220,7 +238,7 @@ class Daemon:
     def status_line(self) -> str:
         parts = [self.state, f"{self.mode} mode", f"driver {self.driver_name}"]
         if self.mode == "sim":
-            parts.append("simulated robot: mock driver (no simulated world yet)")
+            parts.append(f"simulated robot, {self.driver_name} emulator")
         if self.ctx and self.ctx.control.fault:
             parts.append(f"driver fault: {self.ctx.control.fault}")
         if self.ctx and self.ctx.control.arbiter.estop_engaged:

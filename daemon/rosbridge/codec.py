@@ -1,0 +1,223 @@
+# rosbridge v2 wire codec (pure, no I/O): frames, field checks, encoding, fragments, status.
+from __future__ import annotations
+
+import base64
+import json
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+STATUS_LEVELS = ("info", "warning", "error", "none")
+
+Id = str | int | None
+
+
+class ProtocolError(Exception):
+    """A request the server refuses; answered with a ``status`` error carrying ``id``."""
+
+    def __init__(self, message: str, request_id: Id = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.request_id = request_id
+
+
+def request_id(frame: Any) -> Id:
+    """The ``id`` of a request when it is a string or integer (else ``None``)."""
+    if isinstance(frame, dict):
+        value = frame.get("id")
+        if isinstance(value, str) or (isinstance(value, int) and not isinstance(value, bool)):
+            return value
+    return None
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not valid JSON")
+
+
+def decode_frame(text: str | bytes) -> dict[str, Any]:
+    """One WebSocket frame -> a request object with a string ``op``, or ProtocolError."""
+    try:
+        if isinstance(text, bytes):
+            text = text.decode("utf-8")
+        frame = json.loads(text, parse_constant=_refuse_constant)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ProtocolError(f"invalid JSON: {exc}") from None
+    if not isinstance(frame, dict):
+        raise ProtocolError(f"a request must be a JSON object, got {type(frame).__name__}")
+    rid = request_id(frame)
+    if "id" in frame and rid is None and frame["id"] is not None:
+        raise ProtocolError("field 'id': expected a string or integer")
+    if "op" not in frame:
+        raise ProtocolError("missing field 'op'", rid)
+    if not isinstance(frame["op"], str):
+        raise ProtocolError("field 'op': expected a string", rid)
+    return frame
+
+
+# -- field access -------------------------------------------------------------------------------
+
+
+def get_str(frame: dict[str, Any], key: str, default: str | None = None) -> str:
+    value = frame.get(key, default)
+    if not isinstance(value, str) or not value:
+        what = "missing field" if key not in frame else "expected a non-empty string in field"
+        raise ProtocolError(f"{frame['op']}: {what} {key!r}", request_id(frame))
+    return value
+
+
+def get_number(frame: dict[str, Any], key: str, default: float, minval: float = 0.0) -> float:
+    value = frame.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a number",
+                            request_id(frame))
+    if value < minval:
+        raise ProtocolError(f"{frame['op']}: field {key!r}: must be >= {minval:g}",
+                            request_id(frame))
+    return float(value)
+
+
+def get_int(frame: dict[str, Any], key: str, default: int | None) -> int | None:
+    value = frame.get(key, default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a non-negative integer",
+                            request_id(frame))
+    return value
+
+
+def get_bool(frame: dict[str, Any], key: str, default: bool) -> bool:
+    value = frame.get(key, default)
+    if not isinstance(value, bool):
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected true or false",
+                            request_id(frame))
+    return value
+
+
+def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
+    """(canonical ``/name``, spelling as sent) of a topic or service field."""
+    sent = get_str(frame, key)
+    name = sent if sent.startswith("/") else "/" + sent
+    if "//" in name or not all(c.isalnum() or c in "_/~" for c in name) or name.endswith("/"):
+        raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name",
+                            request_id(frame))
+    return name, sent
+
+
+# -- encoding -----------------------------------------------------------------------------------
+
+
+def clean(value: Any) -> Any:
+    """JSON-ready copy: non-finite floats -> None, bytes -> base64, numpy -> lists."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean(v) for v in value]
+    if isinstance(value, bytes | bytearray):
+        return base64.b64encode(value).decode("ascii")
+    if hasattr(value, "tolist"):
+        return clean(value.tolist())
+    return value
+
+
+def encode(message: dict[str, Any]) -> str:
+    """Compact JSON text of a reply; never emits NaN or Infinity."""
+    return json.dumps(clean(message), separators=(",", ":"), allow_nan=False)
+
+
+def publish_frame(topic: str, msg_json: str) -> str:
+    """``{"op":"publish","topic":T,"msg":...}`` around an already encoded message."""
+    return '{"op":"publish","topic":' + json.dumps(topic) + ',"msg":' + msg_json + "}"
+
+
+def status_frame(level: str, message: str, rid: Id = None) -> str:
+    body: dict[str, Any] = {"op": "status", "level": level, "msg": message}
+    if rid is not None:
+        body["id"] = rid
+    return encode(body)
+
+
+def level_allows(threshold: str, level: str) -> bool:
+    """Whether a status of ``level`` passes a client's ``set_level`` threshold."""
+    return STATUS_LEVELS.index(level) >= STATUS_LEVELS.index(threshold)
+
+
+# -- fragments ----------------------------------------------------------------------------------
+
+
+def fragments(text: str, size: int, fragment_id: str | int) -> Iterator[str]:
+    """Split an encoded message into ``fragment`` ops of at most ``size`` characters of data."""
+    total = math.ceil(len(text) / size)
+    for num in range(total):
+        piece = text[num * size:(num + 1) * size]
+        yield encode({"op": "fragment", "id": fragment_id, "data": piece, "num": num,
+                      "total": total})
+
+
+@dataclass
+class _Partial:
+    total: int
+    started: float
+    parts: dict[int, str] = field(default_factory=dict)
+    size: int = 0
+
+
+class Defragmenter:
+    """Joins incoming ``fragment`` ops by ``id``; bounded in bytes, ids and age."""
+
+    def __init__(self, max_bytes: int, max_pending: int = 8, timeout_s: float = 60.0) -> None:
+        self.max_bytes = max_bytes
+        self.max_pending = max_pending
+        self.timeout_s = timeout_s
+        self._pending: dict[str | int, _Partial] = {}
+
+    def add(self, frame: dict[str, Any], now: float | None = None) -> str | None:
+        """Take one fragment; the joined text when it completes the message, else None."""
+        now = time.monotonic() if now is None else now
+        rid = request_id(frame)
+        if rid is None:
+            raise ProtocolError("fragment: missing field 'id' (string or integer)")
+        data = frame.get("data")
+        if not isinstance(data, str):
+            raise ProtocolError("fragment: field 'data': expected a string", rid)
+        num, total = get_int(frame, "num", None), get_int(frame, "total", None)
+        if num is None or total is None or total < 1 or num >= total:
+            raise ProtocolError("fragment: fields 'num' and 'total' must be integers with "
+                                "0 <= num < total", rid)
+        self._expire(now)
+        partial = self._partial(rid, total, now)
+        partial.size += len(data) - len(partial.parts.get(num, ""))
+        partial.parts[num] = data
+        if partial.size > self.max_bytes:
+            del self._pending[rid]
+            raise ProtocolError(f"fragment: message {rid!r} exceeds {self.max_bytes} bytes; "
+                                "dropped", rid)
+        if len(partial.parts) < total:
+            return None
+        del self._pending[rid]
+        return "".join(partial.parts[i] for i in range(total))
+
+    def _partial(self, rid: str | int, total: int, now: float) -> _Partial:
+        partial = self._pending.get(rid)
+        if partial is not None and partial.total != total:
+            del self._pending[rid]
+            raise ProtocolError(f"fragment: 'total' changed from {partial.total} to {total} "
+                                f"for id {rid!r}; dropped", rid)
+        if partial is None:
+            if len(self._pending) >= self.max_pending:
+                raise ProtocolError(f"fragment: more than {self.max_pending} fragmented "
+                                    "messages in flight", rid)
+            partial = self._pending[rid] = _Partial(total, now)
+        return partial
+
+    def _expire(self, now: float) -> None:
+        for rid in [r for r, p in self._pending.items() if now - p.started > self.timeout_s]:
+            del self._pending[rid]
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)

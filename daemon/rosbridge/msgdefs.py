@@ -1,0 +1,106 @@
+# The ROS 2 message definitions arbiterd speaks, as .msg text (fields and defaults per ROS 2).
+from __future__ import annotations
+
+# name (pkg/msg/Type) => .msg text; nested types in the same package are written without the
+# package, as in the ROS 2 interface files, and `MSG: pkg/Type` sections are built from these.
+MSG_TEXT: dict[str, str] = {
+    "builtin_interfaces/msg/Time": (
+        "# Time on the ROS time axis: seconds and nanoseconds since the epoch.\n"
+        "int32 sec\n"
+        "uint32 nanosec\n"),
+    "builtin_interfaces/msg/Duration": (
+        "# A signed span of time.\n"
+        "int32 sec\n"
+        "uint32 nanosec\n"),
+    "std_msgs/msg/Header": (
+        "# Stamp and coordinate frame of higher-level data.\n"
+        "builtin_interfaces/Time stamp\n"
+        "string frame_id\n"),
+    "std_msgs/msg/String": "string data\n",
+    "std_msgs/msg/Bool": "bool data\n",
+    "std_msgs/msg/Empty": "",
+    "std_msgs/msg/Int32": "int32 data\n",
+    "std_msgs/msg/Float64": "float64 data\n",
+    "std_msgs/msg/MultiArrayDimension": (
+        "string label\n"
+        "uint32 size\n"
+        "uint32 stride\n"),
+    "std_msgs/msg/MultiArrayLayout": (
+        "MultiArrayDimension[] dim\n"
+        "uint32 data_offset\n"),
+    "std_msgs/msg/UInt8MultiArray": (
+        "MultiArrayLayout layout\n"
+        "uint8[] data\n"),
+    "geometry_msgs/msg/Vector3": (
+        "# A vector in free space.\n"
+        "float64 x\n"
+        "float64 y\n"
+        "float64 z\n"),
+    "geometry_msgs/msg/Point": (
+        "float64 x\n"
+        "float64 y\n"
+        "float64 z\n"),
+    "geometry_msgs/msg/Quaternion": (
+        "# An orientation as a quaternion (identity by default).\n"
+        "float64 x 0\n"
+        "float64 y 0\n"
+        "float64 z 0\n"
+        "float64 w 1\n"),
+    "geometry_msgs/msg/Pose": (
+        "Point position\n"
+        "Quaternion orientation\n"),
+    "geometry_msgs/msg/PoseWithCovariance": (
+        "Pose pose\n"
+        "# Row-major 6x6 covariance of (x, y, z, roll, pitch, yaw).\n"
+        "float64[36] covariance\n"),
+    "geometry_msgs/msg/Twist": (
+        "# Velocity in free space: linear and angular parts.\n"
+        "Vector3 linear\n"
+        "Vector3 angular\n"),
+    "geometry_msgs/msg/TwistStamped": (
+        "std_msgs/Header header\n"
+        "Twist twist\n"),
+    "geometry_msgs/msg/TwistWithCovariance": (
+        "Twist twist\n"
+        "float64[36] covariance\n"),
+    "geometry_msgs/msg/Transform": (
+        "Vector3 translation\n"
+        "Quaternion rotation\n"),
+    "geometry_msgs/msg/TransformStamped": (
+        "std_msgs/Header header\n"
+        "string child_frame_id\n"
+        "Transform transform\n"),
+    "nav_msgs/msg/Odometry": (
+        "# Pose in header.frame_id, twist in child_frame_id.\n"
+        "std_msgs/Header header\n"
+        "string child_frame_id\n"
+        "geometry_msgs/PoseWithCovariance pose\n"
+        "geometry_msgs/TwistWithCovariance twist\n"),
+    "sensor_msgs/msg/LaserScan": (
+        "# One revolution of a planar laser range finder.\n"
+        "std_msgs/Header header\n"
+        "float32 angle_min\n"
+        "float32 angle_max\n"
+        "float32 angle_increment\n"
+        "float32 time_increment\n"
+        "float32 scan_time\n"
+        "float32 range_min\n"
+        "float32 range_max\n"
+        "float32[] ranges\n"
+        "float32[] intensities\n"),
+    "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n",
+    "rcl_interfaces/msg/Log": (
+        "# A log line, as published on /rosout.\n"
+        "byte DEBUG=10\n"
+        "byte INFO=20\n"
+        "byte WARN=30\n"
+        "byte ERROR=40\n"
+        "byte FATAL=50\n"
+        "builtin_interfaces/Time stamp\n"
+        "uint8 level\n"
+        "string name\n"
+        "string msg\n"
+        "string file\n"
+        "string function\n"
+        "uint32 line\n"),
+}
