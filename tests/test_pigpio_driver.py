@@ -310,3 +310,19 @@ async def test_safe_stop_from_a_fresh_process_zeroes_running_motors() -> None:
         assert the_rig.observed_targets() == (0.0, 0.0)
         log = the_rig.emulator.command_log()
         assert (CMD_WRITE, 23, 0) in log and (CMD_WRITE, 27, 0) in log
+
+
+# -- bench -----------------------------------------------------------------------------------------
+
+
+def test_bench_reports_command_latency_percentiles() -> None:
+    from drivers.bench_pigpio import run
+
+    results = {r.name: r for r in run(quick=True)}
+    assert all(r.suite == "drivers" and r.unit == "ms" for r in results.values())
+    for label in ("pigpio", "l298n (PiGPIOFactory)"):
+        for stage in ("return", "pigpiod"):
+            p50 = results[f"{label} command->{stage} p50"].value
+            p99 = results[f"{label} command->{stage} p99"].value
+            assert math.isfinite(p50) and 0 < p50 <= p99
+    assert results["l298n (MockFactory) command->return p50"].value > 0
