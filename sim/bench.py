@@ -45,10 +45,13 @@ def _scan_rate(scans: int) -> float:
 
 
 def run(quick: bool) -> list[BenchResult]:
-    sim_seconds = 30.0 if quick else 300.0
-    steps_per_s, factor, world = _world_speed(sim_seconds)
+    sim_seconds = 100.0 if quick else 1000.0
+    # best of three: the figure is what the code can do, not what a busy machine allowed
+    runs = [_world_speed(sim_seconds) for _ in range(3)]
+    steps_per_s, factor, world = max(runs, key=lambda result: result[1])
     metrics = world.metrics_summary()
-    note = (f"{sim_seconds:.0f} s simulated, 50 Hz physics, 10 Hz x 360-ray scans, noise on; "
+    note = (f"best of 3 x {sim_seconds:.0f} s simulated, 50 Hz physics, 10 Hz x 360-ray "
+            f"scans, noise on; "
             f"{metrics['collisions']} collisions, {metrics['path_length_m']:.1f} m driven")
     scans_per_s = _scan_rate(2000 if quick else 20000)
     return [

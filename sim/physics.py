@@ -10,6 +10,9 @@ from sim.world import Circle, Pose, Segment, World
 
 #: Gap (m) left between the footprint and an obstacle when the robot is stopped by it.
 CONTACT_GAP = 1e-6
+#: The contact sweep only looks at primitives found within this margin (m) of the footprint,
+#: refreshed whenever the robot may have moved farther than the margin from where they were.
+NEARBY_MARGIN = 0.25
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,8 @@ class DiffDrivePhysics:
         self._offsets = [0.0, 0.0]  # encoder error currently applied to each motor (rad)
         self._written = (0.0, 0.0)  # motor positions as this class last left them
         self._free = 0.0  # distance the centre can still move without any contact check
+        self._nearby: tuple[tuple[Circle, ...], tuple[Segment, ...]] = ((), ())
+        self._nearby_at = (math.inf, math.inf)
         self.place(world.start)
 
     def place(self, pose: Pose) -> None:
@@ -79,6 +84,7 @@ class DiffDrivePhysics:
                              f"on an obstacle or wall")
         self.state = BodyState(pose.x, pose.y, _wrap(pose.theta))
         self._free = clearance
+        self._nearby_at = (math.inf, math.inf)
 
     def step(self, dt: float) -> None:
         """Advance the motors and the body by ``dt`` seconds."""
@@ -129,29 +135,40 @@ class DiffDrivePhysics:
 
     def _allowed_distance(self, dx: float, dy: float, length: float) -> float:
         """How far the centre may move along (dx, dy); updates contact and collisions."""
+        state = self.state
         if length == 0.0:
             return 0.0
         if length <= self._free:
             self._free -= length
-            self.state.in_contact = False
-            return length
-        state = self.state
-        radius = self.geometry.footprint_radius
-        self._free = self.world.clearance(state.x, state.y) - radius
-        if length <= self._free:
-            self._free -= length
             state.in_contact = False
             return length
-        hit = first_contact(self.world, state.x, state.y, dx / length, dy / length, radius)
+        if not state.in_contact:  # in contact the clearance is ~0: go straight to the sweep
+            self._free = self.world.clearance(state.x, state.y) - self.geometry.footprint_radius
+            if length <= self._free:
+                self._free -= length
+                state.in_contact = False
+                return length
+        self._free = 0.0
+        hit = self._sweep(dx / length, dy / length, length)
         if hit > length:
-            self._free = 0.0
             state.in_contact = False
             return length
         if not state.in_contact:
             state.collisions += 1
         state.in_contact = True
-        self._free = 0.0
         return max(0.0, hit - CONTACT_GAP)
+
+    def _sweep(self, ux: float, uy: float, length: float) -> float:
+        """First contact along the unit vector, checking only the primitives close enough."""
+        x, y, radius = self.state.x, self.state.y, self.geometry.footprint_radius
+        moved = math.hypot(x - self._nearby_at[0], y - self._nearby_at[1])
+        if moved + length > NEARBY_MARGIN:
+            if length > NEARBY_MARGIN:
+                return first_contact(self.world, x, y, ux, uy, radius)
+            self._nearby = self.world.nearby(x, y, radius + 2 * NEARBY_MARGIN)
+            self._nearby_at = (x, y)
+        circles, segments = self._nearby
+        return _first_contact(circles, segments, x, y, ux, uy, radius)
 
 
 def make_motors(max_speed_rad_s: float = 40.0, time_constant_s: float = 0.05) -> MotorPair:
@@ -178,10 +195,15 @@ def first_contact(world: World, x: float, y: float, ux: float, uy: float,
 
     A disc already touching something is blocked (0) only when moving into it.
     """
+    return _first_contact(world.circles, world.segments, x, y, ux, uy, radius)
+
+
+def _first_contact(circles: tuple[Circle, ...], segments: tuple[Segment, ...], x: float,
+                   y: float, ux: float, uy: float, radius: float) -> float:
     best = math.inf
-    for circle in world.circles:
+    for circle in circles:
         best = min(best, _disc_hits_circle(x, y, ux, uy, radius, circle))
-    for segment in world.segments:
+    for segment in segments:
         best = min(best, _disc_hits_segment(x, y, ux, uy, radius, segment))
     return best
 

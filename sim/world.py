@@ -69,6 +69,14 @@ class World:
         return float(min(_segment_distances(self.segment_array, x, y).min(initial=math.inf),
                          _circle_distances(self.circle_array, x, y).min(initial=math.inf)))
 
+    def nearby(self, x: float, y: float,
+               within: float) -> tuple[tuple[Circle, ...], tuple[Segment, ...]]:
+        """The circles and walls whose surface is closer than ``within`` to (x, y)."""
+        near_circles = _circle_distances(self.circle_array, x, y) < within
+        near_segments = _segment_distances(self.segment_array, x, y) < within
+        return (tuple(c for c, near in zip(self.circles, near_circles, strict=True) if near),
+                tuple(s for s, near in zip(self.segments, near_segments, strict=True) if near))
+
     def to_dict(self) -> dict[str, Any]:
         """The world in the world-file format (see docs/simulator.md)."""
         return {

@@ -148,3 +148,11 @@ def test_bad_world_files_name_the_file(tmp_path: Path) -> None:
     unknown.write_text("[arena]\nwidth = 4\nheight = 4\ndepth = 2\n")
     with pytest.raises(WorldError, match=r"unknown\.toml: unknown field 'arena\.depth'"):
         load_world(unknown)
+
+
+def test_nearby_lists_what_is_within_reach() -> None:
+    world = World(arena_walls(16, 16), (Circle(3.0, 0.0, 0.5), Circle(-5.0, 0.0, 0.5)))
+    circles, segments = world.nearby(7.0, 0.0, 1.2)
+    assert circles == () and segments == (world.segments[1],)  # the right wall, 1 m away
+    circles, segments = world.nearby(2.0, 0.0, 0.6)
+    assert circles == (world.circles[0],) and segments == ()
