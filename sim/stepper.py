@@ -16,7 +16,7 @@ from sim.motor_model import MotorPair
 from sim.noise import Noise
 from sim.physics import DiffDrivePhysics, RobotGeometry, make_motors
 from sim.raycast import RayCaster, ray_angles
-from sim.settings import SimConfig
+from sim.settings import SimConfig, SimConfigError
 from sim.world import Pose, World, generated_world, load_world
 
 log = logging.getLogger(__name__)
@@ -83,7 +83,7 @@ class SimWorld:
                                         wheel_sign=wheel_sign)
         self.lidar = RayCaster(self.world, ray_angles(self.config.lidar_rays),
                                self.config.range_min, self.config.range_max)
-        self.metrics = RunMetrics(self.config.metrics_csv or None, self.config.metrics_rate)
+        self.metrics = _open_metrics(self.config)
         self.internal_scans = internal_scans
         self.latest_scan: np.ndarray | None = None
         self.latest_scan_time = 0.0
@@ -265,6 +265,14 @@ class SimWorld:
                 "obstacles": len(self.world.circles),
                 "walls": len(self.world.segments),
             }
+
+
+def _open_metrics(config: SimConfig) -> RunMetrics:
+    try:
+        return RunMetrics(config.metrics_csv or None, config.metrics_rate)
+    except OSError as exc:
+        raise SimConfigError(f"[sim] metrics_csv: cannot write {config.metrics_csv!r}: "
+                             f"{exc.strerror or exc}") from None
 
 
 def heading_error(a: float, b: float) -> float:

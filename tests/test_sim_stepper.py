@@ -179,3 +179,9 @@ def test_builds_from_the_daemons_validated_sections(tmp_path: Path) -> None:
     assert world.config.seed == 3 and not world.config.noise.enabled
     truth = world.ground_truth()
     assert (truth.x, truth.y, truth.theta) == (1.0, -1.0, 0.5)
+
+
+def test_unwritable_metrics_csv_names_the_key(tmp_path: Path) -> None:
+    config = SimConfig.from_section({"metrics_csv": str(tmp_path / "missing" / "m.csv")})
+    with pytest.raises(SimConfigError, match=r"\[sim\] metrics_csv: cannot write"):
+        SimWorld(config)
