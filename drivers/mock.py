@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -42,6 +43,8 @@ class MockDriver(MotorDriver):
         self._speeds = (0.0, 0.0)
         self._since = time.monotonic()
         self._log: Any = None
+        #: called with (left, right) after every write (the simulator turns its wheels here)
+        self.listeners: list[Callable[[float, float], None]] = []
 
     @classmethod
     def name(cls) -> str:
@@ -60,6 +63,8 @@ class MockDriver(MotorDriver):
         self.commands.append(RecordedCommand(now, left_rad_s, right_rad_s))
         if self._log is not None:
             self._log.write(f"{now:.6f} {left_rad_s:.6f} {right_rad_s:.6f}\n")
+        for listener in self.listeners:
+            listener(left_rad_s, right_rad_s)
 
     async def _read_encoders(self) -> EncoderReading | None:
         if not self.options["encoders"]:

@@ -65,6 +65,8 @@ class ControlLoop:
         self.publish_every = max(1, round(control["update_rate"] / control["publish_rate"]))
         self.open_loop = control["open_loop"]
         self.on_tick: list[Callable[[float, bool], None]] = []
+        #: extra fields of /api/status supplied by other components (the simulator's truth)
+        self.status_extras: dict[str, Callable[[], Any]] = {}
         self.fault: str | None = None
         self.faults = 0
         self.reconnects = 0
@@ -300,6 +302,7 @@ class ControlLoop:
             "clamps": dict(self.clamps),
             "last_clamped": list(self.last_clamped),
             "fault": self.fault,
+            **{key: supply() for key, supply in self.status_extras.items()},
         }
 
     def health(self) -> dict[str, Any]:
