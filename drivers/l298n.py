@@ -12,7 +12,14 @@ from typing import Any, ClassVar, TypeVar
 
 from daemon.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
-from drivers.pigpio_pwm import SerialExecutor, check_pins, drop_pigpio, probe_tcp, speed_to_duty
+from drivers.pigpio_pwm import (
+    SerialExecutor,
+    check_pins,
+    describe_io_error,
+    drop_pigpio,
+    probe_tcp,
+    speed_to_duty,
+)
 
 T = TypeVar("T")
 PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
@@ -254,7 +261,7 @@ class L298NDriver(MotorDriver):
         except Exception as exc:
             self._values = [None, None]
             if self.remote:
-                self._lost(f"write failed: {type(exc).__name__}: {exc}")
+                self._lost(f"write failed: {describe_io_error(exc)}")
                 raise DriverFault(self.fault or "pigpiod lost") from exc
             raise DriverFault(f"l298n: GPIO write failed: {type(exc).__name__}: {exc}") from exc
 
@@ -275,7 +282,7 @@ class L298NDriver(MotorDriver):
             try:
                 await io.call(factory._connection.get_current_tick)
             except Exception as exc:
-                self._lost(f"keep-alive failed: {type(exc).__name__}: {exc}")
+                self._lost(f"keep-alive failed: {describe_io_error(exc)}")
                 return
 
     # -- encoders and health ------------------------------------------------------------------

@@ -6,6 +6,7 @@ import atexit
 import contextlib
 import math
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -114,6 +115,15 @@ def connect_pigpio(host: str, port: int, timeout: float) -> Any:
         raise DriverFault(f"pigpiod unreachable at {host}:{port}")
     pi.sl.s.settimeout(timeout)  # command replies: a hung pigpiod becomes an error, not a hang
     return pi
+
+
+def describe_io_error(exc: BaseException) -> str:
+    """A short reason for a failed pigpio socket call."""
+    if isinstance(exc, struct.error):  # the client read a short (empty) reply
+        return "pigpiod closed the connection"
+    if isinstance(exc, TimeoutError):
+        return "no reply from pigpiod (timed out)"
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 def drop_pigpio(pi: Any, *, peer_alive: bool) -> None:
@@ -350,13 +360,18 @@ class PigpioDriver(MotorDriver):
         pi = self._pi
         if pi is None:
             raise DriverFault("pigpio: connection already lost")
+        import pigpio
+
         try:
             for side, duty in zip(self.sides, duties, strict=True):
                 self._write_side(pi, side, duty)
         except DriverFault:
             raise
+        except pigpio.error as exc:  # pigpiod answered with an error: still there to be zeroed
+            self._written = {}
+            raise DriverFault(f"pigpiod refused a write: {exc}") from exc
         except Exception as exc:
-            self._lost(pi, f"write failed: {exc or type(exc).__name__}")
+            self._lost(pi, f"write failed: {describe_io_error(exc)}")
             raise DriverFault(self.fault or "pigpiod lost") from exc
 
     def _write_side(self, pi: Any, side: Side, duty: float) -> None:
@@ -402,7 +417,7 @@ class PigpioDriver(MotorDriver):
             try:
                 await io.call(pi.get_current_tick)
             except Exception as exc:
-                self._lost(pi, f"keep-alive failed: {exc or type(exc).__name__}")
+                self._lost(pi, f"keep-alive failed: {describe_io_error(exc)}")
                 return
 
     # -- encoders and health ------------------------------------------------------------------

@@ -2,10 +2,17 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import math
+import signal
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
 
+import aiohttp
 import pigpio
 import pytest
 from hypothesis import given
@@ -15,6 +22,7 @@ from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, QuadratureDecoder, speed_to_duty
 from sim.motor_model import MotorPair, WheelMotor
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE, quadrature_levels
+from tests.daemon_proc import REPO, free_port
 from tests.rigs.pigpio import COUNTS_PER_REV, FULL_DUTY_SPEED, PigpioRig, running_rig
 
 pytestmark = pytest.mark.timeout(60)
@@ -326,3 +334,126 @@ def test_bench_reports_command_latency_percentiles() -> None:
             p99 = results[f"{label} command->{stage} p99"].value
             assert math.isfinite(p50) and 0 < p50 <= p99
     assert results["l298n (MockFactory) command->return p50"].value > 0
+
+
+async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed() -> None:
+    async with running_rig() as the_rig:
+        driver = make_driver(the_rig, pwm_range=100, hardware_pwm=False)
+        await driver.open()
+        try:
+            await driver.set_wheel_speeds(5.0, 5.0)
+            the_rig.emulator.bank.pins[12].pwm_range = 25  # someone else shrank the range
+            with pytest.raises(DriverFault, match=r"pigpiod refused a write: .*dutycycle"):
+                await driver.set_wheel_speeds(10.0, 10.0)
+            assert driver.health()["status"] == "error"
+            assert await driver.try_zero()
+            assert the_rig.observed_targets() == (0.0, 0.0)
+        finally:
+            await driver.close()
+
+
+# -- end to end: the real daemon as a subprocess, the pigpiod emulator in this process -------------
+
+
+def daemon_config(tmp_path: Path, options: dict[str, Any], http_port: int) -> Path:
+    section = "\n".join(f"{key} = {json.dumps(value)}" for key, value in options.items())
+    path = tmp_path / "arbiterd.toml"
+    path.write_text(f"""
+[driver]
+type = "pigpio"
+
+[driver.pigpio]
+{section}
+
+[control]
+cmd_vel_timeout = 5.0
+reconnect_min_s = 0.1
+reconnect_max_s = 0.4
+
+[http]
+host = "127.0.0.1"
+port = {http_port}
+
+[rosbridge]
+enabled = false
+""")
+    return path
+
+
+class Daemon:
+    """``arbiterd run`` as a subprocess, talked to over its HTTP API."""
+
+    def __init__(self, process: asyncio.subprocess.Process, port: int,
+                 session: aiohttp.ClientSession) -> None:
+        self.process, self.base, self.session = process, f"http://127.0.0.1:{port}", session
+
+    async def health(self) -> tuple[int, dict[str, Any]]:
+        async with self.session.get(self.base + "/api/health") as response:
+            return response.status, await response.json()
+
+    async def cmd_vel(self, linear_x: float, angular_z: float = 0.0) -> int:
+        body = {"linear": {"x": linear_x}, "angular": {"z": angular_z}}
+        async with self.session.post(self.base + "/api/cmd_vel", json=body) as response:
+            return response.status
+
+    async def wait_health(self, status: str, within: float = 10.0) -> dict[str, Any]:
+        deadline = time.monotonic() + within
+        while True:
+            assert self.process.returncode is None, "the daemon exited"
+            with contextlib.suppress(aiohttp.ClientConnectionError):
+                code, body = await self.health()
+                if body["status"] == status:
+                    assert code == (503 if status == "error" else 200)
+                    return body
+            assert time.monotonic() < deadline, f"daemon health never became {status!r}"
+            await asyncio.sleep(0.05)
+
+
+@pytest.fixture
+async def daemon(tmp_path: Path) -> AsyncIterator[tuple[Daemon, PigpioRig]]:
+    async with running_rig() as the_rig:
+        port = free_port()
+        config = daemon_config(tmp_path, the_rig.options, port)
+        log = (tmp_path / "daemon.log").open("wb")
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
+            stdout=asyncio.subprocess.DEVNULL, stderr=log)
+        try:
+            async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
+                client = Daemon(process, port, session)
+                await client.wait_health("ok", within=20.0)
+                yield client, the_rig
+                process.send_signal(signal.SIGTERM)
+                assert await asyncio.wait_for(process.wait(), 10) == 0
+                assert the_rig.observed_targets() == (0.0, 0.0)
+        finally:
+            if process.returncode is None:
+                process.kill()
+                await process.wait()
+            log.close()
+
+
+async def test_daemon_survives_pigpiod_stopping_and_restarting(
+        daemon: tuple[Daemon, PigpioRig]) -> None:
+    client, the_rig = daemon
+    emulator = the_rig.emulator
+    assert await client.cmd_vel(0.2) == 200
+    await eventually(lambda: min(the_rig.observed_targets()) > 1.0, "the wheels to turn")
+
+    emulator.stop()  # pigpiod exits
+    body = await client.wait_health("error")
+    assert "pigpiod at 127.0.0.1" in str(body["components"]["control"]["fault"])
+    assert the_rig.observed_targets() == (0.0, 0.0)
+    assert await client.cmd_vel(0.2) == 409  # refused while faulted, not queued
+    await asyncio.sleep(0.5)  # several failed reconnects with back-off
+    assert client.process.returncode is None
+
+    emulator.start()  # pigpiod is back
+    body = await client.wait_health("ok")
+    assert body["components"]["control"]["reconnects"] >= 1
+    deadline = time.monotonic() + 0.5  # several ticks: the wheels stay still
+    while time.monotonic() < deadline:
+        assert the_rig.observed_targets() == (0.0, 0.0)
+        await asyncio.sleep(0.02)
+    assert await client.cmd_vel(0.2) == 200  # a fresh command moves the robot again
+    await eventually(lambda: min(the_rig.observed_targets()) > 1.0, "the wheels to turn again")
