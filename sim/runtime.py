@@ -184,6 +184,33 @@ def _start_pigpio(runtime: SimRuntime) -> Started:
                            "port": pigpiod.port}
 
 
+def _l298n_wiring(options: dict[str, Any]) -> Any:
+    from sim.pigpiod_emulator import HBridge, Wiring
+
+    def bridge(side: str) -> HBridge:
+        enable = options[f"{side}_enable"]
+        return HBridge(options[f"{side}_forward"], options[f"{side}_backward"],
+                       enable if enable >= 0 else None)
+
+    def encoder(side: str) -> tuple[int, int]:
+        return options[f"{side}_encoder_a"], options[f"{side}_encoder_b"]
+
+    return Wiring(bridge("left"), bridge("right"), encoder("left"), encoder("right"))
+
+
+def _start_l298n(runtime: SimRuntime) -> Started:
+    """gpiozero's PiGPIOFactory against the emulated pigpiod, L298N bridges on its pins."""
+    from sim.pigpiod_emulator import PigpiodEmulator
+
+    options = dict(runtime.config.driver_options("l298n"))
+    overrides = {"pin_factory": "pigpio", "pigpio_host": "127.0.0.1", "encoders": True,
+                 "max_wheel_speed": runtime.sim.motor_max_speed,
+                 "encoder_counts_per_rev": COUNTS_PER_REV["l298n"] // 4}  # quadrature cycles
+    options.update(overrides)
+    pigpiod = PigpiodEmulator(_l298n_wiring(options), runtime.motors, port=0).start()
+    return pigpiod.close, {**overrides, "pigpio_port": pigpiod.port}
+
+
 def _start_odrive(runtime: SimRuntime) -> Started:
     from sim.odrive_emulator import start_odrive_emulator
 
@@ -200,5 +227,6 @@ EMULATORS: dict[str, Callable[[SimRuntime], Started]] = {
     "mock": _start_mock,
     "serial": _start_serial,
     "pigpio": _start_pigpio,
+    "l298n": _start_l298n,
     "odrive_can": _start_odrive,
 }

@@ -34,6 +34,8 @@ RIGS: dict[str, str] = {
     "serial": "tests.rigs.serial:rig",
     "pigpio": "tests.rigs.pigpio:rig",
     "odrive_can": "tests.rigs.odrive_can:rig",
+    "l298n": "tests.rigs.l298n:rig",
+    "l298n@pigpio": "tests.rigs.l298n:rig_pigpio",
 }
 
 
