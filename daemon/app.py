@@ -15,7 +15,7 @@ from aiohttp import web
 from daemon import __version__
 from daemon.bus import Bus
 from daemon.component import Component, worst
-from daemon.config import Config
+from daemon.config import Config, ConfigError
 from daemon.control.api import ControlApi
 from daemon.control.loop import ControlLoop
 from daemon.http_api import HttpServer, json_response
@@ -88,7 +88,10 @@ class Daemon:
     def _start_simulator(self) -> Any:
         from sim.runtime import SimRuntime
 
-        runtime = SimRuntime(self.config)
+        try:
+            runtime = SimRuntime(self.config)
+        except ValueError as exc:  # a [sim] value that is wrong only together with others
+            raise ConfigError([f"{self.config.source}: {exc}"]) from exc
         try:
             runtime.start_devices()
         except Exception as exc:
@@ -143,6 +146,12 @@ class Daemon:
             log.error("startup failed: %s", exc)
             self.exit_code = EXIT_HARDWARE
             await self.shutdown(f"startup failed: {exc}")
+            return self.exit_code
+        except ConfigError as exc:
+            for problem in exc.problems:
+                log.error("configuration error: %s", problem)
+            self.exit_code = EXIT_CONFIG
+            await self.shutdown("configuration error")
             return self.exit_code
         await self._shutdown_requested.wait()
         await self.shutdown(self.shutdown_reason)

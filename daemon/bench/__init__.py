@@ -25,4 +25,5 @@ class BenchResult:
 SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
     "drivers": "daemon.bench.drivers",
+    "sim": "sim.bench",
 }
