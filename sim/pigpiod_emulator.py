@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 from sim.motor_model import MotorPair, WheelMotor
 
@@ -121,6 +122,36 @@ class Wiring:
         """(side index, (A, B)) for each wired encoder."""
         pairs = [(0, self.left_encoder), (1, self.right_encoder)]
         return [(side, pins) for side, pins in pairs if pins is not None]
+
+
+def pigpio_driver_wiring(options: dict[str, Any], reverse: tuple[bool, bool] = (False, False),
+                         ) -> Wiring:
+    """The hardware a complete ``[driver.pigpio]`` section describes: EN = PWM, IN1/IN2."""
+    def bridge(side: str, reversed_: bool) -> HBridge:
+        return HBridge(options[f"{side}_in1"], options[f"{side}_in2"], options[f"{side}_pwm"],
+                       reversed_)
+
+    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
+                  *_encoders(options))
+
+
+def l298n_driver_wiring(options: dict[str, Any], reverse: tuple[bool, bool] = (False, False),
+                        ) -> Wiring:
+    """The hardware a complete ``[driver.l298n]`` section describes: IN1/IN2 PWM, EN if wired."""
+    def bridge(side: str, reversed_: bool) -> HBridge:
+        enable = options[f"{side}_enable"]
+        return HBridge(options[f"{side}_forward"], options[f"{side}_backward"],
+                       enable if enable >= 0 else None, reversed_)
+
+    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
+                  *_encoders(options))
+
+
+def _encoders(options: dict[str, Any]) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
+    if not options.get("encoders"):
+        return None, None
+    return ((options["left_encoder_a"], options["left_encoder_b"]),
+            (options["right_encoder_a"], options["right_encoder_b"]))
 
 
 @dataclass

@@ -5,6 +5,7 @@ import asyncio
 import contextlib
 import json
 import math
+import re
 import signal
 import sys
 import time
@@ -457,3 +458,41 @@ async def test_daemon_survives_pigpiod_stopping_and_restarting(
         await asyncio.sleep(0.02)
     assert await client.cmd_vel(0.2) == 200  # a fresh command moves the robot again
     await eventually(lambda: min(the_rig.observed_targets()) > 1.0, "the wheels to turn again")
+
+
+# -- standalone emulator in its own process ------------------------------------------------------
+
+
+async def test_standalone_emulator_process_with_signal_switches() -> None:
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "sim.pigpiod_emulator", "--port", "0", cwd=REPO,
+        stdout=asyncio.subprocess.PIPE)
+    try:
+        assert process.stdout is not None
+        banner = (await asyncio.wait_for(process.stdout.readline(), 20)).decode()
+        match = re.search(r"listening on ([\d.]+):(\d+)", banner)
+        assert match, banner
+        options = {"host": match.group(1), "port": int(match.group(2)), "encoders": True,
+                   "max_wheel_speed": 20.0, "encoder_counts_per_rev": 240,
+                   "watch_interval": 0.05}
+        driver = PigpioDriver(options, max_wheel_speed=20.0)
+        await driver.open()
+        await driver.set_wheel_speeds(10.0, 10.0)
+        await eventually(lambda: driver.decoders[0].count > 20, "encoder edges from the process")
+        process.send_signal(signal.SIGUSR1)  # pigpiod stops
+        await eventually(lambda: driver.fault is not None, "the lost pigpiod to be noticed")
+        await driver.close()
+        process.send_signal(signal.SIGUSR2)  # pigpiod restarts
+        deadline = time.monotonic() + 5.0
+        while not driver.is_open:
+            with contextlib.suppress(DriverFault):
+                await driver.open()
+            assert time.monotonic() < deadline, "never reconnected after the restart"
+            await asyncio.sleep(0.05)
+        await driver.close()
+        process.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(process.wait(), 10) == 0
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()

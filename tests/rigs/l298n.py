@@ -9,7 +9,13 @@ from typing import Any
 
 from drivers.l298n import L298NDriver, mock_pin_factory
 from sim.motor_model import MotorPair
-from sim.pigpiod_emulator import HBridge, PigpiodEmulator, Wiring, default_motors, quadrature_levels
+from sim.pigpiod_emulator import (
+    PigpiodEmulator,
+    Wiring,
+    default_motors,
+    l298n_driver_wiring,
+    quadrature_levels,
+)
 
 #: Wheel speed at full duty in the emulated motors and the driver's map (rad/s).
 FULL_DUTY_SPEED = 20.0
@@ -32,18 +38,7 @@ def base_options(**overrides: Any) -> dict[str, Any]:
 def wiring_for(options: dict[str, Any], *, reverse: tuple[bool, bool] = (False, False)) -> Wiring:
     """The hardware that matches a ``[driver.l298n]`` section: IN1/IN2 PWM, EN if wired."""
     opts = {k: o.default for k, o in L298NDriver.OPTIONS.items()} | options
-
-    def bridge(side: str, reversed_: bool) -> HBridge:
-        enable = opts[f"{side}_enable"]
-        return HBridge(opts[f"{side}_forward"], opts[f"{side}_backward"],
-                       enable if enable >= 0 else None, reversed_)
-
-    def encoder(side: str) -> tuple[int, int] | None:
-        return (opts[f"{side}_encoder_a"], opts[f"{side}_encoder_b"]) if opts["encoders"] \
-            else None
-
-    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
-                  encoder("left"), encoder("right"))
+    return l298n_driver_wiring(opts, reverse)
 
 
 class MockPinBridge:

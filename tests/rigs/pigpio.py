@@ -8,7 +8,7 @@ from typing import Any
 
 from drivers.pigpio_pwm import PigpioDriver
 from sim.motor_model import MotorPair
-from sim.pigpiod_emulator import HBridge, PigpiodEmulator, Wiring, default_motors
+from sim.pigpiod_emulator import PigpiodEmulator, Wiring, default_motors, pigpio_driver_wiring
 
 #: Wheel speed at full duty in the emulated motors and the driver's map (rad/s).
 FULL_DUTY_SPEED = 20.0
@@ -34,17 +34,7 @@ class PigpioRig:
 def wiring_for(options: dict[str, Any], *, reverse: tuple[bool, bool] = (False, False)) -> Wiring:
     """The emulated hardware that matches a ``[driver.pigpio]`` section."""
     opts = {k: o.default for k, o in PigpioDriver.OPTIONS.items()} | options
-
-    def bridge(side: str, reversed_: bool) -> HBridge:
-        return HBridge(opts[f"{side}_in1"], opts[f"{side}_in2"], opts[f"{side}_pwm"], reversed_)
-
-    def encoder(side: str) -> tuple[int, int] | None:
-        if not opts["encoders"]:
-            return None
-        return opts[f"{side}_encoder_a"], opts[f"{side}_encoder_b"]
-
-    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
-                  encoder("left"), encoder("right"))
+    return pigpio_driver_wiring(opts, reverse)
 
 
 def base_options(**overrides: Any) -> dict[str, Any]:
