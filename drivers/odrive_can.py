@@ -150,18 +150,29 @@ class _Axis:
 
 
 class _FrameListener:
-    """python-can listener handing frames (in the event loop) to the driver."""
+    """python-can listener on the notifier's reader thread: hands frames to the event loop.
 
-    def __init__(self, on_frame: Callable[[can.Message], None],
+    The notifier runs without an event loop on purpose, so it always reads in a thread of its
+    own that ``stop()`` can join before the bus is shut down (no fd reader to remove from
+    another thread, no receive on a closed bus).
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, on_frame: Callable[[can.Message], None],
                  on_error: Callable[[Exception], None]) -> None:
+        self._loop = loop
         self._on_frame = on_frame
         self._on_error = on_error
 
     def __call__(self, msg: can.Message) -> None:
-        self._on_frame(msg)
+        self._hand_over(self._on_frame, msg)
 
     def on_error(self, exc: Exception) -> None:
-        self._on_error(exc)
+        self._hand_over(self._on_error, exc)
+        time.sleep(0.1)  # a dead interface fails every recv at once: do not spin
+
+    def _hand_over(self, func: Callable[[Any], None], arg: Any) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop is already closed
+            self._loop.call_soon_threadsafe(func, arg)
 
 
 class ODriveCanDriver(MotorDriver):
@@ -252,9 +263,9 @@ class ODriveCanDriver(MotorDriver):
         self._frame_event = asyncio.Event()
         self._bus = await asyncio.to_thread(self._connect)
         try:
-            self._notifier = can.Notifier(
-                self._bus, [_FrameListener(self._on_frame, self._on_receive_error)],
-                timeout=0.1, loop=asyncio.get_running_loop())
+            listener = _FrameListener(asyncio.get_running_loop(), self._on_frame,
+                                      self._on_receive_error)
+            self._notifier = can.Notifier(self._bus, [listener], timeout=0.1)
             await self._start_axes()
         except BaseException:
             await self._release_bus(idle=True)
@@ -432,7 +443,8 @@ class ODriveCanDriver(MotorDriver):
             self._frame_event.set()
 
     def _on_receive_error(self, exc: Exception) -> None:
-        self.report_fault(f"CAN receive on {self._where()} failed: {exc}")
+        if self._bus is not None:  # errors of a bus being shut down are no fault
+            self.report_fault(f"CAN receive on {self._where()} failed: {exc}")
 
     def _link_fault(self, now: float) -> str | None:
         """Why the ODrives cannot be trusted right now, or ``None``."""

@@ -408,6 +408,23 @@ async def test_node_off_the_bus_faults_and_reconnects_when_back(
     assert odrive.observed_targets() == (0.0, 0.0)
 
 
+async def test_a_vanished_can_interface_faults_and_reopens(
+        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+    driver = make_driver()
+    await driver.open()
+    assert driver._bus is not None
+    driver._bus.shutdown()  # what a CAN adapter unplugged under the driver looks like
+    reason = await eventually(lambda: driver.fault, what="the receive failure to be noticed")
+    assert reason.startswith("CAN receive on virtual channel"), reason
+    with pytest.raises(DriverFault):
+        await driver.set_wheel_speeds(1.0, 1.0)
+    assert not await driver.try_zero()
+    await driver.close()
+    await driver.open()
+    await driver.set_wheel_speeds(1.0, 1.0)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((1.0, 1.0)))
+
+
 async def test_garbled_frames_are_counted_not_trusted(
         odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     driver = make_driver()
