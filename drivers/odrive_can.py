@@ -227,9 +227,9 @@ class ODriveCanDriver(MotorDriver):
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
         opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
         super().__init__(opts, max_wheel_speed=max_wheel_speed)
-        if opts["left_node_id"] == opts["right_node_id"]:
-            raise ValueError("driver.odrive_can: left_node_id and right_node_id must differ "
-                             f"(both are {opts['left_node_id']})")
+        problems = self.check_options(opts)
+        if problems:
+            raise ValueError("; ".join(problems))
         self._left = _Axis("left", opts["left_node_id"], -1.0 if opts["left_inverted"] else 1.0)
         self._right = _Axis("right", opts["right_node_id"],
                             -1.0 if opts["right_inverted"] else 1.0)
@@ -246,6 +246,15 @@ class ODriveCanDriver(MotorDriver):
     @classmethod
     def name(cls) -> str:
         return "odrive_can"
+
+    @classmethod
+    def check_options(cls, values: Mapping[str, Any]) -> list[str]:
+        """Problems between keys of an otherwise valid ``[driver.odrive_can]`` section."""
+        left, right = values.get("left_node_id", 0), values.get("right_node_id", 1)
+        if left == right:
+            return [f"[driver.odrive_can] left_node_id and right_node_id must differ "
+                    f"(both are {left})"]
+        return []
 
     # -- unit conversion --------------------------------------------------------------------
 
