@@ -109,6 +109,7 @@ class RosbridgeServer:
         peer = request.remote or "?"
         may_drive = self.security.token_ok(request.headers, request.query)
         client = self.clients[client_id] = ClientSession(self, ws, client_id, may_drive, peer)
+        client.transport = request.transport
         log.info("rosbridge client %s connected from %s%s", client_id, peer,
                  "" if may_drive else " (read-only: no valid token)")
         try:

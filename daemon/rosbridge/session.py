@@ -58,6 +58,7 @@ class ClientSession:
         self.source = f"ws:{client_id}"
         self.may_drive = may_drive
         self.peer = peer
+        self.transport: asyncio.BaseTransport | None = None
         self.level = "error"
         self.advertised: dict[str, set[Id]] = {}
         self.latching: set[str] = set()
