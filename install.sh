@@ -30,7 +30,9 @@ die() { printf '%s: error: %s\n' "${PROG}" "$*" >&2; exit 1; }
 # run CMD...: print and execute CMD, or only print it under --dry-run.
 run() {
     if [[ "${DRY_RUN}" == 1 ]]; then
-        printf '[dry-run] %s\n' "$*"
+        printf '[dry-run]'
+        printf ' %q' "$@"
+        printf '\n'
         return 0
     fi
     "$@"
@@ -40,7 +42,7 @@ is_root() { [[ "${EUID}" -eq 0 ]]; }
 
 # as_root CMD...: run CMD as root, through sudo when we are not root.
 as_root() {
-    if is_root; then
+    if is_root || [[ "${DRY_RUN}" == 1 ]]; then
         run "$@"
     elif command -v sudo >/dev/null 2>&1; then
         run sudo "$@"
@@ -74,7 +76,7 @@ apt_install() {
     (( $# )) || return 0
     command -v apt-get >/dev/null 2>&1 \
         || die "missing system packages: $* (no apt-get here: install them with your package manager)"
-    if ! is_root && ! command -v sudo >/dev/null 2>&1; then
+    if ! is_root && [[ "${DRY_RUN}" != 1 ]] && ! command -v sudo >/dev/null 2>&1; then
         die "missing system packages: $*; run as root: apt-get install $*"
     fi
     report_status "installing system packages: $*"
@@ -205,18 +207,16 @@ record_action() {
 
 # own PATH OWNER:GROUP MODE: set the mode; set the owner (or record it, in staging).
 own() {
-    local path="$1" owner="$2" mode="$3"
-    if [[ "${mode}" == link || -L "$(r "${path}")" ]]; then
-        if staging; then MANIFEST["${path}"]="${owner} link"; else run chown -h "${owner}" "${path}"; fi
-        return 0
-    fi
-    if [[ "$(stat -c '%04a' "$(r "${path}")" 2>/dev/null)" != "${mode}" ]]; then
-        run chmod "${mode}" "$(r "${path}")"
+    local path="$1" owner="$2" mode="$3" file
+    file="$(r "${path}")"
+    if [[ "${mode}" != link && -e "${file}" && ! -L "${file}" \
+          && "$(stat -c '%04a' "${file}")" != "${mode}" ]]; then
+        run chmod "${mode}" "${file}"
     fi
     if staging; then
-        MANIFEST["${path}"]="${owner} ${mode}"
-    else
-        run chown "${owner}" "${path}"
+        MANIFEST["${path}"]="${owner} $([[ "${mode}" == link ]] && echo link || echo "${mode}")"
+    elif [[ "$(stat -c '%U:%G' "${file}" 2>/dev/null)" != "${owner}" ]]; then
+        run chown -h "${owner}" "${file}"
     fi
 }
 
@@ -489,6 +489,7 @@ write_config() {
         if [[ -n "${INSTALL_DRIVER}" && "$(config_get driver type mock)" != "${INSTALL_DRIVER}" ]]; then
             warn "--driver ${INSTALL_DRIVER} ignored: ${dest} already sets [driver] type = $(config_get driver type mock); edit it by hand"
         fi
+        own "${dest}" "root:${SERVICE_USER}" 0640
     else
         if [[ -f "${SRCDIR}/systemd/arbiterd.toml.example" ]]; then
             cp "${SRCDIR}/systemd/arbiterd.toml.example" "${tmp}"
@@ -500,7 +501,6 @@ write_config() {
         put_file "${tmp}" "${dest}" "root:${SERVICE_USER}" 0640 || true
         CHANGED=1
     fi
-    own "${dest}" "root:${SERVICE_USER}" 0640
 }
 
 write_token() {

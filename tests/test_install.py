@@ -223,6 +223,35 @@ def test_dry_run_prints_actions_and_changes_nothing(tmp_path: Path, built: Wheel
     assert "[dry-run] ln -sfn releases/" in out
 
 
+def test_staging_dry_run_never_names_a_path_outside_the_root(tmp_path: Path,
+                                                             built: Wheels) -> None:
+    root = tmp_path / "root"
+    result = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel), "--dry-run",
+                        "--hardware", "--driver", "pigpio")
+    assert result.returncode == 0, result.stderr
+    system_dirs = ("/etc", "/opt", "/var", "/usr")
+    for line in result.stdout.splitlines():
+        if line.startswith("[dry-run]"):
+            assert not [w for w in line.split()[1:] if w.startswith(system_dirs)], line
+
+
+def test_dry_run_on_this_machine_prints_the_real_actions_and_changes_nothing() -> None:
+    watched = [Path(p) for p in ("/opt/arbiterd", "/etc/arbiterd", "/var/lib/arbiterd",
+                                 "/etc/systemd/system/arbiterd.service",
+                                 "/etc/udev/rules.d/99-rplidar.rules")]
+    before = {p: p.exists() for p in watched}
+    result = install_sh("systemd", "--dry-run")
+    assert result.returncode == 0, result.stderr
+    assert {p: p.exists() for p in watched} == before
+    out = result.stdout
+    assert (f"[dry-run] install -D -m 0644 {SYSTEMD_DIR}/arbiterd.service "
+            "/etc/systemd/system/arbiterd.service") in out
+    assert "[dry-run] install -D -m 0644" in out and " /etc/udev/rules.d/99-rplidar.rules" in out
+    assert "-m venv --system-site-packages /opt/arbiterd/releases/" in out
+    assert "[dry-run] systemctl daemon-reload" in out
+    assert "[dry-run] systemctl restart arbiterd.service" in out
+
+
 @pytest.mark.parametrize("command", ["systemd", "uninstall", "rollback"])
 def test_refuses_a_normal_user_where_root_is_needed(tmp_path: Path, command: str) -> None:
     result = install_sh(command, user=True)
