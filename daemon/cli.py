@@ -85,7 +85,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         return EXIT_OK
     from daemon.probe import probe_hardware
 
-    problems = asyncio.run(probe_hardware(config))
+    try:
+        problems = asyncio.run(probe_hardware(config))
+    except ConfigError as exc:
+        return _report_config_error(exc)
     for problem in problems:
         print(f"hardware: {problem}", file=sys.stderr)
     if problems:
@@ -161,6 +164,8 @@ def cmd_safe_stop(args: argparse.Namespace) -> int:
 
     try:
         asyncio.run(safe_stop(config))
+    except ConfigError as exc:
+        return _report_config_error(exc)
     except Exception as exc:
         print(f"arbiterd safe-stop: could not zero the motors: {exc}", file=sys.stderr)
         return EXIT_HARDWARE

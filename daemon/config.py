@@ -199,8 +199,20 @@ def _validate(flat: dict[str, dict[str, Any]], tables: dict[str, Options], sourc
             if err:
                 problems.append(f"{source}: [{section}] {key}: {err}")
             values[key] = value
+        if section in flat:
+            problems += [f"{source}: {p}" for p in _cross_checks(section, values)]
         sections[section] = values
     return sections
+
+
+def _cross_checks(section: str, values: dict[str, Any]) -> list[str]:
+    """Problems between keys of one driver section (``check_options`` of the driver class)."""
+    if not section.startswith("driver."):
+        return []
+    from drivers import driver_class
+
+    check = getattr(driver_class(section.split(".", 1)[1]), "check_options", None)
+    return list(check(values)) if check else []
 
 
 def _unknown_key(source: str, section: str, key: str, options: Options) -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from daemon.config import Config
+from daemon.config import Config, ConfigError
 from daemon.control.kinematics import DiffDrive
 from drivers import DriverError, MotorDriver, create_driver
 
@@ -19,7 +19,11 @@ def build_driver(config: Config, name: str | None = None) -> MotorDriver:
     max_wheel = config["robot"]["max_wheel_speed"] or geometry.max_wheel_speed(
         limits["linear.x.max_velocity"], limits["angular.z.max_velocity"])
     name = name or config["driver"]["type"]
-    return create_driver(name, config.driver_options(name), max_wheel_speed=max_wheel)
+    try:
+        return create_driver(name, config.driver_options(name), max_wheel_speed=max_wheel)
+    except ValueError as exc:  # keys that are valid alone but clash (a pin used twice)
+        text = str(exc) if str(exc).startswith("[") else f"[driver.{name}] {exc}"
+        raise ConfigError([f"{config.source}: {text}"]) from exc
 
 
 async def probe_hardware(config: Config) -> list[str]:

@@ -1,4 +1,4 @@
-# `arbiterd safe-stop` as ExecStopPost= runs it: a fresh process zeroes motors a dead daemon left on.
+# `arbiterd safe-stop` as ExecStopPost= runs it: a fresh process zeroes motors left running.
 from __future__ import annotations
 
 import subprocess
