@@ -26,8 +26,10 @@ def _require_roslib() -> None:
 
 def _lidar_running(daemon: DaemonProcess) -> bool:
     _, health = daemon.get("/api/health")
-    lidar = health.get("components", {}).get("lidar") if isinstance(health, dict) else None
-    return bool(lidar) and lidar.get("status") == "ok"
+    if not isinstance(health, dict):
+        return False
+    lidar = health.get("components", {}).get("lidar") or {}
+    return bool(lidar.get("status") == "ok")
 
 
 @pytest.mark.parametrize("flavour", ["roslib2", "roslib1"])
