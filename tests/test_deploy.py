@@ -176,6 +176,18 @@ def test_releases_outside_the_last_kept_are_pruned(pi: FakePi) -> None:
     assert pi.current() in kept and not stale.exists()
 
 
+def test_status_over_ssh_shows_state_health_and_latency(pi: FakePi) -> None:
+    installer = pi.root / "opt/arbiterd/current/install.sh"
+    remote = f"{installer} status --root {pi.root}"
+    cmd = ["ssh", "-p", str(pi.ssh.port), "-i", str(pi.ssh.identity), "-o", "BatchMode=yes",
+           *pi.ssh.client_options.split(), f"{pi.ssh.user}@127.0.0.1", remote]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "Active: active" in result.stdout
+    assert ": ok (" in result.stdout and "sim mode" in result.stdout
+    assert "receipt->exec ms p50" in result.stdout
+
+
 def test_unreachable_robot_is_reported(tmp_path: Path) -> None:
     result = subprocess.run(
         ["bash", str(DEPLOY_SH), "nobody@127.0.0.1", "--port", str(free_port()), "--rollback"],
