@@ -1,0 +1,32 @@
+# The [lidar] config section: RPLIDAR port, scan mode, geometry of the published scan, recovery.
+from __future__ import annotations
+
+from daemon.options import Option, Options
+
+LIDAR_OPTIONS: Options = {
+    "enabled": Option(bool, False, "read an RPLIDAR and publish /scan"),
+    "port": Option(str, "/dev/rplidar", "serial port of the lidar (the udev rule's stable name)"),
+    "baudrate": Option(int, 115200, "serial speed: A1/A2M8 115200, A2M7/A3/S1 256000, "
+                       "C1 460800, S2/S3 1000000", minval=9600, maxval=2000000),
+    "scan_mode": Option(str, "express", "scan mode: a name the device reports (e.g. Boost, "
+                        "DenseBoost), or standard | express",
+                        check=lambda v: None if v.strip() else "must not be empty"),
+    "frame_id": Option(str, "laser", "frame_id of the published LaserScan"),
+    "inverted": Option(bool, False, "the lidar is mounted upside down"),
+    "angle_offset_deg": Option(float, 0.0, "angle of the lidar's 0° in the laser frame "
+                               "(counter-clockwise)", minval=-360.0, maxval=360.0),
+    "angle_bins": Option(int, 0, "0 = one ray per sample; N = N fixed rays over 360° "
+                         "(angle compensation)", minval=0, maxval=8192),
+    "range_min": Option(float, 0.15, "LaserScan range_min in metres", minval=0.0),
+    "range_max": Option(float, 0.0, "LaserScan range_max in metres (0 = what the device "
+                        "reports for its mode, else 12)", minval=0.0),
+    "motor_pwm": Option(int, 660, "motor PWM for A2/A3 (0-1023); A1 uses DTR, S/C spin "
+                        "on their own", minval=0, maxval=1023),
+    "request_timeout_s": Option(float, 2.0, "wait for a reply to a request", above=0.0),
+    "revolution_timeout_s": Option(float, 2.0, "no whole revolution for this long: restart "
+                                   "the stream (STOP, RESET, scan)", above=0.0),
+    "reconnect_max_s": Option(float, 10.0, "longest back-off between reopen attempts",
+                              above=0.0),
+    "error_retry_s": Option(float, 30.0, "after a device health error, retry this often",
+                            above=0.0),
+}

@@ -1,0 +1,259 @@
+# Device manager and component against the emulator over a real pseudo-terminal.
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from daemon.bus import Bus
+from sensors.rplidar.assembler import Revolution
+from sensors.rplidar.client import RplidarClient, open_serial
+from sensors.rplidar.component import create
+from sensors.rplidar.device import LidarManager, ManagerConfig
+from sensors.scan import LaserScan
+from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 5.0, what: str = "") -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what or condition}")
+
+
+class Run:
+    """An emulator plus a manager streaming from it."""
+
+    def __init__(self, tmp_path: Path, model: EmulatedModel = A1, mode: str = "express",
+                 ranges: Any = None) -> None:
+        link = tmp_path / "rplidar"
+        kwargs = {} if ranges is None else {"ranges_fn": ranges}
+        self.emulator = RplidarEmulator(link, model, **kwargs).start()
+        self.revolutions: list[Revolution] = []
+        self.lock = threading.Lock()
+        config = ManagerConfig(port=str(link), scan_mode=mode, reconnect_min=0.05,
+                               reconnect_max=0.3, error_retry=0.5, banner_timeout=0.5)
+        self.manager = LidarManager(config, self._keep)
+
+    def _keep(self, rev: Revolution) -> None:
+        with self.lock:
+            self.revolutions.append(rev)
+
+    def count(self) -> int:
+        with self.lock:
+            return len(self.revolutions)
+
+    def health(self) -> dict[str, Any]:
+        return self.manager.snapshot()
+
+    def more_revolutions(self, extra: int = 3, timeout: float = 5.0) -> None:
+        target = self.count() + extra
+        wait_for(lambda: self.count() >= target, timeout, f"{extra} more revolutions")
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> Iterator[Run]:
+    r = Run(tmp_path)
+    r.manager.start()
+    yield r
+    r.manager.stop()
+    r.emulator.close()
+
+
+def test_streams_whole_revolutions_and_reports_the_device(run: Run) -> None:
+    run.more_revolutions(3)
+    health = run.health()
+    assert health["status"] == "ok" and health["state"] == "streaming"
+    assert health["model"] == "A1M8" and health["firmware"] == "1.29"
+    assert health["mode"] == "Express" and health["device_health"] == "ok"
+    assert health["sample_rate_hz"] > 0 and health["scan_rate_hz"] > 0
+    with run.lock:
+        rev = run.revolutions[-1]
+    # express at 254 µs/sample and 10 Hz: about 394 samples, one full turn
+    assert 300 < len(rev) < 500
+    assert rev.angle_deg.min() < 10 and rev.angle_deg.max() > 350
+    assert health["dropped_capsules"] == 0 and health["resyncs"] == 0
+
+
+def test_garbage_and_dropped_bytes_are_survived_and_counted(run: Run) -> None:
+    run.more_revolutions(2)
+    run.emulator.inject_garbage(60)
+    wait_for(lambda: run.health()["dropped_capsules"] >= 1, what="a dropped capsule")
+    run.emulator.drop_bytes(3)
+    wait_for(lambda: run.health()["dropped_capsules"] >= 2, what="another dropped capsule")
+    run.more_revolutions(3)
+    assert run.health()["status"] == "ok"
+    assert run.health()["stream_restarts"] == 0  # resync, not restart
+
+
+def test_stalled_stream_is_restarted(run: Run) -> None:
+    run.more_revolutions(2)
+    run.emulator.stall(3.0)
+    wait_for(lambda: run.health()["stream_restarts"] >= 1, timeout=5, what="a restart")
+    assert run.health()["status"] == "degraded"
+    run.more_revolutions(3, timeout=8.0)
+    health = run.health()
+    assert health["status"] == "ok" and health["device_resets"] >= 1
+    assert run.emulator.resets >= 1
+
+
+def test_unplug_and_replug_reconnects(run: Run) -> None:
+    run.more_revolutions(2)
+    run.emulator.unplug()
+    wait_for(lambda: run.health()["state"] == "disconnected", what="disconnected")
+    assert run.health()["status"] == "degraded"
+    assert "cannot open" in (run.health()["last_error"] or "") or run.health()["last_error"]
+    time.sleep(0.3)  # a few failed reopen attempts against a missing port
+    run.emulator.replug()
+    run.more_revolutions(3)
+    health = run.health()
+    assert health["reconnects"] >= 1 and health["status"] == "ok"
+
+
+def test_health_error_cleared_by_one_reset(run: Run) -> None:
+    run.more_revolutions(1)
+    run.emulator.set_health(2, 0x0004, clears_on_reset=True)
+    run.more_revolutions(3, timeout=8.0)  # watchdog: restart → RESET → healthy again
+    assert run.health()["device_resets"] >= 1 and run.health()["device_health"] == "ok"
+
+
+def test_persistent_health_error_is_reported_not_fatal(tmp_path: Path) -> None:
+    r = Run(tmp_path)
+    r.emulator.set_health(2, 0x0004, clears_on_reset=False)
+    r.manager.start()
+    try:
+        wait_for(lambda: r.health()["state"] == "error", what="error state")
+        health = r.health()
+        assert health["status"] == "error" and health["device_error_code"] == 4
+        assert "0x0004" in health["last_error"]
+        assert r.manager.running and r.count() == 0
+        r.emulator.set_health(0, 0)
+        r.more_revolutions(2, timeout=6.0)  # retried after error_retry
+        assert r.health()["status"] == "ok"
+    finally:
+        r.manager.stop()
+        r.emulator.close()
+
+
+@pytest.mark.parametrize(("model", "mode", "expect"), [
+    (A1, "standard", "Standard"), (S2, "express", "DenseBoost"), (S2, "denseboost", "DenseBoost"),
+])
+def test_modes(tmp_path: Path, model: EmulatedModel, mode: str, expect: str) -> None:
+    r = Run(tmp_path, model, mode)
+    r.manager.start()
+    try:
+        r.more_revolutions(2)
+        assert r.health()["mode"] == expect
+    finally:
+        r.manager.stop()
+        r.emulator.close()
+
+
+def test_unknown_mode_falls_back_and_says_why(tmp_path: Path) -> None:
+    r = Run(tmp_path, A1, "Sensitivity")
+    r.manager.start()
+    try:
+        r.more_revolutions(1)
+        error = r.health()["last_error"]
+        assert "'Sensitivity'" in error and "Standard, Express" in error
+    finally:
+        r.manager.stop()
+        r.emulator.close()
+
+
+def test_missing_port_keeps_retrying(tmp_path: Path) -> None:
+    config = ManagerConfig(port=str(tmp_path / "nothing"), reconnect_min=0.05, reconnect_max=0.1)
+    manager = LidarManager(config, lambda rev: None)
+    manager.start()
+    try:
+        wait_for(lambda: manager.snapshot()["state"] == "disconnected")
+        assert "cannot open" in manager.snapshot()["last_error"]
+        assert manager.running
+    finally:
+        manager.stop()
+    assert not manager.running
+
+
+def test_client_requests_against_the_emulator(tmp_path: Path) -> None:
+    with RplidarEmulator(tmp_path / "lidar", A1):
+        port = open_serial(str(tmp_path / "lidar"), 115200)
+        try:
+            client = RplidarClient(port, timeout=1.0)
+            client.stop()
+            banner = client.reset(banner_timeout=1.0)
+            assert banner.startswith(b"RP LIDAR System")
+            modes, typical = client.scan_modes()
+            assert [m.name for m in modes] == ["Standard", "Express"] and typical == 1
+            assert modes[1].us_per_sample == 254 and modes[1].answer_type == 0x82
+            assert client.sample_rate().express_us == 254
+        finally:
+            port.close()
+
+
+# ---------------------------------------------------------------- the daemon component
+
+
+class FakeHttp:
+    def __init__(self) -> None:
+        self.routes: dict[tuple[str, str], Any] = {}
+
+    def add_route(self, method: str, path: str, handler: Any) -> None:
+        self.routes[(method, path)] = handler
+
+
+class FakeCtx:
+    def __init__(self, port: str, enabled: bool = True) -> None:
+        self.config = {"lidar": {"enabled": enabled, "port": port, "baudrate": 115200,
+                                 "scan_mode": "express", "angle_bins": 360,
+                                 "frame_id": "lidar_link"}}
+        self.bus = Bus()
+        self.http = FakeHttp()
+        self.robot_info: dict[str, Any] = {}
+        self.mode = "sim"
+
+
+def test_create_returns_none_when_disabled() -> None:
+    assert create(FakeCtx("/dev/null", enabled=False)) is None
+
+
+async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None:
+    from daemon.http_api import ApiError
+
+    with RplidarEmulator(tmp_path / "lidar", A1, ranges_fn=lambda a, t: np.full(len(a), 2.0)):
+        ctx = FakeCtx(str(tmp_path / "lidar"))
+        component = create(ctx)
+        assert component is not None and component.name == "lidar" and not component.core
+        handler = ctx.http.routes[("GET", "/api/scan")]
+        with pytest.raises(ApiError) as err:
+            await handler(None)
+        assert err.value.status == 404
+        scans: list[LaserScan] = []
+        two = asyncio.Event()
+
+        def keep(scan: LaserScan) -> None:
+            scans.append(scan)
+            if len(scans) >= 2:
+                two.set()
+
+        ctx.bus.subscribe("scan", keep)
+        await component.start()
+        try:
+            await asyncio.wait_for(two.wait(), 5.0)
+            scan = scans[-1]
+            assert scan.frame_id == "lidar_link" and len(scan.ranges) == 360
+            finite = scan.ranges[np.isfinite(scan.ranges)]
+            assert len(finite) > 300 and np.allclose(finite, 2.0)
+            response = await handler(None)
+            assert response.status == 200
+            assert ctx.robot_info["lidar"]()["model"] == "A1M8"
+            assert component.health()["status"] == "ok"
+        finally:
+            await component.stop()
