@@ -95,7 +95,8 @@ def test_errors_have_clear_messages_and_exit_codes(lidar: tuple[RplidarEmulator,
     _, port = lidar
     unknown = cli("scan", "--port", port, "--mode", "Sensitivity")
     assert unknown.returncode == 2
-    assert "'Sensitivity' is not offered" in unknown.stderr and "Standard, Express" in unknown.stderr
+    assert "'Sensitivity' is not offered" in unknown.stderr
+    assert "Standard, Express" in unknown.stderr
     missing = cli("info", "--port", str(tmp_path / "absent"))
     assert missing.returncode == 69 and "cannot open" in missing.stderr
 
