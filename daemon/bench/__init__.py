@@ -26,4 +26,5 @@ SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
     "drivers": "daemon.bench.drivers",
     "sim": "sim.bench",
+    "process": "daemon.bench.process",
 }

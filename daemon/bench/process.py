@@ -1,0 +1,129 @@
+# Process benchmarks: start to READY=1, idle CPU and RSS of the daemon (from /proc).
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from daemon.bench import BenchResult
+
+SUITE = "process"
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def run(quick: bool) -> list[BenchResult]:
+    idle_s = 10.0 if quick else 30.0
+    with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
+        results = _measure_sim(Path(tmp), idle_s)
+        results += _measure_with_external_device(Path(tmp), idle_s)
+    return results
+
+
+def _measure_sim(tmp: Path, idle_s: float) -> list[BenchResult]:
+    """`arbiterd run --sim`: world and emulators inside the daemon process."""
+    proc, ready_s = _start(tmp, ["--sim"], "sim")
+    try:
+        cpu, rss = _idle_usage(proc.pid, idle_s)
+    finally:
+        _stop(proc)
+    return [
+        BenchResult(SUITE, "start -> READY=1 (--sim)", ready_s, "s", "<= 1.5 s", ready_s <= 1.5),
+        BenchResult(SUITE, "idle CPU, --sim with world+emulators in-process", cpu, "% core",
+                    note="includes the simulated world and the Arduino emulator"),
+        BenchResult(SUITE, "idle RSS, --sim with world+emulators in-process", rss, "MB"),
+    ]
+
+
+def _measure_with_external_device(tmp: Path, idle_s: float) -> list[BenchResult]:
+    """The daemon alone (serial driver), its Arduino emulator in a separate process."""
+    link = tmp / "arduino"
+    command = [sys.executable, "-m", "sim.arduino_emulator", "--link", str(link), "--boot", "0"]
+    emulator = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 10
+        while not link.exists():
+            if time.monotonic() > deadline:
+                raise RuntimeError("the Arduino emulator did not start")
+            time.sleep(0.05)
+        config = f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{link}"\n' \
+                 'reset_wait_s = 0.05\n'
+        proc, ready_s = _start(tmp, [], "hw", config)
+        try:
+            cpu, rss = _idle_usage(proc.pid, idle_s)
+        finally:
+            _stop(proc)
+    finally:
+        _stop(emulator)
+    return [
+        BenchResult(SUITE, "start -> READY=1 (serial driver)", ready_s, "s", "<= 1.5 s",
+                    ready_s <= 1.5),
+        BenchResult(SUITE, "idle CPU, daemon alone (device in another process)", cpu,
+                    "% core", "<= 3 %", cpu <= 3.0, f"over {idle_s:.0f} s, 50 Hz tick, "
+                    "30 Hz encoder polling"),
+        BenchResult(SUITE, "idle RSS, daemon alone", rss, "MB", "<= 80 MB", rss <= 80.0),
+    ]
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def _start(tmp: Path, args: list[str], name: str,
+           extra: str = "") -> tuple[subprocess.Popen[bytes], float]:
+    notify_path = tmp / f"notify-{name}.sock"
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(notify_path))
+    config = tmp / f"{name}.toml"
+    config.write_text(f'[http]\nhost = "127.0.0.1"\nport = {_free_port()}\n'
+                      f'[rosbridge]\nhost = "127.0.0.1"\nport = {_free_port()}\n' + extra)
+    env = {**os.environ, "NOTIFY_SOCKET": str(notify_path)}
+    start = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.cli", "run", "--config", str(config),
+                             *args], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    notify.settimeout(20)
+    try:
+        while b"READY=1" not in notify.recv(4096):
+            pass
+    finally:
+        notify.close()
+    return proc, time.monotonic() - start
+
+
+def _idle_usage(pid: int, seconds: float) -> tuple[float, float]:
+    """CPU (% of one core) over ``seconds`` after a settling second, and the RSS (MB)."""
+    time.sleep(1.0)
+    cpu0, t0 = _cpu_seconds(pid), time.monotonic()
+    time.sleep(seconds)
+    cpu1, t1 = _cpu_seconds(pid), time.monotonic()
+    return 100.0 * (cpu1 - cpu0) / (t1 - t0), _rss_mb(pid)
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime + stime
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
