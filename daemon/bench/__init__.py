@@ -27,4 +27,5 @@ SUITES: dict[str, str] = {
     "drivers": "daemon.bench.drivers",
     "sim": "sim.bench",
     "process": "daemon.bench.process",
+    "rosbridge": "daemon.bench.rosbridge",
 }

@@ -4,12 +4,14 @@ from __future__ import annotations
 import base64
 import json
 import math
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 STATUS_LEVELS = ("info", "warning", "error", "none")
+_ROS_NAME = re.compile(r"^(/[A-Za-z0-9_~]+)+$")
 
 Id = str | int | None
 
@@ -100,7 +102,7 @@ def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
     """(canonical ``/name``, spelling as sent) of a topic or service field."""
     sent = get_str(frame, key)
     name = sent if sent.startswith("/") else "/" + sent
-    if "//" in name or not all(c.isalnum() or c in "_/~" for c in name) or name.endswith("/"):
+    if _ROS_NAME.match(name) is None:
         raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name",
                             request_id(frame))
     return name, sent

@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("arbiterd.rosbridge")
 
 COMPRESSIONS = ("none", "png", "cbor", "cbor-raw")
+INLINE_SENDS = 4  # most messages the reader sends itself after one request
 REFUSAL_REPEAT_S = 0.5  # the same refused-command status at most this often per client
 
 OpHandler = Callable[[dict[str, Any], float], Awaitable[None]]
@@ -67,6 +68,8 @@ class ClientSession:
         self.frames_in = 0
         self.errors = 0
         self._wakeup = asyncio.Event()
+        self._writer_idle = False
+        self._next_delay: float | None = None
         self._refusals: dict[str, float] = {}
         self._ops: dict[str, OpHandler] = {
             "advertise": self.op_advertise, "unadvertise": self.op_unadvertise,
@@ -91,6 +94,8 @@ class ClientSession:
                 t_recv = time.monotonic()
                 if message.type in (WSMsgType.TEXT, WSMsgType.BINARY):
                     await self.handle_text(message.data, t_recv)
+                    if self._writer_idle:
+                        await self._send_inline()
                 elif message.type == WSMsgType.ERROR:
                     log.info("client %s: socket error: %s", self.id, self.ws.exception())
                     break
@@ -129,16 +134,37 @@ class ClientSession:
     async def _write_forever(self) -> None:
         try:
             while True:
-                text, queue, message, delay = self.outbox.next_item()
-                if text is not None:
-                    await self.ws.send_str(text)
-                elif queue is not None and message is not None:
-                    await self._send_topic(queue, message)
-                else:
+                if not await self._send_next():
                     self._wakeup.clear()
-                    await self._sleep_until_woken(delay)
+                    self._writer_idle = True
+                    await self._sleep_until_woken(self._next_delay)
+                    self._writer_idle = False
         except (ConnectionError, RuntimeError) as exc:
             log.debug("client %s: writer stopped: %s", self.id, exc)
+
+    async def _send_next(self) -> bool:
+        """Send one queued reply or message; False when nothing is ready now."""
+        text, queue, message, self._next_delay = self.outbox.next_item()
+        if text is not None:
+            await self.ws.send_str(text)
+        elif queue is not None and message is not None:
+            await self._send_topic(queue, message)
+        else:
+            return False
+        return True
+
+    async def _send_inline(self) -> None:
+        """Answer from the reader while the writer sleeps and the socket takes data at once:
+        saves the hop to the writer task on the command -> report path."""
+        transport = self.transport
+        if transport is None or getattr(transport, "get_write_buffer_size", lambda: 1)():
+            return
+        try:
+            for _ in range(INLINE_SENDS):
+                if not await self._send_next():
+                    break
+        except (ConnectionError, RuntimeError) as exc:
+            log.debug("client %s: inline send failed: %s", self.id, exc)
 
     async def _sleep_until_woken(self, delay: float | None) -> None:
         with contextlib.suppress(TimeoutError):

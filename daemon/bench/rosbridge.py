@@ -1,0 +1,270 @@
+# Bench suite "rosbridge": WS stamped round trip vs a bare aiohttp echo, receipt->exec, tick load.
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import socket
+import sys
+import tempfile
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+from aiohttp import web
+
+from daemon.bench import BenchResult
+
+SUITE = "rosbridge"
+SCAN_RAYS = 720
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values), q)) if values else math.nan
+
+
+# -- the measuring side (a separate process, like a real client) ------------------------------
+
+
+def _stamped_frame(seq: int) -> str:
+    body = {"linear": {"x": 0.1}, "angular": {"z": 0.0}, "id": seq, "t_sent": time.time() * 1e3}
+    return json.dumps({"op": "publish", "topic": "/stamped_cmd_vel",
+                       "msg": {"data": json.dumps(body)}})
+
+
+async def _bridge_round_trip(ws: aiohttp.ClientWebSocketResponse, seq: int) -> float:
+    frame = _stamped_frame(seq)
+    t0 = time.perf_counter()
+    await ws.send_str(frame)
+    while True:
+        reply = json.loads((await ws.receive(timeout=5)).data)
+        if reply.get("topic") == "/latency_reports" and json.loads(
+                reply["msg"]["data"]).get("id") == seq:
+            return (time.perf_counter() - t0) * 1e3
+
+
+async def _echo_round_trip(ws: aiohttp.ClientWebSocketResponse, seq: int) -> float:
+    frame = _stamped_frame(seq)
+    t0 = time.perf_counter()
+    await ws.send_str(frame)
+    await ws.receive(timeout=5)
+    return (time.perf_counter() - t0) * 1e3
+
+
+async def measure_round_trips(echo_url: str, bridge_url: str, count: int) -> dict[str, Any]:
+    """Interleaved round trips: echo and bridge alternate so both see the same machine load."""
+    echo_ms: list[float] = []
+    bridge_ms: list[float] = []
+    async with aiohttp.ClientSession() as session, \
+            session.ws_connect(echo_url) as echo, session.ws_connect(bridge_url) as bridge:
+        await bridge.send_json({"op": "subscribe", "topic": "/latency_reports",
+                                "type": "std_msgs/msg/String"})
+        await bridge.send_json({"op": "advertise", "topic": "/stamped_cmd_vel",
+                                "type": "std_msgs/msg/String"})
+        for seq in range(count + 20):
+            e = await _echo_round_trip(echo, seq)
+            b = await _bridge_round_trip(bridge, seq)
+            if seq >= 20:  # warm-up
+                echo_ms.append(e)
+                bridge_ms.append(b)
+    return {"echo_ms": echo_ms, "bridge_ms": bridge_ms}
+
+
+async def generate_load(bridge_url: str, seconds: float, clients: int,
+                        rate_hz: float) -> dict[str, Any]:
+    """``clients`` subscribers on /scan, one /cmd_vel publisher at ``rate_hz``."""
+    received = [0] * clients
+    async with aiohttp.ClientSession() as session, contextlib.AsyncExitStack() as stack:
+        sockets = [await stack.enter_async_context(session.ws_connect(bridge_url))
+                   for _ in range(clients)]
+        for ws in sockets:
+            await ws.send_json({"op": "subscribe", "topic": "/scan"})
+        driver = await stack.enter_async_context(session.ws_connect(bridge_url))
+        await driver.send_json({"op": "advertise", "topic": "/cmd_vel",
+                                "type": "geometry_msgs/msg/Twist"})
+
+        async def read(index: int, ws: aiohttp.ClientWebSocketResponse) -> None:
+            async for _ in ws:
+                received[index] += 1
+
+        readers = [asyncio.create_task(read(i, ws)) for i, ws in enumerate(sockets)]
+        print("load-start", flush=True)
+        period, t_next, sent = 1.0 / rate_hz, time.monotonic(), 0
+        t_end = t_next + seconds
+        while t_next < t_end:
+            await driver.send_json({"op": "publish", "topic": "/cmd_vel", "msg": {
+                "linear": {"x": 0.2 if sent % 200 < 100 else 0.0}, "angular": {"z": 0.1}}})
+            sent += 1
+            t_next += period
+            await asyncio.sleep(max(0.0, t_next - time.monotonic()))
+        for task in readers:
+            task.cancel()
+    return {"scans_received": received, "commands_sent": sent}
+
+
+def worker_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m daemon.bench.rosbridge")
+    sub = parser.add_subparsers(dest="what", required=True)
+    rtt = sub.add_parser("rtt")
+    rtt.add_argument("--echo", required=True)
+    rtt.add_argument("--bridge", required=True)
+    rtt.add_argument("--count", type=int, default=300)
+    load = sub.add_parser("load")
+    load.add_argument("--bridge", required=True)
+    load.add_argument("--seconds", type=float, default=3.0)
+    load.add_argument("--clients", type=int, default=10)
+    load.add_argument("--rate", type=float, default=100.0)
+    args = parser.parse_args(argv)
+    if args.what == "rtt":
+        out = asyncio.run(measure_round_trips(args.echo, args.bridge, args.count))
+    else:
+        out = asyncio.run(generate_load(args.bridge, args.seconds, args.clients, args.rate))
+    print(json.dumps(out), flush=True)
+    return 0
+
+
+# -- the daemon side (this process) -----------------------------------------------------------
+
+
+async def _echo(request: web.Request) -> web.WebSocketResponse:
+    ws = web.WebSocketResponse()
+    await ws.prepare(request)
+    async for message in ws:
+        await ws.send_str(message.data)
+    return ws
+
+
+@contextlib.asynccontextmanager
+async def echo_server() -> AsyncIterator[str]:
+    app = web.Application()
+    app.router.add_get("/", _echo)
+    runner = web.AppRunner(app, access_log=None, handle_signals=False)
+    await runner.setup()
+    port = _free_port()
+    await web.TCPSite(runner, "127.0.0.1", port).start()
+    try:
+        yield f"ws://127.0.0.1:{port}/"
+    finally:
+        await runner.cleanup()
+
+
+@contextlib.asynccontextmanager
+async def bench_daemon(workdir: Path) -> AsyncIterator[Any]:
+    from daemon.app import Daemon
+    from daemon.config import load_config
+
+    ws_port = _free_port()
+    config_path = workdir / "bench.toml"
+    config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
+                           f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
+                           '[sim]\ndriver = "mock"\n')
+    daemon = Daemon(load_config(config_path, sim=True))
+    task = asyncio.create_task(daemon.run())
+    while daemon.state == "startup":
+        if task.done():
+            raise RuntimeError(f"bench daemon did not start (exit {task.result()})")
+        await asyncio.sleep(0.01)
+    try:
+        yield daemon, f"ws://127.0.0.1:{ws_port}/"
+    finally:
+        daemon.request_shutdown("bench over")
+        await task
+
+
+async def _worker(*args: str) -> dict[str, Any]:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "daemon.bench.rosbridge", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    out, err = await proc.communicate()
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench worker failed: {err.decode()[-2000:]}")
+    return dict(json.loads(out.decode().strip().splitlines()[-1]))
+
+
+def _synthetic_scan() -> Any:
+    from sensors.scan import LaserScan
+
+    rng = np.random.default_rng(7)
+    ranges = rng.uniform(0.2, 10.0, SCAN_RAYS).astype(np.float32)
+    ranges[::40] = np.inf
+    return LaserScan(time.time(), "laser", -math.pi, math.pi, 2 * math.pi / SCAN_RAYS, 0.0,
+                     0.1, 0.1, 12.0, ranges, np.full(SCAN_RAYS, 47, dtype=np.float32))
+
+
+async def _publish_scans(daemon: Any, stop: asyncio.Event) -> None:
+    while not stop.is_set():
+        scan = _synthetic_scan()
+        scan.stamp = time.time()
+        daemon.bus.publish("scan", scan)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), 0.1)
+
+
+async def _run(quick: bool) -> list[BenchResult]:
+    count, seconds = (300, 3.0) if quick else (2000, 15.0)
+    with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
+        async with echo_server() as echo_url, bench_daemon(Path(tmp)) as (daemon, bridge_url):
+            latency = daemon.latency
+            latency.exec_ms.clear()
+            rtt = await _worker("rtt", "--echo", echo_url, "--bridge", bridge_url,
+                                "--count", str(count))
+            exec_ms = list(latency.exec_ms)
+            latency.tick_late_ms.clear()
+            stop = asyncio.Event()
+            scans = asyncio.create_task(_publish_scans(daemon, stop))
+            load = await _worker("load", "--bridge", bridge_url, "--seconds", str(seconds))
+            stop.set()
+            await scans
+            tick_ms = list(latency.tick_late_ms)
+    return _results(rtt, exec_ms, tick_ms, load, seconds)
+
+
+def _results(rtt: dict[str, Any], exec_ms: list[float], tick_ms: list[float],
+             load: dict[str, Any], seconds: float) -> list[BenchResult]:
+    bridge, echo = rtt["bridge_ms"], rtt["echo_ms"]
+    ratio = _pct(bridge, 50) / _pct(echo, 50)
+    exec_p99 = _pct(exec_ms, 99)
+    tick_p99 = _pct(tick_ms, 99)
+    scans = load["scans_received"]
+    return [
+        BenchResult(SUITE, "ws stamped round trip p50", _pct(bridge, 50), "ms",
+                    note=f"send -> /latency_reports received, {len(bridge)} commands"),
+        BenchResult(SUITE, "ws stamped round trip p99", _pct(bridge, 99), "ms"),
+        BenchResult(SUITE, "bare aiohttp ws echo p50", _pct(echo, 50), "ms"),
+        BenchResult(SUITE, "bare aiohttp ws echo p99", _pct(echo, 99), "ms"),
+        BenchResult(SUITE, "round trip / echo at p50", ratio, "x", "<= 1.5", ratio <= 1.5),
+        BenchResult(SUITE, "receipt -> exec p99", exec_p99, "ms", "<= 0.2", exec_p99 <= 0.2,
+                    note=f"mock driver, {len(exec_ms)} commands"),
+        BenchResult(SUITE, "tick lateness p99 under load", tick_p99, "ms", "<= 1",
+                    tick_p99 <= 1.0,
+                    note=f"50 Hz tick, 10 clients on /scan ({SCAN_RAYS} rays, 10 Hz; "
+                    f"{min(scans)}-{max(scans)} scans each), {load['commands_sent']} /cmd_vel "
+                    f"at 100 Hz over {seconds:g} s"),
+    ]
+
+
+def run(quick: bool) -> list[BenchResult]:
+    arbiterd_log = logging.getLogger("arbiterd")
+    level = arbiterd_log.level
+    arbiterd_log.setLevel(logging.ERROR)
+    try:
+        return asyncio.run(_run(quick))
+    finally:
+        arbiterd_log.setLevel(level)
+
+
+if __name__ == "__main__":
+    sys.exit(worker_main(sys.argv[1:]))
