@@ -341,6 +341,18 @@ source_hash() {
         | sha256sum | cut -c1-12
 }
 
+# A copy of the package sources to build from, so a root build leaves no files in the clone.
+source_snapshot() {
+    local dest="${WORKDIR}/src" name
+    mkdir -p "${dest}"
+    for name in pyproject.toml README.md LICENSE daemon drivers sensors sim; do
+        [[ -e "${SRCDIR}/${name}" ]] || continue
+        tar -C "${SRCDIR}" --exclude=__pycache__ --exclude='*.pyc' -cf - "${name}" \
+            | tar -C "${dest}" -xf -
+    done
+    printf '%s' "${dest}"
+}
+
 # Step 1: the apt packages the service needs (python venv; pigpiod / lgpio for hardware).
 svc_step_packages() {
     local wanted=(python3-venv) driver
@@ -419,7 +431,7 @@ svc_step_release() {
     fi
     # shellcheck disable=SC2206  # PIP_ARGS is a list of words on purpose
     pip+=(${PIP_ARGS})
-    run "${pip[@]}" "${WHEEL:-${SRCDIR}}"
+    run "${pip[@]}" "${WHEEL:-$(source_snapshot)}"
     [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
     CHANGED=1
 }
