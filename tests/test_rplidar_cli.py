@@ -112,3 +112,21 @@ def test_silent_port_is_hardware_unavailable(tmp_path: Path) -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_standalone_emulator_process(tmp_path: Path) -> None:
+    import signal
+
+    link = tmp_path / "lidar"
+    proc = subprocess.Popen([sys.executable, "-m", "sim.rplidar_emulator", "--link", str(link),
+                             "--model", "S2"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert f"connect to {link}" in proc.stdout.readline()
+        done = cli("info", "--port", str(link), "--json")
+        assert done.returncode == 0, done.stderr
+        assert json.loads(done.stdout)["model"] == "S2M1"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 0
+    assert not link.exists()
