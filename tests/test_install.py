@@ -5,6 +5,7 @@ import os
 import shutil
 import stat
 import subprocess
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,11 +41,20 @@ def install_sh(*args: str, wheelhouse: Path | None = None,
     env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
     if wheelhouse is not None:
         env["ARBITERD_PIP_ARGS"] = f"--no-index --find-links {wheelhouse}"
-    cmd = ["bash", str(INSTALL_SH), *args]
+    script, cwd = INSTALL_SH, None
+    cmd = ["bash", str(script), *args]
     if user and os.geteuid() == 0:  # run as an ordinary user, as someone forgetting sudo would
-        cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
-    return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False,
-                          stdin=subprocess.DEVNULL)
+        cwd = Path(tempfile.mkdtemp(prefix="arbiterd-user-"))  # a copy that user can read
+        cwd.chmod(0o755)
+        script = Path(shutil.copy(INSTALL_SH, cwd))
+        cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
+               "bash", str(script), *args]
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300,
+                              check=False, stdin=subprocess.DEVNULL, cwd=cwd)
+    finally:
+        if cwd is not None:
+            shutil.rmtree(cwd)
 
 
 def install(root: Path, built: Wheels, *flags: str) -> subprocess.CompletedProcess[str]:
