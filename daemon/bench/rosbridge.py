@@ -223,13 +223,18 @@ async def _run(quick: bool) -> list[BenchResult]:
                                 "--count", str(count))
             exec_ms = list(latency.exec_ms)
             latency.tick_late_ms.clear()
+            await asyncio.sleep(seconds)  # the same machine without bridge load, for reference
+            idle_ms = list(latency.tick_late_ms)
+            latency.tick_late_ms.clear()
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
             load = await _worker("load", "--bridge", bridge_url, "--seconds", str(seconds))
             stop.set()
             await scans
             tick_ms = list(latency.tick_late_ms)
-    return _results(rtt, exec_ms, tick_ms, load, seconds)
+    idle = BenchResult(SUITE, "tick lateness p99 idle", _pct(idle_ms, 99), "ms",
+                       note="same daemon, no clients, measured just before the load")
+    return [*_results(rtt, exec_ms, tick_ms, load, seconds), idle]
 
 
 def _results(rtt: dict[str, Any], exec_ms: list[float], tick_ms: list[float],

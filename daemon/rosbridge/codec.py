@@ -127,8 +127,12 @@ def clean(value: Any) -> Any:
 
 
 def encode(message: dict[str, Any]) -> str:
-    """Compact JSON text of a reply; never emits NaN or Infinity."""
-    return json.dumps(clean(message), separators=(",", ":"), allow_nan=False)
+    """Compact JSON text of a reply; never emits NaN or Infinity. Messages that are already
+    plain JSON (the common case) skip the clean-up walk."""
+    try:
+        return json.dumps(message, separators=(",", ":"), allow_nan=False)
+    except (ValueError, TypeError):
+        return json.dumps(clean(message), separators=(",", ":"), allow_nan=False)
 
 
 def publish_frame(topic: str, msg_json: str) -> str:
