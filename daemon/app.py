@@ -33,6 +33,7 @@ EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 # component name => "module:function"; the function takes the DaemonContext and returns a
 # Component, or None when its config section disables it. Started in this order.
 COMPONENTS: dict[str, str] = {
+    "lidar": "sensors.rplidar.component:create",
     "rosbridge": "daemon.rosbridge.server:create",
 }
 

@@ -213,10 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_lidar(sub: Any) -> None:
-    try:
-        lidar_cli = importlib.import_module("sensors.rplidar.cli")
-    except ImportError:
-        return
+    lidar_cli = importlib.import_module("sensors.rplidar.cli")
     lidar_cli.add_parser(sub)
     sub.choices["lidar"].set_defaults(func=cmd_lidar)
 

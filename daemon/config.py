@@ -22,7 +22,7 @@ SECTIONS: dict[str, str] = {
     "control": "daemon.settings:CONTROL_OPTIONS",
     "limits": "daemon.settings:LIMITS_OPTIONS",
     "driver": "daemon.settings:DRIVER_OPTIONS",
-    "lidar": "daemon.settings:LIDAR_OPTIONS",
+    "lidar": "sensors.rplidar.settings:LIDAR_OPTIONS",
     "http": "daemon.settings:HTTP_OPTIONS",
     "rosbridge": "daemon.settings:ROSBRIDGE_OPTIONS",
     "security": "daemon.settings:SECURITY_OPTIONS",

@@ -103,12 +103,3 @@ ROSBRIDGE_OPTIONS: Options = {
     "max_message_bytes": Option(int, 1048576, "largest accepted incoming message",
                                 minval=1024, maxval=64 * 1048576),
 }
-
-# Interim table until the lidar package declares its own section.
-LIDAR_OPTIONS: Options = {
-    "enabled": Option(bool, False, "read an RPLIDAR"),
-    "port": Option(str, "/dev/rplidar", "serial port of the lidar"),
-    "baudrate": Option(int, 115200, "serial speed", choices=None, minval=9600, maxval=2000000),
-    "scan_mode": Option(str, "express", "scan mode: a name the device reports, or "
-                        "standard | express"),
-}

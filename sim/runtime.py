@@ -70,8 +70,22 @@ class SimRuntime:
         self._stops.append(self.world.close)
         stop, self.driver_options = EMULATORS[self.driver_name](self)
         self._stops.append(stop)
+        if self.config["sim"]["lidar"]:
+            self._start_lidar()
         log.info("simulated robot: %s emulator on %s", self.driver_name,
                  self.driver_options or "the mock driver")
+
+    def _start_lidar(self) -> None:
+        """An RPLIDAR A1 on a pty whose ranges are ray-cast from the world's true pose."""
+        from sim.rplidar_emulator import A1, RplidarEmulator
+
+        lidar = RplidarEmulator(self.workdir / "rplidar", A1, ranges_fn=self.world.scan_ranges,
+                                rotation_hz=self.sim.lidar_rate,
+                                seed=self.config["sim"]["seed"]).start()
+        self._stops.append(lidar.close)
+        self.lidar_options = {"enabled": True, "port": str(lidar.link),
+                              "angle_bins": self.sim.lidar_rays,
+                              "range_min": self.sim.range_min, "range_max": self.sim.range_max}
 
     def apply_to(self, config: Config) -> None:
         """Point the config's driver (and lidar) at the emulators."""

@@ -51,6 +51,8 @@ SIM_OPTIONS: Options = {
     "metrics_csv": Option(str, "", "stream run metrics to this CSV file ('' = off)"),
     "metrics_rate": Option(float, 10.0, "metrics CSV rows per second of simulated time",
                            above=0.0, maxval=1000.0),
+    "lidar": Option(bool, True, "emulate an RPLIDAR A1 (on a pty) whose ranges come from the "
+                    "world, and read it through the real lidar manager"),
 }
 
 
@@ -82,6 +84,7 @@ class SimConfig:
     motor_max_speed: float = 40.0
     metrics_csv: str = ""
     metrics_rate: float = 10.0
+    lidar: bool = True
 
     @classmethod
     def from_section(cls, section: Mapping[str, Any] | None = None) -> SimConfig:

@@ -87,6 +87,34 @@ def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonProcess) -> None:
     assert truth["collisions"] == 0
     code, metrics = daemon.get("/api/sim/metrics")
     assert code == 200 and metrics["path_length_m"] == pytest.approx(1.0, abs=0.1), metrics
+    check_scan_matches_world(daemon, truth)
+
+
+def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:
+    def fresh() -> dict[str, Any] | None:
+        code, scan = daemon.get("/api/scan")
+        return scan if code == 200 and scan["stamp"] > stamp else None
+
+    result: dict[str, Any] = wait_for(fresh, 5, "a revolution taken at rest")
+    return result
+
+
+def check_scan_matches_world(daemon: DaemonProcess, truth: dict[str, Any]) -> None:
+    """The scan read through the emulated RPLIDAR's bytes equals a ray cast of the world from
+    the true pose, within the lidar noise (σ 0.02 m) and binning to 1° rays."""
+    scan = latest_scan_after(daemon, time.time() + 0.05)
+    ranges = np.array([np.inf if r is None else r for r in scan["ranges"]])
+    angles = scan["angle_min"] + np.arange(ranges.size) * scan["angle_increment"]
+    world = build_world(SimConfig.from_section({"seed": 1}))
+    expected = RayCaster(world, angles, 0.1, 10.0).cast(truth["x"], truth["y"], truth["theta"])
+    ahead = int(np.argmin(np.abs(angles)))
+    assert abs(angles[ahead]) <= math.radians(0.5)
+    assert ranges[ahead] == pytest.approx(expected[ahead], abs=0.1), (ranges[ahead],
+                                                                      expected[ahead])
+    both = np.isfinite(ranges) & np.isfinite(expected)
+    assert both.sum() > 250  # the arena's corners are beyond the 10 m range
+    assert np.mean(np.isfinite(ranges) == np.isfinite(expected)) > 0.95
+    assert float(np.median(np.abs(ranges[both] - expected[both]))) < 0.03
 
 
 def test_driving_into_an_obstacle_counts_a_collision(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ class BenchResult:
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`
 SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
+    "lidar": "sensors.rplidar.bench",
     "drivers": "daemon.bench.drivers",
     "sim": "sim.bench",
     "process": "daemon.bench.process",
