@@ -56,9 +56,9 @@ angular.z.emergency_deceleration = 100.0
 
 
 async def hold_until(loop: ControlLoop, rig: Any, twist: Twist, expected: tuple[float, float],
-                     tolerance: float, timeout: float = 5.0) -> tuple[float, float]:
+                     tolerance: float, limit_s: float = 5.0) -> tuple[float, float]:
     """Keep commanding ``twist`` (as a teleop would) until the hardware sees ``expected``."""
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + limit_s
     seen = (float("nan"), float("nan"))
     while time.monotonic() < deadline:
         applied = await loop.submit("contract", twist, t_recv=time.monotonic())
@@ -70,9 +70,9 @@ async def hold_until(loop: ControlLoop, rig: Any, twist: Twist, expected: tuple[
     raise AssertionError(f"hardware saw {seen}, expected {expected} ± {tolerance}")
 
 
-async def wait_still(rig: Any, tolerance: float, timeout: float) -> float:
+async def wait_still(rig: Any, tolerance: float, limit_s: float) -> float:
     start = time.monotonic()
-    while time.monotonic() - start < timeout:
+    while time.monotonic() - start < limit_s:
         if all(abs(s) <= tolerance for s in rig.observed_targets()):
             return time.monotonic() - start
         await asyncio.sleep(0.01)

@@ -74,7 +74,7 @@ def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
             code = daemon.stop(signal.SIGTERM)
         assert code == 0, daemon.log()
         assert "STOPPING=1" in notify.lines()
-        last_t, left, right = daemon.wheels()[-1]
+        _, left, right = daemon.wheels()[-1]
         assert (left, right) == (0.0, 0.0), "motors were not zeroed before exit"
         assert "shutting down: signal SIGTERM" in daemon.log()
     finally:

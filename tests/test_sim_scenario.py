@@ -101,7 +101,7 @@ def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:
 
 def check_scan_matches_world(daemon: DaemonProcess, truth: dict[str, Any]) -> None:
     """The scan read through the emulated RPLIDAR's bytes equals a ray cast of the world from
-    the true pose, within the lidar noise (σ 0.02 m) and binning to 1° rays."""
+    the true pose, within the lidar noise (sigma 0.02 m) and binning to 1° rays."""
     scan = latest_scan_after(daemon, time.time() + 0.05)
     ranges = np.array([np.inf if r is None else r for r in scan["ranges"]])
     angles = scan["angle_min"] + np.arange(ranges.size) * scan["angle_increment"]
