@@ -623,15 +623,22 @@ print(body.get("status", "?"))' "$1" 2>/dev/null
 
 service_failed() { "${SYSTEMCTL:-systemctl}" is-failed --quiet "${SERVICE}" 2>/dev/null; }
 
+# A component still starting (the lidar before its first revolution) reads "degraded": give it
+# DEGRADED_GRACE seconds to become ok, then accept degraded with a warning.
 wait_health() {
-    local url status="" deadline=$((SECONDS + HEALTH_TIMEOUT))
+    local url status="" deadline=$((SECONDS + HEALTH_TIMEOUT)) degraded_since=""
     url="$(health_url)"
     report_status "waiting up to ${HEALTH_TIMEOUT}s for ${url}"
     while (( SECONDS < deadline )); do
         status="$(fetch_health "${url}" || true)"
         case "${status}" in
             ok) report_status "health: ok"; return 0 ;;
-            degraded) warn "health: degraded (running; see ./install.sh status)"; return 0 ;;
+            degraded)
+                degraded_since="${degraded_since:-${SECONDS}}"
+                if (( SECONDS - degraded_since >= ${DEGRADED_GRACE:-10} )); then
+                    warn "health: degraded (running; see ./install.sh status)"
+                    return 0
+                fi ;;
         esac
         if service_failed; then
             report_status "${SERVICE} failed while starting"
