@@ -295,7 +295,8 @@ class Daemon:
 
     async def _get_metrics(self, request: web.Request) -> web.Response:
         self.security.require_read(request)
-        text = prometheus_text(self.health(), self.latency.stats())
+        text = prometheus_text(self.health(), self.latency.stats(),
+                               self.latency.metrics.registry)
         return web.Response(text=text, content_type="text/plain", charset="utf-8")
 
 

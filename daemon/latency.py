@@ -7,10 +7,44 @@ from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
+from prometheus_client import CollectorRegistry, Counter, Histogram
 
 from daemon.telemetry import LatencyReport
 
 PERCENTILES = (50, 90, 95, 99)
+EXEC_BUCKETS = (5e-6, 1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.05)
+TRANSIT_BUCKETS = (1e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1, 0.5, 1.0)
+TICK_BUCKETS = (5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1)
+CLOCK_NOTE = ("client wall clock vs daemon wall clock: only meaningful when the clocks are "
+              "synchronised (same machine, or NTP/PTP)")
+
+
+class LatencyMetrics:
+    """The latency figures as Prometheus histograms, in a registry of their own."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        self.exec_s = Histogram("arbiterd_command_exec_seconds", "receipt -> driver write",
+                                buckets=EXEC_BUCKETS, registry=self.registry)
+        self.transit_s = Histogram("arbiterd_command_transit_seconds", "client send -> "
+                                   "receipt (clock-dependent)", buckets=TRANSIT_BUCKETS,
+                                   registry=self.registry)
+        self.clock_skew = Counter("arbiterd_command_transit_negative", "stamped commands "
+                                  "received before they were sent (clock skew)",
+                                  registry=self.registry)
+        self.commands = Counter("arbiterd_commands", "applied commands", ["source"],
+                                registry=self.registry)
+        self.tick_late_s = Histogram("arbiterd_tick_lateness_seconds", "control tick start "
+                                     "after its deadline", buckets=TICK_BUCKETS,
+                                     registry=self.registry)
+        self._per_kind: dict[str, Any] = {}
+
+    def count(self, source: str) -> None:
+        """One applied command from ``source`` (labelled by kind: ``ws:17`` counts as ``ws``)."""
+        child = self._per_kind.get(source)
+        if child is None:
+            child = self._per_kind[source] = self.commands.labels(_source_kind(source))
+        child.inc()
 
 
 def summarize(samples: Iterable[float]) -> dict[str, Any]:
@@ -31,6 +65,8 @@ class LatencyTracker:
 
     def __init__(self, window: int = 2000) -> None:
         self.window = window
+        self.metrics = LatencyMetrics()
+        self.per_source: dict[str, int] = {}
         self.exec_ms: deque[float] = deque(maxlen=window)
         self.transit_ms: deque[float] = deque(maxlen=window)
         self.tick_late_ms: deque[float] = deque(maxlen=window)
@@ -44,18 +80,26 @@ class LatencyTracker:
                        t_sent_ms: float | None = None) -> LatencyReport:
         """Record one applied command; times are ``time.monotonic()`` seconds."""
         exec_ms = (t_exec_mono - t_recv_mono) * 1e3
-        wall_exec_ms = time.time() * 1e3 - (time.monotonic() - t_exec_mono) * 1e3
+        wall_exec_ms = (time.time() - time.monotonic() + t_exec_mono) * 1e3
         wall_recv_ms = wall_exec_ms - exec_ms
         self.commands += 1
+        self.per_source[source] = self.per_source.get(source, 0) + 1
         self.exec_ms.append(exec_ms)
+        self.metrics.exec_s.observe(exec_ms / 1e3)
+        self.metrics.count(source)
         if t_sent_ms is not None:
-            self.transit_ms.append(wall_recv_ms - t_sent_ms)
-        return LatencyReport(cmd_id, t_sent_ms, round(wall_recv_ms, 4), round(wall_exec_ms, 4),
-                             round(exec_ms, 4), source)
+            transit = wall_recv_ms - t_sent_ms
+            self.transit_ms.append(transit)
+            if transit < 0:
+                self.metrics.clock_skew.inc()
+            else:
+                self.metrics.transit_s.observe(transit / 1e3)
+        return LatencyReport(cmd_id, t_sent_ms, wall_recv_ms, wall_exec_ms, exec_ms, source)
 
     def record_tick(self, lateness_s: float, late: bool) -> None:
         self.ticks += 1
         self.tick_late_ms.append(lateness_s * 1e3)
+        self.metrics.tick_late_s.observe(max(0.0, lateness_s))
         if late:
             self.late_ticks += 1
 
@@ -64,7 +108,14 @@ class LatencyTracker:
             "window": self.window,
             "commands": self.commands,
             "receipt_to_exec_ms": summarize(self.exec_ms),
-            "client_to_receipt_ms": summarize(self.transit_ms),
+            "client_to_receipt_ms": {**summarize(self.transit_ms), "clock_dependent": True,
+                                     "note": CLOCK_NOTE},
+            "per_source": dict(self.per_source),
             "tick": {"count": self.ticks, "late": self.late_ticks,
                      "missed": self.missed_ticks, "lateness_ms": summarize(self.tick_late_ms)},
         }
+
+
+def _source_kind(source: str) -> str:
+    """``ws:17`` -> ``ws``: one label value per kind of source, not per client."""
+    return source.split(":", 1)[0]

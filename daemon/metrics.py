@@ -5,10 +5,18 @@ import re
 from collections.abc import Iterator
 from typing import Any
 
+from prometheus_client import CollectorRegistry, generate_latest
+
 STATUS_VALUE = {"ok": 0, "degraded": 1, "error": 2}
 
 
-def prometheus_text(health: dict[str, Any], latency: dict[str, Any]) -> str:
+def prometheus_text(health: dict[str, Any], latency: dict[str, Any],
+                    registry: CollectorRegistry) -> str:
+    """The latency histograms (prometheus_client) followed by health and component values."""
+    return generate_latest(registry).decode() + _health_text(health, latency)
+
+
+def _health_text(health: dict[str, Any], latency: dict[str, Any]) -> str:
     lines = [
         "# HELP arbiterd_up 1 while the daemon serves.",
         "# TYPE arbiterd_up gauge",
@@ -18,30 +26,17 @@ def prometheus_text(health: dict[str, Any], latency: dict[str, Any]) -> str:
         f"arbiterd_status {STATUS_VALUE.get(health['status'], 2)}",
         "# TYPE arbiterd_uptime_seconds gauge",
         f"arbiterd_uptime_seconds {health['uptime_s']}",
-        "# TYPE arbiterd_commands_total counter",
-        f"arbiterd_commands_total {latency['commands']}",
         "# TYPE arbiterd_ticks_total counter",
         f"arbiterd_ticks_total {latency['tick']['count']}",
         "# TYPE arbiterd_late_ticks_total counter",
         f"arbiterd_late_ticks_total {latency['tick']['late']}",
     ]
-    lines += _summary("arbiterd_receipt_to_exec_ms", latency["receipt_to_exec_ms"])
-    lines += _summary("arbiterd_tick_lateness_ms", latency["tick"]["lateness_ms"])
     for name, component in health["components"].items():
         lines.append(f'arbiterd_component_status{{component="{name}"}} '
                      f'{STATUS_VALUE.get(component.get("status", "error"), 2)}')
         for key, value in _numbers(component):
             lines.append(f'arbiterd_component_value{{component="{name}",key="{key}"}} {value}')
     return "\n".join(lines) + "\n"
-
-
-def _summary(name: str, stats: dict[str, Any]) -> list[str]:
-    lines = [f"# TYPE {name} summary"]
-    for q in ("50", "90", "99"):
-        if f"p{q}" in stats:
-            lines.append(f'{name}{{quantile="0.{q}"}} {stats[f"p{q}"]}')
-    lines.append(f"{name}_count {stats.get('count', 0)}")
-    return lines
 
 
 def _numbers(data: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, float]]:

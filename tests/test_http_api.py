@@ -148,6 +148,8 @@ def test_stamped_command_latency_is_tracked(daemon: DaemonProcess) -> None:
     assert latency["commands"] >= 1
     assert latency["receipt_to_exec_ms"]["count"] >= 1
     assert latency["client_to_receipt_ms"]["count"] >= 1
+    assert latency["client_to_receipt_ms"]["clock_dependent"] is True
+    assert latency["per_source"]["http"] >= 1
     assert latency["tick"]["count"] > 0 and "p99" in latency["tick"]["lateness_ms"]
 
 
@@ -161,6 +163,12 @@ def test_unknown_route_and_wrong_method_are_json(daemon: DaemonProcess) -> None:
 def test_metrics_and_robot_info(daemon: DaemonProcess) -> None:
     status, text = daemon.get("/metrics")
     assert status == 200 and "arbiterd_up 1" in text and "arbiterd_ticks_total" in text
+    assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.0}})[0] == 200
+    status, text = daemon.get("/metrics")
+    assert "# TYPE arbiterd_command_exec_seconds histogram" in text
+    assert 'arbiterd_command_exec_seconds_bucket{le="0.001"}' in text
+    assert "arbiterd_tick_lateness_seconds_count" in text
+    assert 'arbiterd_commands_total{source="http"}' in text
     status, info = daemon.get("/api/robot_info")
     assert info["driver"] == "mock" and info["geometry"]["wheel_separation"] == 0.3
 

@@ -170,8 +170,9 @@ async def bench_daemon(workdir: Path) -> AsyncIterator[Any]:
     config_path = workdir / "bench.toml"
     config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
                            f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-                           '[sim]\ndriver = "mock"\n')
-    daemon = Daemon(load_config(config_path, sim=True))
+                           '[driver]\ntype = "mock"\n')
+    # the mock driver with no simulated world: the figures are the bridge's, not the world's
+    daemon = Daemon(load_config(config_path))
     task = asyncio.create_task(daemon.run())
     while daemon.state == "startup":
         if task.done():

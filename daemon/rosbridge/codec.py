@@ -10,6 +10,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+import orjson
+
 STATUS_LEVELS = ("info", "warning", "error", "none")
 _ROS_NAME = re.compile(r"^(/[A-Za-z0-9_~]+)+$")
 
@@ -34,17 +36,11 @@ def request_id(frame: Any) -> Id:
     return None
 
 
-def _refuse_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not valid JSON")
-
-
 def decode_frame(text: str | bytes) -> dict[str, Any]:
     """One WebSocket frame -> a request object with a string ``op``, or ProtocolError."""
     try:
-        if isinstance(text, bytes):
-            text = text.decode("utf-8")
-        frame = json.loads(text, parse_constant=_refuse_constant)
-    except (ValueError, UnicodeDecodeError) as exc:
+        frame = orjson.loads(text)  # refuses NaN, Infinity and overflowing numbers
+    except orjson.JSONDecodeError as exc:
         raise ProtocolError(f"invalid JSON: {exc}") from None
     if not isinstance(frame, dict):
         raise ProtocolError(f"a request must be a JSON object, got {type(frame).__name__}")
@@ -127,11 +123,11 @@ def clean(value: Any) -> Any:
 
 
 def encode(message: dict[str, Any]) -> str:
-    """Compact JSON text of a reply; never emits NaN or Infinity. Messages that are already
-    plain JSON (the common case) skip the clean-up walk."""
+    """Compact JSON text of a reply; non-finite floats become null. Messages of plain JSON
+    types and numpy arrays (the common case) skip the clean-up walk."""
     try:
-        return json.dumps(message, separators=(",", ":"), allow_nan=False)
-    except (ValueError, TypeError):
+        return orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY).decode()
+    except TypeError:  # bytes (uint8[] -> base64) or other types only clean() knows
         return json.dumps(clean(message), separators=(",", ":"), allow_nan=False)
 
 

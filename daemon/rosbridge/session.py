@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import time
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
+import orjson
 from aiohttp import WSMsgType, web
 
 from daemon.control.api import STAMP_FIELDS, parse_stamp
@@ -297,7 +297,7 @@ class ClientSession:
                        msg: dict[str, Any]) -> tuple[Any, Id, float | None]:
         if name == "/stamped_cmd_vel":
             try:
-                body = json.loads(msg["data"], parse_constant=_no_constant)
+                body = orjson.loads(msg["data"])  # refuses NaN, Infinity, overflow
             except ValueError as exc:
                 raise CommandError(f"data: not a JSON command: {exc}") from None
             if not isinstance(body, dict):
@@ -496,7 +496,3 @@ class ClientSession:
                 self.server.graph.forget_if_unused(topic)
         self.advertised.clear()
         self.latching.clear()
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not valid JSON")

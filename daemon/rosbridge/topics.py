@@ -1,7 +1,6 @@
 # The robot's own topics: what each carries and how daemon telemetry becomes a ROS 2 message.
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections.abc import Callable
@@ -9,6 +8,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+import orjson
 
 from daemon.rosbridge.msgtypes import stamp
 from daemon.telemetry import LatencyReport, OdomSample
@@ -120,7 +120,9 @@ def scan_msg(scan: ScanLike) -> dict[str, Any]:
 
 
 def json_string_msg(payload: Any) -> dict[str, Any]:
-    return {"data": json.dumps(payload, allow_nan=False, default=_to_json)}
+    """A std_msgs/String carrying ``payload`` as JSON (non-finite floats as null)."""
+    data = orjson.dumps(payload, default=_to_json, option=orjson.OPT_SERIALIZE_NUMPY)
+    return {"data": data.decode()}
 
 
 def latency_msg(report: LatencyReport) -> dict[str, Any]:
