@@ -8,6 +8,7 @@ from typing import Any
 
 VECTOR_FIELDS = ("x", "y", "z")
 TWIST_FIELDS = ("linear", "angular")
+_EMPTY: dict[str, float] = {}
 
 
 class CommandError(ValueError):
@@ -39,13 +40,23 @@ def finite_number(value: Any, field: str) -> float:
     return number
 
 
-def parse_vector(value: Any, field: str) -> dict[str, float]:
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+def parse_vector(value: Any, field: str) -> list[float]:
+    """``{"x", "y", "z"}`` (absent = 0) as ``[x, y, z]``; plain finite floats take a fast path."""
     if not isinstance(value, Mapping):
         raise CommandError(f"{field}: expected an object with x, y, z")
-    unknown = sorted(set(value) - set(VECTOR_FIELDS))
-    if unknown:
-        raise CommandError(f"{field}.{unknown[0]}: unknown field")
-    return {axis: finite_number(value.get(axis, 0.0), f"{field}.{axis}") for axis in VECTOR_FIELDS}
+    out = [0.0, 0.0, 0.0]
+    for key, number in value.items():
+        index = _AXIS.get(key)
+        if index is None:
+            raise CommandError(f"{field}.{key}: unknown field")
+        if type(number) is float and number - number == 0.0:  # finite (inf-inf, nan are nan)
+            out[index] = number
+        else:
+            out[index] = finite_number(number, f"{field}.{key}")
+    return out
 
 
 def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
@@ -56,14 +67,14 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
     caller). Components a differential-drive base cannot do (linear y/z, angular x/y) must be
     zero, so a command is never silently reduced to something else.
     """
-    unknown = sorted(set(body) - set(TWIST_FIELDS) - set(extra))
-    if unknown:
-        raise CommandError(f"{prefix}{unknown[0]}: unknown field")
-    linear = parse_vector(body.get("linear", {}), f"{prefix}linear")
-    angular = parse_vector(body.get("angular", {}), f"{prefix}angular")
-    for field, value in (("linear.y", linear["y"]), ("linear.z", linear["z"]),
-                         ("angular.x", angular["x"]), ("angular.y", angular["y"])):
-        if value != 0.0:
-            raise CommandError(f"{prefix}{field}: a differential-drive base cannot move "
-                               f"along this axis; must be 0, got {value}")
-    return Twist(linear["x"], angular["z"])
+    for key in body:
+        if key not in TWIST_FIELDS and key not in extra:
+            raise CommandError(f"{prefix}{key}: unknown field")
+    lx, ly, lz = parse_vector(body.get("linear", _EMPTY), f"{prefix}linear")
+    ax, ay, az = parse_vector(body.get("angular", _EMPTY), f"{prefix}angular")
+    if ly or lz or ax or ay:
+        field, value = next((f, v) for f, v in (("linear.y", ly), ("linear.z", lz),
+                                                ("angular.x", ax), ("angular.y", ay)) if v)
+        raise CommandError(f"{prefix}{field}: a differential-drive base cannot move "
+                           f"along this axis; must be 0, got {value}")
+    return Twist(lx, az)
