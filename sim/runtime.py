@@ -174,54 +174,28 @@ def _start_serial(runtime: SimRuntime) -> Started:
                         "counts_per_rev": COUNTS_PER_REV["serial"], "poll_rate": 50.0}
 
 
-def _pigpio_wiring(options: dict[str, Any]) -> Any:
-    from sim.pigpiod_emulator import HBridge, Wiring
-
-    def bridge(side: str) -> HBridge:
-        return HBridge(options[f"{side}_in1"], options[f"{side}_in2"], options[f"{side}_pwm"])
-
-    def encoder(side: str) -> tuple[int, int]:
-        return options[f"{side}_encoder_a"], options[f"{side}_encoder_b"]
-
-    return Wiring(bridge("left"), bridge("right"), encoder("left"), encoder("right"))
-
-
 def _start_pigpio(runtime: SimRuntime) -> Started:
-    from sim.pigpiod_emulator import PigpiodEmulator
+    from sim.pigpiod_emulator import PigpiodEmulator, pigpio_driver_wiring
 
     options = dict(runtime.config.driver_options("pigpio"))
     options.update(host="127.0.0.1", encoders=True, max_wheel_speed=runtime.sim.motor_max_speed,
                    encoder_counts_per_rev=COUNTS_PER_REV["pigpio"])
-    pigpiod = PigpiodEmulator(_pigpio_wiring(options), runtime.motors, port=0).start()
+    pigpiod = PigpiodEmulator(pigpio_driver_wiring(options), runtime.motors, port=0).start()
     return pigpiod.close, {**{k: options[k] for k in ("host", "encoders", "max_wheel_speed",
                                                       "encoder_counts_per_rev")},
                            "port": pigpiod.port}
 
 
-def _l298n_wiring(options: dict[str, Any]) -> Any:
-    from sim.pigpiod_emulator import HBridge, Wiring
-
-    def bridge(side: str) -> HBridge:
-        enable = options[f"{side}_enable"]
-        return HBridge(options[f"{side}_forward"], options[f"{side}_backward"],
-                       enable if enable >= 0 else None)
-
-    def encoder(side: str) -> tuple[int, int]:
-        return options[f"{side}_encoder_a"], options[f"{side}_encoder_b"]
-
-    return Wiring(bridge("left"), bridge("right"), encoder("left"), encoder("right"))
-
-
 def _start_l298n(runtime: SimRuntime) -> Started:
     """gpiozero's PiGPIOFactory against the emulated pigpiod, L298N bridges on its pins."""
-    from sim.pigpiod_emulator import PigpiodEmulator
+    from sim.pigpiod_emulator import PigpiodEmulator, l298n_driver_wiring
 
     options = dict(runtime.config.driver_options("l298n"))
     overrides = {"pin_factory": "pigpio", "pigpio_host": "127.0.0.1", "encoders": True,
                  "max_wheel_speed": runtime.sim.motor_max_speed,
                  "encoder_counts_per_rev": COUNTS_PER_REV["l298n"] // 4}  # quadrature cycles
     options.update(overrides)
-    pigpiod = PigpiodEmulator(_l298n_wiring(options), runtime.motors, port=0).start()
+    pigpiod = PigpiodEmulator(l298n_driver_wiring(options), runtime.motors, port=0).start()
     return pigpiod.close, {**overrides, "pigpio_port": pigpiod.port}
 
 

@@ -13,7 +13,6 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
-import aiohttp
 import pigpio
 import pytest
 from hypothesis import given
@@ -23,6 +22,7 @@ from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, QuadratureDecoder, speed_to_duty
 from sim.motor_model import MotorPair, WheelMotor
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE, quadrature_levels
+from tests.async_daemon import DaemonClient, spawn_daemon
 from tests.daemon_proc import REPO, free_port
 from tests.rigs.pigpio import COUNTS_PER_REV, FULL_DUTY_SPEED, PigpioRig, running_rig
 
@@ -381,61 +381,18 @@ enabled = false
     return path
 
 
-class Daemon:
-    """``arbiterd run`` as a subprocess, talked to over its HTTP API."""
-
-    def __init__(self, process: asyncio.subprocess.Process, port: int,
-                 session: aiohttp.ClientSession) -> None:
-        self.process, self.base, self.session = process, f"http://127.0.0.1:{port}", session
-
-    async def health(self) -> tuple[int, dict[str, Any]]:
-        async with self.session.get(self.base + "/api/health") as response:
-            return response.status, await response.json()
-
-    async def cmd_vel(self, linear_x: float, angular_z: float = 0.0) -> int:
-        body = {"linear": {"x": linear_x}, "angular": {"z": angular_z}}
-        async with self.session.post(self.base + "/api/cmd_vel", json=body) as response:
-            return response.status
-
-    async def wait_health(self, status: str, within: float = 10.0) -> dict[str, Any]:
-        deadline = time.monotonic() + within
-        while True:
-            assert self.process.returncode is None, "the daemon exited"
-            with contextlib.suppress(aiohttp.ClientConnectionError):
-                code, body = await self.health()
-                if body["status"] == status:
-                    assert code == (503 if status == "error" else 200)
-                    return body
-            assert time.monotonic() < deadline, f"daemon health never became {status!r}"
-            await asyncio.sleep(0.05)
-
-
 @pytest.fixture
-async def daemon(tmp_path: Path) -> AsyncIterator[tuple[Daemon, PigpioRig]]:
+async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, PigpioRig]]:
     async with running_rig() as the_rig:
         port = free_port()
         config = daemon_config(tmp_path, the_rig.options, port)
-        log = (tmp_path / "daemon.log").open("wb")
-        process = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
-            stdout=asyncio.subprocess.DEVNULL, stderr=log)
-        try:
-            async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
-                client = Daemon(process, port, session)
-                await client.wait_health("ok", within=20.0)
-                yield client, the_rig
-                process.send_signal(signal.SIGTERM)
-                assert await asyncio.wait_for(process.wait(), 10) == 0
-                assert the_rig.observed_targets() == (0.0, 0.0)
-        finally:
-            if process.returncode is None:
-                process.kill()
-                await process.wait()
-            log.close()
+        async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
+            yield client, the_rig
+        assert the_rig.observed_targets() == (0.0, 0.0)
 
 
 async def test_daemon_survives_pigpiod_stopping_and_restarting(
-        daemon: tuple[Daemon, PigpioRig]) -> None:
+        daemon: tuple[DaemonClient, PigpioRig]) -> None:
     client, the_rig = daemon
     emulator = the_rig.emulator
     assert await client.cmd_vel(0.2) == 200

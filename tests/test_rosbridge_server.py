@@ -229,7 +229,16 @@ async def test_estop_topic_latches_and_refuses_commands(robot: Robot) -> None:
 
 async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> None:
     ticks: list[float] = []
-    robot.ctx.control.on_tick.append(lambda now, on_time: ticks.append(now))
+    control = robot.ctx.control
+    control.on_tick.append(lambda now, on_time: ticks.append(now))
+    drops: list[float] = []  # when the server learned of the disconnect
+    drop_source = control.drop_source
+
+    async def recording_drop(source: str) -> None:
+        drops.append(time.monotonic())
+        await drop_source(source)
+
+    control.drop_source = recording_drop
     driver = robot.driver
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/cmd_vel", type="geometry_msgs/msg/Twist")
@@ -242,11 +251,14 @@ async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> 
             await asyncio.sleep(0.02)
             speed = driver.commands[-1].left_rad_s
         t_close = time.monotonic()
-    ticks_before = len([t for t in ticks if t <= t_close])
+    await wait_until(lambda: drops, "the server to drop the client's command source")
     braking = await wait_until(lambda: next(
         (c for c in driver.commands if c.t_mono > t_close and c.left_rad_s < speed), None),
         "a braking write")
+    ticks_before = len([t for t in ticks if t <= drops[0]])
     await wait_until(lambda: len(ticks) >= ticks_before + 2, "two more ticks")
+    # braking starts on the disconnect itself, not at a later tick: at the latest it lands
+    # behind a tick that was already running when the disconnect arrived
     assert braking.t_mono <= ticks[ticks_before + 1], "the brake waited for more than a tick"
     await wait_until(lambda: driver.commands[-1].left_rad_s == 0.0, "the wheels to stop")
     assert robot.ctx.control.decision.reason in ("deadman: no valid command", "idle")

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import signal
 import socket
 import sys
 import time
@@ -11,7 +10,6 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
-import aiohttp
 import pytest
 
 from drivers.arduino_serial import (
@@ -31,6 +29,7 @@ from drivers.arduino_serial import (
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
+from tests.async_daemon import DaemonClient, spawn_daemon
 from tests.rigs.serial import COUNTS_PER_REV, SerialRig, make_motors, rig
 
 MAX_WHEEL_SPEED = 20.0
@@ -508,58 +507,16 @@ enabled = false
     return path
 
 
-class DaemonClient:
-    """Talks to a daemon subprocess over its HTTP API."""
-
-    def __init__(self, process: asyncio.subprocess.Process, port: int,
-                 session: aiohttp.ClientSession) -> None:
-        self.process, self.base, self.session = process, f"http://127.0.0.1:{port}", session
-
-    async def health(self) -> tuple[int, dict[str, Any]]:
-        async with self.session.get(self.base + "/api/health") as response:
-            return response.status, await response.json()
-
-    async def cmd_vel(self, linear_x: float, angular_z: float = 0.0) -> int:
-        body = {"linear": {"x": linear_x}, "angular": {"z": angular_z}}
-        async with self.session.post(self.base + "/api/cmd_vel", json=body) as response:
-            return response.status
-
-    async def wait_health(self, status: str, within_s: float = 10.0) -> dict[str, Any]:
-        deadline = time.monotonic() + within_s
-        while True:
-            assert self.process.returncode is None, "the daemon exited"
-            try:
-                code, body = await self.health()
-                if body["status"] == status:
-                    assert code == (503 if status == "error" else 200)
-                    return body
-            except aiohttp.ClientConnectionError:
-                pass
-            if time.monotonic() > deadline:
-                raise AssertionError(f"daemon health never became {status!r}")
-            await asyncio.sleep(0.05)
-
-
 @pytest.fixture
 async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, ArduinoEmulator]]:
     emulator = ArduinoEmulator(tmp_path / "arduino", make_motors(), auto_stop_s=1.0).start()
     port = free_tcp_port()
     config = daemon_config(tmp_path, emulator, port)
-    process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
-        stdout=asyncio.subprocess.DEVNULL, stderr=(tmp_path / "daemon.log").open("wb"))
     try:
-        async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
-            client = DaemonClient(process, port, session)
-            await client.wait_health("ok", within_s=20.0)
+        async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
             yield client, emulator
-            process.send_signal(signal.SIGTERM)
-            assert await asyncio.wait_for(process.wait(), 10) == 0
-            assert emulator.motors.targets() == (0.0, 0.0)
+        assert emulator.motors.targets() == (0.0, 0.0)
     finally:
-        if process.returncode is None:
-            process.kill()
-            await process.wait()
         emulator.stop()
 
 

@@ -1,0 +1,65 @@
+# Async test harness: `arbiterd run` as a subprocess beside an emulator in the test's event loop.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import sys
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+
+from tests.daemon_proc import REPO
+
+
+class DaemonClient:
+    """Talks to a daemon subprocess over its HTTP API."""
+
+    def __init__(self, process: asyncio.subprocess.Process, port: int,
+                 session: aiohttp.ClientSession) -> None:
+        self.process, self.base, self.session = process, f"http://127.0.0.1:{port}", session
+
+    async def health(self) -> tuple[int, dict[str, Any]]:
+        async with self.session.get(self.base + "/api/health") as response:
+            return response.status, await response.json()
+
+    async def cmd_vel(self, linear_x: float, angular_z: float = 0.0) -> int:
+        body = {"linear": {"x": linear_x}, "angular": {"z": angular_z}}
+        async with self.session.post(self.base + "/api/cmd_vel", json=body) as response:
+            return response.status
+
+    async def wait_health(self, status: str, within_s: float = 10.0) -> dict[str, Any]:
+        """Poll ``/api/health`` until its status is ``status`` (503 goes with ``error``)."""
+        deadline = time.monotonic() + within_s
+        while True:
+            assert self.process.returncode is None, "the daemon exited"
+            with contextlib.suppress(aiohttp.ClientConnectionError):
+                code, body = await self.health()
+                if body["status"] == status:
+                    assert code == (503 if status == "error" else 200)
+                    return body
+            assert time.monotonic() < deadline, f"daemon health never became {status!r}"
+            await asyncio.sleep(0.05)
+
+
+@contextlib.asynccontextmanager
+async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[DaemonClient]:
+    """Run the daemon until the block ends, then SIGTERM it and require exit status 0."""
+    with log.open("wb") as log_file:
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
+            stdout=asyncio.subprocess.DEVNULL, stderr=log_file)
+        try:
+            async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
+                client = DaemonClient(process, port, session)
+                await client.wait_health("ok", within_s=20.0)
+                yield client
+                process.send_signal(signal.SIGTERM)
+                assert await asyncio.wait_for(process.wait(), 10) == 0
+        finally:
+            if process.returncode is None:
+                process.kill()
+                await process.wait()
