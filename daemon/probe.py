@@ -1,7 +1,9 @@
 # Hardware probing for `arbiterd check` and the motor-off path of `arbiterd safe-stop`.
 from __future__ import annotations
 
+import asyncio
 import importlib
+import sys
 from typing import Any
 
 from daemon.config import Config, ConfigError
@@ -9,7 +11,9 @@ from daemon.control.kinematics import DiffDrive
 from drivers import DriverError, MotorDriver, create_driver
 
 # config section => "module:function" probing that part's hardware; returns problems.
-PROBES: dict[str, str] = {}
+PROBES: dict[str, str] = {
+    "lidar": "daemon.probe:probe_lidar",
+}
 
 
 def build_driver(config: Config, name: str | None = None) -> MotorDriver:
@@ -46,3 +50,35 @@ async def probe_hardware(config: Config) -> list[str]:
 async def safe_stop(config: Config) -> None:
     """Zero the motors through the configured driver, from a process of its own."""
     await build_driver(config).safe_stop()
+
+
+async def probe_lidar(config: Config) -> list[str]:
+    """Ask a configured RPLIDAR for its INFO and HEALTH; list what is wrong."""
+    lidar = config["lidar"]
+    if not lidar["enabled"]:
+        return []
+    return await asyncio.to_thread(_probe_lidar_blocking, lidar["port"], lidar["baudrate"])
+
+
+def _probe_lidar_blocking(port_path: str, baudrate: int) -> list[str]:
+    from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
+
+    try:
+        port = open_serial(port_path, baudrate)
+    except LidarError as exc:
+        return [f"{port_path}: {exc}"]
+    client = RplidarClient(port)
+    try:
+        client.stop()
+        info = client.info()
+        health = client.health()
+    except LidarError as exc:
+        return [f"{port_path}: no answer at {baudrate} baud ({exc})"]
+    finally:
+        port.close()
+    found = describe(info)
+    print(f"# lidar: {found['model']} firmware {found['firmware']} on {port_path}, "
+          f"health {health.status_name}", file=sys.stderr)
+    if health.status == 2:
+        return [f"{port_path}: the lidar reports a health error (code {health.error_code:#06x})"]
+    return []

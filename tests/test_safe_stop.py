@@ -12,6 +12,7 @@ from daemon.cli import _toml_value
 from drivers import create_driver
 from sim.arduino_emulator import ArduinoEmulator
 from tests.daemon_proc import REPO, read_wheel_log, wait_for
+from tests.rigs.l298n import pigpio_rig
 from tests.rigs.pigpio import running_rig
 
 
@@ -61,6 +62,18 @@ async def test_safe_stop_pigpio_zeroes_pwm_left_on(tmp_path: Path) -> None:
         await crashed.set_wheel_speeds(10.0, 10.0)
         wait_for(lambda: turning(rig.observed_targets()), 5, "the wheels to turn")
         result = safe_stop(write_config(tmp_path, "pigpio", rig.options))
+        assert result.returncode == 0, result.stderr
+        assert rig.observed_targets() == (0.0, 0.0)
+        await crashed.close()
+
+
+async def test_safe_stop_l298n_through_pigpiod(tmp_path: Path) -> None:
+    async with pigpio_rig() as rig:
+        crashed = create_driver("l298n", rig.options, max_wheel_speed=40.0)
+        await crashed.open()
+        await crashed.set_wheel_speeds(10.0, 10.0)
+        wait_for(lambda: turning(rig.observed_targets()), 5, "the wheels to turn")
+        result = safe_stop(write_config(tmp_path, "l298n", rig.options))
         assert result.returncode == 0, result.stderr
         assert rig.observed_targets() == (0.0, 0.0)
         await crashed.close()
