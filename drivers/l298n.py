@@ -13,6 +13,8 @@ from typing import Any, ClassVar, TypeVar
 from daemon.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
 from drivers.pigpio_pwm import (
+    DUTY_MAP_OPTIONS,
+    ENCODER_PIN_OPTIONS,
     SerialExecutor,
     check_pins,
     describe_io_error,
@@ -107,19 +109,9 @@ class L298NDriver(MotorDriver):
         "left_invert": option(bool, False, "reverse the left motor's direction"),
         "right_invert": option(bool, False, "reverse the right motor's direction"),
         "pwm_frequency": option(int, 500, "PWM frequency, Hz", minval=10, maxval=20000),
-        "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
-                                  "(0 = the robot's maximum wheel speed)", minval=0.0),
-        "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
-                           minval=0.0, below=1.0),
-        "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
-                           minval=0.0),
+        **DUTY_MAP_OPTIONS,
         "encoders": option(bool, False, "read quadrature encoders with gpiozero RotaryEncoder"),
-        "left_encoder_a": _pin(5, "left encoder channel A GPIO"),
-        "left_encoder_b": _pin(6, "left encoder channel B GPIO"),
-        "right_encoder_a": _pin(20, "right encoder channel A GPIO"),
-        "right_encoder_b": _pin(21, "right encoder channel B GPIO"),
-        "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
-        "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
+        **ENCODER_PIN_OPTIONS,
         "encoder_counts_per_rev": option(int, 360, "full quadrature cycles (RotaryEncoder steps)"
                                          " per wheel revolution", minval=1),
         "encoder_bounce": option(float, 0.0, "encoder debounce time, s (0 = off)",

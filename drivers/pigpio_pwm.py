@@ -30,6 +30,27 @@ def _gpio(default: int, doc: str) -> Any:
     return option(int, default, doc, minval=0, maxval=27)
 
 
+#: The open-loop speed -> duty map's keys (shared with the l298n driver).
+DUTY_MAP_OPTIONS: dict[str, Any] = {
+    "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
+                              "(0 = the robot's maximum wheel speed)", minval=0.0),
+    "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
+                       minval=0.0, below=1.0),
+    "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
+                       minval=0.0),
+}
+
+#: Quadrature encoder wiring keys (shared with the l298n driver).
+ENCODER_PIN_OPTIONS: dict[str, Any] = {
+    "left_encoder_a": _gpio(5, "left encoder channel A GPIO"),
+    "left_encoder_b": _gpio(6, "left encoder channel B GPIO"),
+    "right_encoder_a": _gpio(20, "right encoder channel A GPIO"),
+    "right_encoder_b": _gpio(21, "right encoder channel B GPIO"),
+    "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
+    "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
+}
+
+
 # -- pure helpers (shared with the l298n driver) --------------------------------------------------
 
 
@@ -190,19 +211,9 @@ class PigpioDriver(MotorDriver):
         "pwm_frequency": option(int, 1000, "PWM frequency, Hz (DMA PWM rounds to pigpiod's "
                                 "nearest allowed value)", minval=10, maxval=40000),
         "pwm_range": option(int, 1000, "DMA PWM duty steps", minval=25, maxval=40000),
-        "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
-                                  "(0 = the robot's maximum wheel speed)", minval=0.0),
-        "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
-                           minval=0.0, below=1.0),
-        "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
-                           minval=0.0),
+        **DUTY_MAP_OPTIONS,
         "encoders": option(bool, False, "read quadrature encoders through pigpio callbacks"),
-        "left_encoder_a": _gpio(5, "left encoder channel A GPIO"),
-        "left_encoder_b": _gpio(6, "left encoder channel B GPIO"),
-        "right_encoder_a": _gpio(20, "right encoder channel A GPIO"),
-        "right_encoder_b": _gpio(21, "right encoder channel B GPIO"),
-        "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
-        "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
+        **ENCODER_PIN_OPTIONS,
         "encoder_counts_per_rev": option(int, 1440, "encoder edges (4 per quadrature cycle) per "
                                          "wheel revolution", minval=1),
         "glitch_filter_us": option(int, 100, "ignore encoder level changes shorter than this, us",
