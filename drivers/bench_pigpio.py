@@ -6,7 +6,7 @@ import threading
 import time
 from typing import Any
 
-from daemon.bench import BenchResult
+from daemon.bench import BenchResult, ms_result, percentile_ms
 from drivers.base import MotorDriver
 from drivers.l298n import L298NDriver
 from drivers.pigpio_pwm import PigpioDriver
@@ -85,11 +85,11 @@ async def _bench(label: str, wiring: Wiring, make: Any, count: int,
     note = (f"{count} set_wheel_speeds calls, pigpiod emulator in the same process over "
             f"loopback TCP; {note}")
     return [
-        _result(f"{label} command->return p50", _percentile(to_return, 50), note),
-        _result(f"{label} command->return p99", _percentile(to_return, 99), ""),
-        _result(f"{label} command->pigpiod p50", _percentile(to_pins, 50),
+        ms_result(SUITE, f"{label} command->return p50", percentile_ms(to_return, 50), note),
+        ms_result(SUITE, f"{label} command->return p99", percentile_ms(to_return, 99), ""),
+        ms_result(SUITE, f"{label} command->pigpiod p50", percentile_ms(to_pins, 50),
                 "until the emulated pigpiod executed the last write of the command"),
-        _result(f"{label} command->pigpiod p99", _percentile(to_pins, 99), ""),
+        ms_result(SUITE, f"{label} command->pigpiod p99", percentile_ms(to_pins, 99), ""),
     ]
 
 
@@ -101,9 +101,10 @@ async def _bench_mock(count: int) -> list[BenchResult]:
         to_return, _ = await _time_commands(driver, None, count)
     finally:
         await driver.close()
-    return [_result("l298n (MockFactory) command->return p50", _percentile(to_return, 50),
-                    f"{count} calls; gpiozero's own cost with no I/O"),
-            _result("l298n (MockFactory) command->return p99", _percentile(to_return, 99), "")]
+    name = "l298n (MockFactory) command->return"
+    return [ms_result(SUITE, f"{name} p50", percentile_ms(to_return, 50),
+                      f"{count} calls; gpiozero's own cost with no I/O"),
+            ms_result(SUITE, f"{name} p99", percentile_ms(to_return, 99))]
 
 
 async def _time_commands(driver: MotorDriver, clock: WriteClock | None,
@@ -120,15 +121,3 @@ async def _time_commands(driver: MotorDriver, clock: WriteClock | None,
             to_pins.append(seen - start)
         await asyncio.sleep(0.001)
     return to_return, to_pins
-
-
-def _percentile(samples: list[float], pct: float) -> float:
-    if not samples:
-        return float("nan")
-    ordered = sorted(samples)
-    index = min(len(ordered) - 1, max(0, round(pct / 100 * (len(ordered) - 1))))
-    return ordered[index] * 1e3
-
-
-def _result(name: str, value_ms: float, note: str) -> BenchResult:
-    return BenchResult(SUITE, name, round(value_ms, 4), "ms", note=note)

@@ -6,7 +6,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from daemon.bench import BenchResult
+from daemon.bench import BenchResult, ms_result, percentile_ms
 from drivers.arduino_serial import SerialBridgeDriver
 from sim.arduino_emulator import ArduinoEmulator
 
@@ -32,11 +32,11 @@ async def _measure(link: Path, count: int) -> list[BenchResult]:
     note = (f"{count} set_wheel_speeds calls with 'e' polled at 30 Hz; emulator thread in the "
             "same process over a pty; a real board adds ~2.4 ms of 57600-baud wire time")
     return [
-        _result("serial command->ack p50", _percentile(to_return, 50), note),
-        _result("serial command->ack p99", _percentile(to_return, 99), ""),
-        _result("serial command->board p50", _percentile(to_board, 50),
+        ms_result(SUITE, "serial command->ack p50", percentile_ms(to_return, 50), note),
+        ms_result(SUITE, "serial command->ack p99", percentile_ms(to_return, 99), ""),
+        ms_result(SUITE, "serial command->board p50", percentile_ms(to_board, 50),
                 "until the emulated firmware parsed the command"),
-        _result("serial command->board p99", _percentile(to_board, 99), ""),
+        ms_result(SUITE, "serial command->board p99", percentile_ms(to_board, 99), ""),
     ]
 
 
@@ -63,15 +63,3 @@ def _board_time(emulator: ArduinoEmulator, command: str, since: float) -> float 
         if received.text == command:
             return received.t_mono
     return None
-
-
-def _percentile(samples: list[float], pct: float) -> float:
-    if not samples:
-        return float("nan")
-    ordered = sorted(samples)
-    index = min(len(ordered) - 1, max(0, round(pct / 100 * (len(ordered) - 1))))
-    return ordered[index] * 1e3
-
-
-def _result(name: str, value_ms: float, note: str) -> BenchResult:
-    return BenchResult(SUITE, name, round(value_ms, 4), "ms", note=note)

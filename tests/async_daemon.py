@@ -12,6 +12,7 @@ from typing import Any
 
 import aiohttp
 
+from daemon.cli import _toml_value
 from tests.daemon_proc import REPO
 
 
@@ -43,6 +44,34 @@ class DaemonClient:
                     return body
             assert time.monotonic() < deadline, f"daemon health never became {status!r}"
             await asyncio.sleep(0.05)
+
+
+def driver_daemon_config(tmp_path: Path, driver: str, options: dict[str, Any],
+                         http_port: int) -> Path:
+    """A config driving ``driver`` at an emulator: HTTP on ``http_port``, no rosbridge, a
+    long deadman (the tests hold commands across faults) and a quick reconnect back-off."""
+    section = "\n".join(f"{key} = {_toml_value(value)}" for key, value in options.items())
+    path = tmp_path / "arbiterd.toml"
+    path.write_text(f"""
+[driver]
+type = "{driver}"
+
+[driver.{driver}]
+{section}
+
+[control]
+cmd_vel_timeout = 5.0
+reconnect_min_s = 0.1
+reconnect_max_s = 0.4
+
+[http]
+host = "127.0.0.1"
+port = {http_port}
+
+[rosbridge]
+enabled = false
+""")
+    return path
 
 
 @contextlib.asynccontextmanager

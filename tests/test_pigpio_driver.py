@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import math
 import re
 import signal
@@ -11,7 +10,6 @@ import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
-from typing import Any
 
 import pigpio
 import pytest
@@ -22,7 +20,7 @@ from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, QuadratureDecoder, speed_to_duty
 from sim.motor_model import MotorPair, WheelMotor
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE, quadrature_levels
-from tests.async_daemon import DaemonClient, spawn_daemon
+from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
 from tests.daemon_proc import REPO, free_port
 from tests.rigs.pigpio import COUNTS_PER_REV, FULL_DUTY_SPEED, PigpioRig, running_rig
 
@@ -356,36 +354,11 @@ async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed() -
 # -- end to end: the real daemon as a subprocess, the pigpiod emulator in this process -------------
 
 
-def daemon_config(tmp_path: Path, options: dict[str, Any], http_port: int) -> Path:
-    section = "\n".join(f"{key} = {json.dumps(value)}" for key, value in options.items())
-    path = tmp_path / "arbiterd.toml"
-    path.write_text(f"""
-[driver]
-type = "pigpio"
-
-[driver.pigpio]
-{section}
-
-[control]
-cmd_vel_timeout = 5.0
-reconnect_min_s = 0.1
-reconnect_max_s = 0.4
-
-[http]
-host = "127.0.0.1"
-port = {http_port}
-
-[rosbridge]
-enabled = false
-""")
-    return path
-
-
 @pytest.fixture
 async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, PigpioRig]]:
     async with running_rig() as the_rig:
         port = free_port()
-        config = daemon_config(tmp_path, the_rig.options, port)
+        config = driver_daemon_config(tmp_path, "pigpio", the_rig.options, port)
         async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
             yield client, the_rig
         assert the_rig.observed_targets() == (0.0, 0.0)

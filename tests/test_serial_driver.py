@@ -29,7 +29,7 @@ from drivers.arduino_serial import (
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
-from tests.async_daemon import DaemonClient, spawn_daemon
+from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
 from tests.rigs.serial import COUNTS_PER_REV, SerialRig, make_motors, rig
 
 MAX_WHEEL_SPEED = 20.0
@@ -481,30 +481,9 @@ def free_tcp_port() -> int:
 
 
 def daemon_config(tmp_path: Path, emulator: ArduinoEmulator, http_port: int) -> Path:
-    path = tmp_path / "arbiterd.toml"
-    path.write_text(f"""
-[driver]
-type = "serial"
-
-[driver.serial]
-port = "{emulator.link}"
-counts_per_rev = {COUNTS_PER_REV}
-reset_wait_s = 0.05
-timeout_s = 1.0
-
-[control]
-cmd_vel_timeout = 5.0
-reconnect_min_s = 0.1
-reconnect_max_s = 0.4
-
-[http]
-host = "127.0.0.1"
-port = {http_port}
-
-[rosbridge]
-enabled = false
-""")
-    return path
+    options = {"port": str(emulator.link), "counts_per_rev": COUNTS_PER_REV,
+               "reset_wait_s": 0.05, "timeout_s": 1.0}
+    return driver_daemon_config(tmp_path, "serial", options, http_port)
 
 
 @pytest.fixture

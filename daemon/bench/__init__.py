@@ -21,6 +21,20 @@ class BenchResult:
         return asdict(self)
 
 
+def percentile_ms(samples_s: list[float], pct: float) -> float:
+    """The ``pct`` percentile (nearest rank) of durations in seconds, in milliseconds."""
+    if not samples_s:
+        return float("nan")
+    ordered = sorted(samples_s)
+    index = min(len(ordered) - 1, max(0, round(pct / 100 * (len(ordered) - 1))))
+    return ordered[index] * 1e3
+
+
+def ms_result(suite: str, name: str, value_ms: float, note: str = "") -> BenchResult:
+    """A millisecond figure without a target."""
+    return BenchResult(suite, name, round(value_ms, 4), "ms", note=note)
+
+
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`
 SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
