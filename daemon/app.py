@@ -2,19 +2,17 @@
 from __future__ import annotations
 
 import asyncio
-import importlib
 import logging
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 from aiohttp import web
 
-from daemon import __version__
+from daemon import __version__, lidar
 from daemon.bus import Bus
-from daemon.component import Component, worst
+from daemon.component import Component, DaemonContext, worst
 from daemon.config import Config, ConfigError
 from daemon.control.api import ControlApi
 from daemon.control.loop import ControlLoop
@@ -23,6 +21,7 @@ from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
 from daemon.probe import build_driver
+from daemon.rosbridge import server as rosbridge_server
 from daemon.security import Security
 from drivers import DriverError
 
@@ -30,31 +29,16 @@ log = logging.getLogger("arbiterd")
 
 EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 
-# component name => "module:function"; the function takes the DaemonContext and returns a
-# Component, or None when its config section disables it. Started in this order.
-COMPONENTS: dict[str, str] = {
-    "lidar": "sensors.rplidar.component:create",
-    "rosbridge": "daemon.rosbridge.server:create",
+# component name => factory; it takes the DaemonContext and returns a Component, or None when
+# its config section disables it. Started in this order.
+COMPONENTS: dict[str, Callable[[DaemonContext], Component | None]] = {
+    "lidar": lidar.create,
+    "rosbridge": rosbridge_server.create,
 }
 
 
 class StartupError(Exception):
     """A core component could not start (exit code 69: hardware unavailable)."""
-
-
-@dataclass
-class DaemonContext:
-    """What components get to build themselves and plug into the daemon."""
-
-    config: Config
-    bus: Bus
-    http: HttpServer
-    control: ControlLoop
-    security: Security
-    latency: LatencyTracker
-    mode: str
-    robot_info: dict[str, Callable[[], Any]] = field(default_factory=dict)
-    extras: dict[str, Any] = field(default_factory=dict)
 
 
 class Daemon:
@@ -87,7 +71,7 @@ class Daemon:
         return str(self.config["driver"]["type"])
 
     def _start_simulator(self) -> Any:
-        from sim.runtime import SimRuntime
+        from daemon.simulator import SimRuntime
 
         try:
             runtime = SimRuntime(self.config)
@@ -118,8 +102,8 @@ class Daemon:
             runtime.attach(driver)
             runtime.register(http, self.bus, loop.status_extras)
             self.components.insert(0, runtime)
-        for name, target in COMPONENTS.items():
-            component = _load_factory(target)(ctx)
+        for name, factory in COMPONENTS.items():
+            component = factory(ctx)
             if component is not None:
                 self.components.append(component)
                 log.debug("component %s configured", name)
@@ -299,9 +283,3 @@ class Daemon:
                                self.latency.metrics.registry)
         return web.Response(text=text, content_type="text/plain", charset="utf-8")
 
-
-def _load_factory(target: str) -> Callable[[DaemonContext], Component | None]:
-    module_name, func = target.split(":")
-    factory: Callable[[DaemonContext], Component | None] = getattr(
-        importlib.import_module(module_name), func)
-    return factory

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import importlib
 import json
 import logging
 import os
@@ -16,6 +15,7 @@ from typing import Any
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.config import Config, ConfigError, load_config
+from sensors.rplidar import cli as lidar_cli
 
 LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING,
           "error": logging.ERROR}
@@ -180,7 +180,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:
-    result: int = importlib.import_module("sensors.rplidar.cli").run(args)
+    result: int = lidar_cli.run(args)
     return result
 
 
@@ -213,7 +213,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_lidar(sub: Any) -> None:
-    lidar_cli = importlib.import_module("sensors.rplidar.cli")
     lidar_cli.add_parser(sub)
     sub.choices["lidar"].set_defaults(func=cmd_lidar)
 

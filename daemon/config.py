@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import difflib
-import importlib
 import os
 import tomllib
 from collections.abc import Iterator, Mapping
@@ -10,24 +9,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.options import Options, defaults
+from base.options import Options, defaults
+from daemon import settings
+from drivers import DRIVERS, driver_class
+from sensors.rplidar.settings import LIDAR_OPTIONS
+from sim.settings import SIM_OPTIONS
 
 DEFAULT_PATH = Path("/etc/arbiterd/arbiterd.toml")
 BUILTIN = "<built-in defaults>"
 ENV_PREFIX = "ARBITERD_"
 
-# section => "module:ATTRIBUTE" holding its Options; each component owns its section.
-SECTIONS: dict[str, str] = {
-    "robot": "daemon.settings:ROBOT_OPTIONS",
-    "control": "daemon.settings:CONTROL_OPTIONS",
-    "limits": "daemon.settings:LIMITS_OPTIONS",
-    "driver": "daemon.settings:DRIVER_OPTIONS",
-    "lidar": "sensors.rplidar.settings:LIDAR_OPTIONS",
-    "http": "daemon.settings:HTTP_OPTIONS",
-    "rosbridge": "daemon.settings:ROSBRIDGE_OPTIONS",
-    "security": "daemon.settings:SECURITY_OPTIONS",
-    "sim": "sim.settings:SIM_OPTIONS",
-    "logging": "daemon.settings:LOGGING_OPTIONS",
+# section => its Options; each component owns its section.
+SECTIONS: dict[str, Options] = {
+    "robot": settings.ROBOT_OPTIONS,
+    "control": settings.CONTROL_OPTIONS,
+    "limits": settings.LIMITS_OPTIONS,
+    "driver": settings.DRIVER_OPTIONS,
+    "lidar": LIDAR_OPTIONS,
+    "http": settings.HTTP_OPTIONS,
+    "rosbridge": settings.ROSBRIDGE_OPTIONS,
+    "security": settings.SECURITY_OPTIONS,
+    "sim": SIM_OPTIONS,
+    "logging": settings.LOGGING_OPTIONS,
 }
 
 
@@ -63,17 +66,11 @@ class Config:
 def section_options(section: str) -> Options:
     """The Options table of a section, including ``driver.<name>`` subsections."""
     if section.startswith("driver."):
-        from drivers import driver_class
-
         return driver_class(section.split(".", 1)[1]).OPTIONS
-    module_name, attr = SECTIONS[section].split(":")
-    options: Options = getattr(importlib.import_module(module_name), attr)
-    return options
+    return SECTIONS[section]
 
 
 def all_sections() -> list[str]:
-    from drivers import DRIVERS
-
     return [*SECTIONS, *(f"driver.{name}" for name in DRIVERS)]
 
 

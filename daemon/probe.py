@@ -2,18 +2,16 @@
 from __future__ import annotations
 
 import asyncio
-import importlib
 import sys
-from typing import Any
+from collections.abc import Awaitable, Callable
 
 from daemon.config import Config, ConfigError
 from daemon.control.kinematics import DiffDrive
 from drivers import DriverError, MotorDriver, create_driver
+from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
 
-# config section => "module:function" probing that part's hardware; returns problems.
-PROBES: dict[str, str] = {
-    "lidar": "daemon.probe:probe_lidar",
-}
+# config section => a probe of that part's hardware; returns problems.
+PROBES: dict[str, Callable[[Config], Awaitable[list[str]]]] = {}
 
 
 def build_driver(config: Config, name: str | None = None) -> MotorDriver:
@@ -40,9 +38,7 @@ async def probe_hardware(config: Config) -> list[str]:
         problems.append(f"[driver] {config['driver']['type']}: {exc}")
     finally:
         await driver.close()
-    for section, target in PROBES.items():
-        module_name, func = target.split(":")
-        probe: Any = getattr(importlib.import_module(module_name), func)
+    for section, probe in PROBES.items():
         problems += [f"[{section}] {p}" for p in await probe(config)]
     return problems
 
@@ -61,8 +57,6 @@ async def probe_lidar(config: Config) -> list[str]:
 
 
 def _probe_lidar_blocking(port_path: str, baudrate: int) -> list[str]:
-    from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
-
     try:
         port = open_serial(port_path, baudrate)
     except LidarError as exc:
@@ -82,3 +76,6 @@ def _probe_lidar_blocking(port_path: str, baudrate: int) -> list[str]:
     if health.status == 2:
         return [f"{port_path}: the lidar reports a health error (code {health.error_code:#06x})"]
     return []
+
+
+PROBES["lidar"] = probe_lidar

@@ -1,7 +1,7 @@
 # Option tables of the daemon's own config sections ([robot], [control], [limits], [driver], ...).
 from __future__ import annotations
 
-from daemon.options import Option, Options
+from base.options import Option, Options
 
 ROBOT_OPTIONS: Options = {
     "name": Option(str, "arbiter", "robot name shown in /robot_info and the logs"),

@@ -10,7 +10,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
-from daemon.options import Options, defaults
+from base.options import Options, defaults
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
 
 MAX_REPLY_LINE = 64  # longest sane reply ("-2147483648 -2147483648" is 23 bytes)

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from daemon.options import Option, Options
+from base.options import Option, Options
 
 
 class DriverError(Exception):

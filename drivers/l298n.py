@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, TypeVar
 
-from daemon.options import Options
+from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
 from drivers.pigpio_pwm import (
     DUTY_MAP_OPTIONS,

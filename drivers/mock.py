@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from daemon.options import Options
+from base.options import Options
 from drivers.base import EncoderReading, MotorDriver, option
 
 

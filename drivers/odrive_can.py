@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 import can
 
-from daemon.options import Options
+from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
 
 # -- CANSimple wire format (pure: no I/O) -----------------------------------------------------

@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
-from daemon.options import Options
+from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
 
 T = TypeVar("T")

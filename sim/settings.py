@@ -5,7 +5,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from daemon.options import Option, Options, defaults
+from base.options import Option, Options, defaults
 from sim.noise import NoiseConfig
 from sim.world import Pose
 

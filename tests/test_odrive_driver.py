@@ -17,7 +17,7 @@ from typing import Any
 import can
 import pytest
 
-from daemon.options import Option
+from base.options import Option
 from drivers.base import DriverFault
 from drivers.odrive_can import (
     CMD_CLEAR_ERRORS,
@@ -544,7 +544,7 @@ async def test_standalone_emulator_in_another_process_over_udp_multicast(
 
 
 def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
-    from drivers.bench_odrive import run
+    from daemon.bench.driver_odrive import run
 
     results = {r.name: r for r in run(quick=True)}
     sent = results["odrive_can virtual command->sent p99"]

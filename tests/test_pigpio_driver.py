@@ -323,7 +323,7 @@ async def test_safe_stop_from_a_fresh_process_zeroes_running_motors() -> None:
 
 
 def test_bench_reports_command_latency_percentiles() -> None:
-    from drivers.bench_pigpio import run
+    from daemon.bench.driver_pigpio import run
 
     results = {r.name: r for r in run(quick=True)}
     assert all(r.suite == "drivers" and r.unit == "ms" for r in results.values())

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from sensors.rplidar import bench
+from daemon.bench import lidar as bench
 
 
 def test_bench_reports_every_figure() -> None:

@@ -16,7 +16,7 @@ from tests.daemon_proc import REPO, DaemonProcess, http, wait_for
 # Runs `arbiterd run` in-process through daemon.cli.main; registers the lidar component if the
 # daemon's component table does not list it yet (a no-op once it does).
 LAUNCH = ("import sys, daemon.app as app; "
-          "app.COMPONENTS.setdefault('lidar', 'sensors.rplidar.component:create'); "
+          "app.COMPONENTS.setdefault('lidar', 'daemon.lidar:create'); "
           "from daemon.cli import main; sys.exit(main(sys.argv[1:]))")
 
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from daemon.bus import Bus
+from daemon.lidar import create
 from sensors.rplidar.assembler import Revolution
 from sensors.rplidar.client import RplidarClient, open_serial
-from sensors.rplidar.component import create
 from sensors.rplidar.device import LidarManager, ManagerConfig
 from sensors.scan import LaserScan
 from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator

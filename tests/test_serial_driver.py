@@ -559,7 +559,7 @@ async def test_safe_stop_command_zeroes_the_motors(tmp_path: Path) -> None:
 
 
 def test_bench_reports_command_latency_percentiles() -> None:
-    from drivers.bench_serial import run
+    from daemon.bench.driver_serial import run
 
     results = {r.name: r for r in run(quick=True)}
     assert all(r.suite == "drivers" and r.unit == "ms" for r in results.values())

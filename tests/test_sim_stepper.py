@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.options import defaults
+from base.options import defaults
 from sim.motor_model import MotorPair
 from sim.physics import make_motors
 from sim.settings import SIM_OPTIONS, SimConfig, SimConfigError

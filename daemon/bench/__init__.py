@@ -38,9 +38,9 @@ def ms_result(suite: str, name: str, value_ms: float, note: str = "") -> BenchRe
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`
 SUITES: dict[str, str] = {
     "control": "daemon.bench.control",
-    "lidar": "sensors.rplidar.bench",
+    "lidar": "daemon.bench.lidar",
     "drivers": "daemon.bench.drivers",
-    "sim": "sim.bench",
+    "sim": "daemon.bench.sim",
     "process": "daemon.bench.process",
     "rosbridge": "daemon.bench.rosbridge",
 }

@@ -1,16 +1,14 @@
 # Driver benchmarks: command -> write latency of each driver against its emulator.
 from __future__ import annotations
 
-import importlib
-
-from daemon.bench import BenchResult
+from daemon.bench import BenchResult, driver_odrive, driver_pigpio, driver_serial
 
 # one module per driver, each with `run(quick) -> list[BenchResult]`
-DRIVER_BENCHES = ("drivers.bench_serial", "drivers.bench_pigpio", "drivers.bench_odrive")
+DRIVER_BENCHES = (driver_serial, driver_pigpio, driver_odrive)
 
 
 def run(quick: bool) -> list[BenchResult]:
     results: list[BenchResult] = []
     for module in DRIVER_BENCHES:
-        results += importlib.import_module(module).run(quick)
+        results += module.run(quick)
     return results

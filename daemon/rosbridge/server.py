@@ -15,7 +15,7 @@ from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.topics import log_msg, robot_topics
 
 if TYPE_CHECKING:
-    from daemon.app import DaemonContext
+    from daemon.component import DaemonContext
 
 log = logging.getLogger("arbiterd.rosbridge")
 

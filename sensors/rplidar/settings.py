@@ -1,7 +1,7 @@
 # The [lidar] config section: RPLIDAR port, scan mode, geometry of the published scan, recovery.
 from __future__ import annotations
 
-from daemon.options import Option, Options
+from base.options import Option, Options
 
 LIDAR_OPTIONS: Options = {
     "enabled": Option(bool, False, "read an RPLIDAR and publish /scan"),

@@ -8,7 +8,8 @@ from typing import Any
 
 from aiohttp import web
 
-from daemon.options import defaults
+from base.options import defaults
+from daemon.http_api import ApiError
 from sensors.rplidar.assembler import Revolution, ScanGeometry, to_laser_scan
 from sensors.rplidar.client import open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig, OpenPort
@@ -83,10 +84,6 @@ class LidarComponent:
 
 
 def _api_error(status: int, message: str, detail: Any) -> Exception:
-    try:
-        from daemon.http_api import ApiError
-    except ImportError:  # pragma: no cover - the daemon core always has it
-        return web.HTTPNotFound(text=message)
     return ApiError(status, message, {"lidar_state": detail})
 
 

@@ -1,0 +1,1 @@
+# The base layer: option types and small shared types every other package may import.
