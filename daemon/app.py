@@ -52,8 +52,9 @@ class Daemon:
         self.started_mono = time.monotonic()
         self.bus = Bus()
         self.latency = LatencyTracker()
-        self.security = Security(config.token, config["security"]["allowed_origins"],
-                                 config["security"]["read_requires_token"])
+        sec = config["security"]
+        self.security = Security(config.token, sec["allowed_origins"],
+                                 sec["read_requires_token"], sec["allowed_hosts"])
         self.components: list[Component] = []
         self.exit_code = EXIT_OK
         self.shutdown_reason = ""

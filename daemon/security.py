@@ -1,29 +1,94 @@
-# Who may drive: bearer-token checks and the browser Origin allow-list.
+# Who may reach and who may drive: the Host allow-list, the browser Origin check, the token.
 from __future__ import annotations
 
 import hmac
-from collections.abc import Mapping
+import ipaddress
+import socket
+from collections.abc import Iterable, Mapping
 from urllib.parse import urlsplit
 
 from aiohttp import web
 
 from daemon.http_api import ApiError
 
-LOCAL_HOSTS = {"localhost", "127.0.0.1", "::1", "[::1]"}
+LOCAL_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+
+
+def machine_names() -> set[str]:
+    """This machine's own names (short, fully qualified, and mDNS ``.local``), lower case."""
+    names = {socket.gethostname(), socket.getfqdn()}
+    short = {n.split(".", 1)[0] for n in names if n}
+    return {n.lower() for n in names | short | {f"{s}.local" for s in short} if n}
+
+
+def host_name(host_header: str) -> str | None:
+    """The name part of a ``Host`` header (``name``, ``name:port``, ``[v6]:port``), lower
+    case without a trailing dot; ``None`` when it is not a well-formed host."""
+    try:
+        parts = urlsplit(f"//{host_header}")
+        name, _ = parts.hostname, parts.port  # .port raises on a malformed port
+    except ValueError:
+        return None
+    if not name or parts.username is not None or parts.path or parts.query:
+        return None
+    return name.rstrip(".").lower()
+
+
+def is_ip_literal(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
 
 
 class Security:
-    """Token and Origin policy from ``[security]``."""
+    """``[security]``: which Host names the daemon answers to, which browser Origins may open
+    the WebSocket, and the token that everything moving the robot needs."""
 
-    def __init__(self, token: str, allowed_origins: list[str],
-                 read_requires_token: bool = False) -> None:
+    def __init__(self, token: str, allowed_origins: Iterable[str] = (),
+                 read_requires_token: bool = False, allowed_hosts: Iterable[str] = (),
+                 own_names: Iterable[str] | None = None) -> None:
         self.token = token
         self.allowed_origins = {o.rstrip("/").lower() for o in allowed_origins}
         self.read_requires_token = read_requires_token
+        own = machine_names() if own_names is None else set(own_names)
+        self.allowed_hosts = LOCAL_NAMES | {h.rstrip(".").lower() for h in allowed_hosts} | own
 
     @property
     def token_required(self) -> bool:
         return bool(self.token)
+
+    # -- who may reach it ----------------------------------------------------------------
+
+    def host_ok(self, host_header: str | None) -> bool:
+        """DNS rebinding guard: a browser tricked into calling the robot sends the attacker's
+        name as ``Host``. IP literals, localhost, this machine's names and ``allowed_hosts``
+        pass; a request without a ``Host`` header (not a browser) passes too."""
+        if host_header is None:
+            return True
+        name = host_name(host_header)
+        return name is not None and (is_ip_literal(name) or name in self.allowed_hosts)
+
+    def origin_ok(self, origin: str | None, host_header: str | None) -> bool:
+        """Non-browser clients send no Origin; a browser's Origin must be this host (same
+        name as an allowed Host), localhost, or listed in ``allowed_origins``."""
+        if not origin:
+            return True
+        if origin.rstrip("/").lower() in self.allowed_origins:
+            return True
+        parts = urlsplit(origin)
+        if parts.scheme not in ("http", "https") or parts.username is not None:
+            return False
+        origin_host = host_name(parts.netloc)
+        if origin_host is None:
+            return False
+        if origin_host in LOCAL_NAMES or origin_host in ("127.0.0.1", "::1"):
+            return True
+        request_host = host_name(host_header) if host_header else None
+        return origin_host == request_host and self.host_ok(host_header)
+
+    # -- who may drive -------------------------------------------------------------------
 
     def token_ok(self, headers: Mapping[str, str], query: Mapping[str, str]) -> bool:
         """``Authorization: Bearer T`` or ``?token=T`` (for browsers that cannot set headers)."""
@@ -42,14 +107,3 @@ class Security:
     def require_read(self, request: web.Request) -> None:
         if self.read_requires_token:
             self.require_token(request)
-
-    def origin_ok(self, origin: str | None, host_header: str | None) -> bool:
-        """Non-browser clients send no Origin; browsers must come from an allowed one."""
-        if not origin:
-            return True
-        parts = urlsplit(origin)
-        origin_host = (parts.hostname or "").lower()
-        if origin_host in LOCAL_HOSTS or origin.rstrip("/").lower() in self.allowed_origins:
-            return True
-        request_host = (urlsplit(f"//{host_header}").hostname or "").lower() if host_header else ""
-        return bool(request_host) and origin_host == request_host

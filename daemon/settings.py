@@ -87,6 +87,9 @@ SECURITY_OPTIONS: Options = {
     "allowed_origins": Option(list, [], "extra browser origins allowed on the WebSocket "
                               "(same host and localhost are always allowed)", item=str),
     "read_requires_token": Option(bool, False, "also require the token for read-only telemetry"),
+    "allowed_hosts": Option(list, [], "extra Host names the daemon answers to, besides IP "
+                            "addresses, localhost and this machine's names (incl. .local); "
+                            "any other Host gets 403 (DNS rebinding guard)", item=str),
 }
 
 LOGGING_OPTIONS: Options = {
