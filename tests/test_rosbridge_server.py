@@ -14,61 +14,10 @@ from typing import Any
 import aiohttp
 import pytest
 
-from daemon.app import Daemon
-from daemon.config import load_config
-from daemon.rosbridge.server import RosbridgeServer
-from tests.daemon_proc import free_port
+from tests.conftest import Robot, eventually
+from tests.conftest import running_robot as running_daemon
 
 TIMEOUT = 10.0
-
-
-class Robot:
-    """The running in-process daemon and where to reach it."""
-
-    def __init__(self, daemon: Daemon, ws_port: int, http_port: int) -> None:
-        self.daemon = daemon
-        self.ws_url = f"ws://127.0.0.1:{ws_port}/"
-        self.http_url = f"http://127.0.0.1:{http_port}"
-
-    @property
-    def ctx(self) -> Any:
-        assert self.daemon.ctx is not None
-        return self.daemon.ctx
-
-    @property
-    def driver(self) -> Any:
-        return self.ctx.control.driver
-
-    @property
-    def bridge(self) -> RosbridgeServer:
-        return next(c for c in self.daemon.components if isinstance(c, RosbridgeServer))
-
-    def moving(self) -> bool:
-        return bool(self.driver.commands) and any(
-            abs(v) > 1e-6 for v in (self.driver.commands[-1].left_rad_s,
-                                    self.driver.commands[-1].right_rad_s))
-
-
-@asynccontextmanager
-async def running_daemon(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[Robot]:
-    ws_port, http_port = free_port(), free_port()
-    config_path = tmp_path / "arbiterd.toml"
-    config_path.write_text(
-        f'[http]\nhost = "127.0.0.1"\nport = {http_port}\n'
-        f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-        f'[sim]\ndriver = "mock"\n' + extra_toml)
-    daemon = Daemon(load_config(config_path, sim=True))
-    task = asyncio.create_task(daemon.run())
-    deadline = time.monotonic() + TIMEOUT
-    while daemon.state == "startup":
-        assert not task.done(), f"daemon exited early: {task.result()}"
-        assert time.monotonic() < deadline, "daemon did not start"
-        await asyncio.sleep(0.01)
-    try:
-        yield Robot(daemon, ws_port, http_port)
-    finally:
-        daemon.request_shutdown("test over")
-        await asyncio.wait_for(task, TIMEOUT)
 
 
 class Client:
@@ -139,20 +88,6 @@ async def connect(url: str, **kw: Any) -> AsyncIterator[Client]:
         yield Client(ws)
 
 
-@pytest.fixture
-async def robot(tmp_path: Path) -> AsyncIterator[Robot]:
-    async with running_daemon(tmp_path) as running:
-        yield running
-
-
-async def wait_until(predicate: Callable[[], Any], what: str) -> Any:
-    deadline = time.monotonic() + TIMEOUT
-    while not (value := predicate()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        await asyncio.sleep(0.01)
-    return value
-
-
 TWIST = {"linear": {"x": 0.3, "y": 0, "z": 0}, "angular": {"x": 0, "y": 0, "z": 0.2}}
 
 
@@ -164,7 +99,7 @@ async def test_cmd_vel_drives_with_either_type_spelling(robot: Robot, spelling: 
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/cmd_vel", type=spelling, id="adv")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST)
-        await wait_until(robot.moving, "the wheels to turn")
+        await eventually(robot.moving, "the wheels to turn")
         reply = await client.call("/rosapi/topic_type", {"topic": "/cmd_vel"})
         assert reply["values"] == {"type": "geometry_msgs/msg/Twist"}
         assert not [m for m in client.received if m.get("op") == "status"]
@@ -175,7 +110,7 @@ async def test_twist_stamped_on_cmd_vel_and_publish_without_advertise(robot: Rob
         await client.send(op="publish", topic="cmd_vel", msg={
             "header": {"stamp": {"secs": 1, "nsecs": 2}, "frame_id": "base_link"},
             "twist": TWIST})
-        await wait_until(robot.moving, "the wheels to turn")
+        await eventually(robot.moving, "the wheels to turn")
 
 
 async def test_bad_command_is_a_status_error_and_no_motion(robot: Robot) -> None:
@@ -216,15 +151,15 @@ async def test_stamped_command_gets_a_latency_report(robot: Robot) -> None:
 async def test_estop_topic_latches_and_refuses_commands(robot: Robot) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="publish", topic="/estop", msg={"data": True})
-        await wait_until(lambda: robot.ctx.control.arbiter.estop_engaged, "the e-stop")
+        await eventually(lambda: robot.ctx.control.arbiter.estop_engaged, "the e-stop")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST, id="refused")
         status = await client.op("status", id="refused")
         assert "e-stop engaged" in status["msg"]
         assert not robot.moving()
         await client.send(op="publish", topic="/estop", msg={"data": False})
-        await wait_until(lambda: not robot.ctx.control.arbiter.estop_engaged, "the release")
+        await eventually(lambda: not robot.ctx.control.arbiter.estop_engaged, "the release")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST)
-        await wait_until(robot.moving, "the wheels to turn after release")
+        await eventually(robot.moving, "the wheels to turn after release")
 
 
 async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> None:
@@ -251,16 +186,16 @@ async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> 
             await asyncio.sleep(0.02)
             speed = driver.commands[-1].left_rad_s
         t_close = time.monotonic()
-    await wait_until(lambda: drops, "the server to drop the client's command source")
-    braking = await wait_until(lambda: next(
+    await eventually(lambda: drops, "the server to drop the client's command source")
+    braking = await eventually(lambda: next(
         (c for c in driver.commands if c.t_mono > t_close and c.left_rad_s < speed), None),
         "a braking write")
     ticks_before = len([t for t in ticks if t <= drops[0]])
-    await wait_until(lambda: len(ticks) >= ticks_before + 2, "two more ticks")
+    await eventually(lambda: len(ticks) >= ticks_before + 2, "two more ticks")
     # braking starts on the disconnect itself, not at a later tick: at the latest it lands
     # behind a tick that was already running when the disconnect arrived
     assert braking.t_mono <= ticks[ticks_before + 1], "the brake waited for more than a tick"
-    await wait_until(lambda: driver.commands[-1].left_rad_s == 0.0, "the wheels to stop")
+    await eventually(lambda: driver.commands[-1].left_rad_s == 0.0, "the wheels to stop")
     assert robot.ctx.control.decision.reason in ("deadman: no valid command", "idle")
 
 
@@ -296,7 +231,7 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: Robot) -> None:
 
 
 async def test_robot_info_latest_value_on_subscribe(robot: Robot) -> None:
-    await wait_until(lambda: robot.ctx.bus.latest("robot_info"), "a robot_info")
+    await eventually(lambda: robot.ctx.bus.latest("robot_info"), "a robot_info")
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/robot_info")
         info = await client.op("publish", topic="/robot_info")
@@ -330,7 +265,7 @@ async def test_throttle_rate_drops_messages_inside_the_window(robot: Robot) -> N
         await sub.op("publish", topic="/marker")
         await sub.op("publish", topic="/chatter")
         assert sub.published("/chatter") == [{"data": "0"}]
-        queues = [c.outbox.topics["/chatter"] for c in robot.bridge.clients.values()
+        queues = [c.outbox.topics["/chatter"] for c in robot.component("rosbridge").clients.values()
                   if "/chatter" in c.outbox.topics]
         assert len(queues) == 1
         assert queues[0].dropped == 9 and not queues[0].queue
@@ -359,7 +294,7 @@ async def test_several_subscriptions_merge_and_unsubscribe_by_id(robot: Robot) -
         await client.send(op="subscribe", topic="/odom", throttle_rate=1000, id="a")
         await client.send(op="subscribe", topic="/odom", throttle_rate=50, id="b")
         await client.call("/rosapi/get_time")
-        session = next(iter(robot.bridge.clients.values()))
+        session = next(iter(robot.component("rosbridge").clients.values()))
         assert session.outbox.topics["/odom"].options.throttle_s == 0.05
         await client.send(op="unsubscribe", topic="/odom", id="b")
         await client.call("/rosapi/get_time", rid="second")
@@ -367,7 +302,7 @@ async def test_several_subscriptions_merge_and_unsubscribe_by_id(robot: Robot) -
         await client.send(op="unsubscribe", topic="/odom")
         await client.call("/rosapi/get_time", rid="third")
         assert "/odom" not in session.outbox.topics
-        assert session not in robot.bridge.graph.topics["/odom"].subscribers
+        assert session not in robot.component("rosbridge").graph.topics["/odom"].subscribers
 
 
 async def test_fragments_in_both_directions(robot: Robot) -> None:
@@ -377,7 +312,7 @@ async def test_fragments_in_both_directions(robot: Robot) -> None:
         for num, piece in reversed(list(enumerate(pieces))):
             await client.send(op="fragment", id="frag-1", data=piece, num=num,
                               total=len(pieces))
-        await wait_until(robot.moving, "the fragmented command to drive")
+        await eventually(robot.moving, "the fragmented command to drive")
         await client.send(op="subscribe", topic="/odom", fragment_size=200)
         parts: list[dict[str, Any]] = []
         first = await client.op("fragment", num=0)
@@ -621,7 +556,7 @@ async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> No
             await wrong.op("status", id="pub")
         async with connect(robot.ws_url + "?token=s3cret") as by_query:
             await by_query.send(op="publish", topic="/cmd_vel", msg=TWIST)
-            await wait_until(robot.moving, "driving with ?token=")
+            await eventually(robot.moving, "driving with ?token=")
         async with connect(robot.ws_url, headers={"Authorization": "Bearer s3cret"}) as header:
             await header.send(op="publish", topic="/cmd_vel", msg=TWIST, id="ok")
             await header.call("/rosapi/get_time")
@@ -645,16 +580,16 @@ async def test_origin_allow_list(tmp_path: Path) -> None:
         assert await _upgrade_status(url, Origin="http://localhost:3000") == 101
         assert await _upgrade_status(url, Origin="https://console.example") == 101
         assert await _upgrade_status(url, Origin="http://127.0.0.1:8080") == 101
-        assert robot.bridge.refused["origin"] == 1
+        assert robot.component("rosbridge").refused["origin"] == 1
 
 
 async def test_client_limit(tmp_path: Path) -> None:
     async with running_daemon(tmp_path) as robot:
-        robot.bridge.max_clients = 2
+        robot.component("rosbridge").max_clients = 2
         async with connect(robot.ws_url), connect(robot.ws_url) as second:
             await second.call("/rosapi/get_time")
             assert await _upgrade_status(robot.ws_url) == 503
-        await wait_until(lambda: not robot.bridge.clients, "the clients to leave")
+        await eventually(lambda: not robot.component("rosbridge").clients, "the clients to leave")
         assert await _upgrade_status(robot.ws_url) == 101
 
 

@@ -1,0 +1,127 @@
+# The shared test vocabulary: waiting, comparing, ports, and the robot in-process or as a process.
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.app import Daemon
+from daemon.config import load_config
+from tests.daemon_proc import DaemonProcess, free_port
+
+__all__ = ["DaemonProcess", "Robot", "close_to", "eventually", "free_port", "running_robot",
+           "wait_for"]
+
+DEFAULT_WITHIN_S = 10.0
+
+
+def wait_for(condition: Callable[[], Any], what: str = "condition",
+             within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.01) -> Any:
+    """Poll ``condition`` (from plain code) until it returns something truthy, and return it;
+    fail naming ``what`` after ``within_s``."""
+    deadline = time.monotonic() + within_s
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
+        time.sleep(interval_s)
+    return value
+
+
+async def eventually(condition: Callable[[], Any], what: str = "condition",
+                     within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.005) -> Any:
+    """``wait_for`` for async tests: the event loop keeps running between polls."""
+    deadline = time.monotonic() + within_s
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
+        await asyncio.sleep(interval_s)
+    return value
+
+
+def close_to(actual: float | Sequence[float], expected: float | Sequence[float],
+             tol: float) -> bool:
+    """Each value of ``actual`` within ``tol`` of ``expected`` (numbers or equal-length pairs)."""
+    if isinstance(actual, int | float) and isinstance(expected, int | float):
+        return abs(actual - expected) <= tol
+    assert not isinstance(actual, int | float) and not isinstance(expected, int | float)
+    return all(abs(a - e) <= tol for a, e in zip(actual, expected, strict=True))
+
+
+class Robot:
+    """The daemon running in the test's own event loop (simulated mode), and where to reach it."""
+
+    def __init__(self, daemon: Daemon, ws_port: int, http_port: int) -> None:
+        self.daemon = daemon
+        self.ws_url = f"ws://127.0.0.1:{ws_port}/"
+        self.http_url = f"http://127.0.0.1:{http_port}"
+
+    @property
+    def ctx(self) -> Any:
+        assert self.daemon.ctx is not None
+        return self.daemon.ctx
+
+    @property
+    def driver(self) -> Any:
+        return self.ctx.control.driver
+
+    def component(self, name: str) -> Any:
+        return next(c for c in self.daemon.components if c.name == name)
+
+    def moving(self) -> bool:
+        """The mock driver's last command turns a wheel."""
+        commands = self.driver.commands
+        return bool(commands) and any(
+            abs(v) > 1e-6 for v in (commands[-1].left_rad_s, commands[-1].right_rad_s))
+
+
+@asynccontextmanager
+async def running_robot(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[Robot]:
+    """``arbiterd run --sim`` with the mock driver, in-process, on free ports."""
+    ws_port, http_port = free_port(), free_port()
+    config_path = tmp_path / "arbiterd.toml"
+    config_path.write_text(
+        f'[http]\nhost = "127.0.0.1"\nport = {http_port}\n'
+        f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
+        f'[sim]\ndriver = "mock"\n' + extra_toml)
+    daemon = Daemon(load_config(config_path, sim=True))
+    task = asyncio.create_task(daemon.run())
+    await eventually(lambda: daemon.state != "startup" or task.done(), "the daemon to start")
+    assert not task.done(), f"daemon exited early: {task.result()}"
+    try:
+        yield Robot(daemon, ws_port, http_port)
+    finally:
+        daemon.request_shutdown("test over")
+        await asyncio.wait_for(task, DEFAULT_WITHIN_S)
+
+
+@pytest.fixture
+async def robot(tmp_path: Path) -> AsyncIterator[Robot]:
+    """The in-process robot with the default config."""
+    async with running_robot(tmp_path) as running:
+        yield running
+
+
+@pytest.fixture
+def daemon_process(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
+    """A factory of ``arbiterd run`` subprocesses (``DaemonProcess``); each is killed at the
+    end of the test if it is still running."""
+    started: list[DaemonProcess] = []
+
+    def start(extra_toml: str = "", **kw: Any) -> DaemonProcess:
+        wait_ready = kw.pop("wait_ready", True)
+        workdir = tmp_path / f"daemon{len(started)}"
+        workdir.mkdir()
+        process = DaemonProcess(workdir, extra_toml, **kw)
+        started.append(process)
+        return process.start(wait_ready=wait_ready)
+
+    yield start
+    for process in started:
+        process.__exit__(None, None, None)
+
+
