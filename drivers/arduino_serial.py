@@ -5,6 +5,8 @@ import asyncio
 import contextlib
 import math
 import os
+import select
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -102,6 +104,8 @@ class BridgeLink:
     Requests are written at once (never queued behind a slow one) and replies are matched to
     them in order, as the firmware answers one line per command. A timeout, a garbled line or
     an unexpected line poisons the link (``error`` set); a read error or EOF marks it lost.
+    Writes happen under a lock that :meth:`send_now` shares, so another thread can put a
+    line on the wire between two of the event loop's, never inside one.
     """
 
     def __init__(self, port: Any, on_fault: Callable[[str], None]) -> None:
@@ -110,10 +114,12 @@ class BridgeLink:
         self._loop = asyncio.get_running_loop()
         self._on_fault = on_fault
         self._splitter = LineSplitter()
-        self._pending: deque[tuple[str, asyncio.Future[str]]] = deque()
+        self._pending: deque[tuple[str, asyncio.Future[str] | None]] = deque()
         self._out = bytearray()
+        self._write_lock = threading.RLock()
         self.error: str | None = None
         self.lost = False
+        self.closed = False
         self.last_rx_mono = 0.0
         self._loop.add_reader(self._fd, self._on_readable)
 
@@ -123,8 +129,9 @@ class BridgeLink:
         if self.error is not None:
             raise DriverFault(self.error)
         future: asyncio.Future[str] = self._loop.create_future()
-        self._pending.append((command, future))
-        self.send(line)
+        with self._write_lock:  # the reply order is the write order, also for send_now()
+            self._pending.append((command, future))
+            self.send(line)
         try:
             return await asyncio.wait_for(asyncio.shield(future), reply_within_s)
         except TimeoutError:
@@ -153,7 +160,9 @@ class BridgeLink:
         self._loop.remove_reader(self._fd)
         self._loop.remove_writer(self._fd)
         self._fail_pending(DriverFault("serial link closed"))
-        self._port.close()
+        with self._write_lock:  # send_now() must never write to a closed (reused) fd
+            self.closed = True
+            self._port.close()
 
     def _on_readable(self) -> None:
         try:
@@ -177,20 +186,21 @@ class BridgeLink:
         if not self._pending:
             raise ProtocolError(f"unexpected line from the board: {line!r}")
         _, future = self._pending.popleft()
-        if not future.done():
+        if future is not None and not future.done():  # None: send_now()'s, nobody waits
             future.set_result(line)
 
     def _on_writable(self) -> None:
-        try:
-            written = os.write(self._fd, self._out)
-        except BlockingIOError:
-            return
-        except OSError as exc:
-            self._lose(f"serial write failed: {exc}")
-            return
-        del self._out[:written]
-        if not self._out:
-            self._loop.remove_writer(self._fd)
+        with self._write_lock:
+            try:
+                written = os.write(self._fd, self._out)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                self._lose(f"serial write failed: {exc}")
+                return
+            del self._out[:written]
+            if not self._out:
+                self._loop.remove_writer(self._fd)
 
     def _poison(self, reason: str) -> None:
         if self.error is None:
@@ -208,9 +218,47 @@ class BridgeLink:
     def _fail_pending(self, exc: DriverFault) -> None:
         while self._pending:
             _, future = self._pending.popleft()
-            if not future.done():
+            if future is not None and not future.done():
                 future.set_exception(exc)
                 future.exception()  # mark retrieved: nobody may be waiting any more
+
+    def send_now(self, line: bytes, within_s: float) -> bool:
+        """Write one command from any thread, without the event loop; True when it went out.
+
+        Bytes the loop still had queued go first, so the line never lands inside another;
+        its reply is expected in order and dropped. Waits at most ``within_s`` for the lock
+        and the port.
+        """
+        deadline = time.monotonic() + within_s
+        if not self._write_lock.acquire(timeout=within_s):
+            return False
+        try:
+            if self.closed or self.lost:
+                return False
+            data, queued = bytes(self._out) + line, bool(self._out)
+            self._out.clear()
+            self._pending.append((line.decode("ascii").rstrip("\r"), None))
+            data = self._write_until(data, deadline)
+            if data:  # the board does not take bytes: leave the rest to the loop's writer
+                self._out += data
+                if not queued:
+                    self._loop.call_soon_threadsafe(self._loop.add_writer, self._fd,
+                                                    self._on_writable)
+            return not data
+        finally:
+            self._write_lock.release()
+
+    def _write_until(self, data: bytes, deadline: float) -> bytes:
+        """Write what the port takes before ``deadline``; the bytes left over."""
+        while data:
+            with contextlib.suppress(BlockingIOError):
+                data = data[os.write(self._fd, data):]
+            if data:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                select.select([], [self._fd], [], remaining)
+        return data
 
 
 # -- the driver ---------------------------------------------------------------------------------
@@ -251,6 +299,9 @@ class SerialBridgeDriver(MotorDriver):
         "invert_left": option(bool, False, "left motor and encoder mounted mirrored"),
         "invert_right": option(bool, False, "right motor and encoder mounted mirrored"),
     }
+
+    #: how long emergency_stop() waits for the port to take ``m 0 0``
+    EMERGENCY_WRITE_TIMEOUT_S = 0.1
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
         super().__init__(_validated(self.OPTIONS, options), max_wheel_speed=max_wheel_speed)
@@ -416,6 +467,14 @@ class SerialBridgeDriver(MotorDriver):
         self._wire_sent_mono = time.monotonic()
         parse_ok(line[:1].decode(), await self._request(line))
         self.keepalives += 1
+
+    def _emergency_zero(self) -> bool:
+        link = self._link
+        if link is None:
+            return False
+        stop = self._stop_command()
+        self._wire_command, self._wire_sent_mono = stop, time.monotonic()  # no keep-alive
+        return link.send_now(stop, self.EMERGENCY_WRITE_TIMEOUT_S)
 
     def _health(self) -> dict[str, Any]:
         return {

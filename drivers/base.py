@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
@@ -44,7 +45,7 @@ class MotorDriver(ABC):
     ``max_wheel_speed`` (rad/s), refuse after ``close()``, time each write, turn hardware
     exceptions into :class:`DriverFault`, and keep the health counters. A subclass implements
     the hardware part: ``_open``, ``_apply``, ``_close`` and optionally ``_read_encoders``,
-    ``_health`` and ``_safe_stop``.
+    ``_health`` and ``_safe_stop``, and ``_emergency_zero`` for :meth:`emergency_stop`.
 
     A driver that notices a fault on its own (a missed heartbeat, a vanished peer) calls
     :meth:`report_fault`; the control loop polls :attr:`fault` every tick, stops the wheels and
@@ -65,6 +66,11 @@ class MotorDriver(ABC):
         self.last_command: tuple[float, float] = (0.0, 0.0)
         self.last_write_mono: float | None = None
         self.last_write_duration_s = 0.0
+        self.emergency_stops = 0
+        self.emergency_failures = 0
+        self.last_emergency_error = ""
+        self.last_emergency_duration_s = 0.0
+        self._emergency_count_lock = threading.Lock()
 
     async def open(self) -> None:
         """Connect to the hardware. May be called again after ``close()`` to reconnect."""
@@ -148,6 +154,31 @@ class MotorDriver(ABC):
         self.last_command = (0.0, 0.0)
         return True
 
+    def emergency_stop(self) -> bool:
+        """Zero the wheels now, from any thread, without the event loop; True when it went out.
+
+        The stall supervisor's path: synchronous, bounded in time (each driver uses its own
+        lock or connection, with timeouts), never raises, counted in :meth:`health`. Before
+        ``open()`` and after ``close()`` it does nothing and returns False.
+        """
+        if self.is_closed or not self.is_open:
+            return False
+        start = time.monotonic()
+        try:
+            ok = bool(self._emergency_zero())
+            error = "" if ok else "the hardware could not be reached"
+        except Exception as exc:  # the supervisor thread must never die of a driver error
+            ok, error = False, f"{type(exc).__name__}: {exc}"
+        with self._emergency_count_lock:
+            self.emergency_stops += 1
+            self.last_emergency_duration_s = time.monotonic() - start
+            if not ok:
+                self.emergency_failures += 1
+                self.last_emergency_error = error
+        if ok:
+            self.last_command = (0.0, 0.0)
+        return ok
+
     def report_fault(self, reason: str) -> None:
         """Mark the driver faulted; the control loop stops and reconnects it."""
         if self.fault is None:
@@ -165,6 +196,10 @@ class MotorDriver(ABC):
             "write_errors": self.write_errors,
             "last_command_rad_s": list(self.last_command),
             "last_write_ms": round(self.last_write_duration_s * 1e3, 4),
+            "emergency_stops": self.emergency_stops,
+            "emergency_failures": self.emergency_failures,
+            "last_emergency_ms": round(self.last_emergency_duration_s * 1e3, 3),
+            "last_emergency_error": self.last_emergency_error,
             **self._health(),
         }
 
@@ -189,6 +224,15 @@ class MotorDriver(ABC):
     @abstractmethod
     async def _close(self) -> None:
         """Release the hardware; the wheels were already stopped if that was possible."""
+
+    @abstractmethod
+    def _emergency_zero(self) -> bool:
+        """Command zero on both wheels from a thread that is not the event loop's.
+
+        Use the driver's own lock or connection (never the event loop), bound every wait, and
+        leave nothing behind that would re-send an older speed (keep-alives). True when the
+        zero command went out.
+        """
 
     async def _read_encoders(self) -> EncoderReading | None:
         return None

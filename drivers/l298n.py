@@ -6,6 +6,7 @@ import contextlib
 import math
 import os
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, TypeVar
@@ -136,6 +137,7 @@ class L298NDriver(MotorDriver):
         self._encoders: list[Any] = []
         self._offsets = [0, 0]
         self._values: list[float | None] = [None, None]
+        self._write_lock = threading.Lock()  # motor writes: loop or worker, and emergency_stop()
         self._io: SerialExecutor | None = None
         self._watch: asyncio.Task[None] | None = None
         self.connects = 0
@@ -242,7 +244,7 @@ class L298NDriver(MotorDriver):
             values.append(-duty if o[f"{side}_invert"] else duty)
         if not self._motors:
             raise DriverFault("l298n: motors are not set up")
-        await self._call(self._write, values)
+        await self._call(self._write_locked, values)
 
     def _write(self, values: list[float]) -> None:
         try:
@@ -299,3 +301,30 @@ class L298NDriver(MotorDriver):
         if self.remote:
             extra["pigpiod"] = f"{o['pigpio_host']}:{o['pigpio_port']}"
         return extra
+
+    # -- emergency path (any thread) -----------------------------------------------------------
+
+    def _write_locked(self, values: list[float]) -> None:
+        with self._write_lock:
+            self._write(values)
+
+    def _emergency_zero(self) -> bool:
+        """gpiozero's ``Motor.stop()`` on both sides, under the write lock.
+
+        gpiozero does not lock a Motor (a speed change is two pin writes), so the driver's own
+        lock keeps these from interleaving with the event loop's or the worker thread's; with
+        the pigpio pin factory each pin write waits at most ``timeout`` for pigpiod.
+        """
+        if not self._write_lock.acquire(timeout=self.options["timeout"]):
+            return False
+        try:
+            motors = list(self._motors)
+            if not motors:
+                return False
+            self._values = [None, None]  # whatever happens next, the next write sends both
+            for motor in motors:
+                motor.stop()
+            self._values = [0.0, 0.0]
+            return True
+        finally:
+            self._write_lock.release()

@@ -1,6 +1,7 @@
 # Mock driver: records every command with its time; ideal wheels give exact encoders.
 from __future__ import annotations
 
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -43,6 +44,7 @@ class MockDriver(MotorDriver):
         self._speeds = (0.0, 0.0)
         self._since = time.monotonic()
         self._log: Any = None
+        self._lock = threading.Lock()  # commands from the event loop and emergency_stop()
         #: called with (left, right) after every write (the simulator turns its wheels here)
         self.listeners: list[Callable[[float, float], None]] = []
 
@@ -57,21 +59,15 @@ class MockDriver(MotorDriver):
             self._log = open(self.options["log_file"], "a", buffering=1)  # noqa: SIM115, ASYNC230
 
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
-        now = time.monotonic()
-        self._integrate(now)
-        self._speeds = (left_rad_s, right_rad_s)
-        self.commands.append(RecordedCommand(now, left_rad_s, right_rad_s))
-        if self._log is not None:
-            self._log.write(f"{now:.6f} {left_rad_s:.6f} {right_rad_s:.6f}\n")
-        for listener in self.listeners:
-            listener(left_rad_s, right_rad_s)
+        self._record(left_rad_s, right_rad_s)
 
     async def _read_encoders(self) -> EncoderReading | None:
         if not self.options["encoders"]:
             return None
-        now = time.monotonic()
-        self._integrate(now)
-        return EncoderReading(self._positions[0], self._positions[1], now)
+        with self._lock:
+            now = time.monotonic()
+            self._integrate(now)
+            return EncoderReading(self._positions[0], self._positions[1], now)
 
     async def _close(self) -> None:
         self._integrate(time.monotonic())
@@ -88,3 +84,19 @@ class MockDriver(MotorDriver):
 
     def _health(self) -> dict[str, Any]:
         return {"recorded_commands": len(self.commands)}
+
+    def _emergency_zero(self) -> bool:
+        self._record(0.0, 0.0)
+        return True
+
+    def _record(self, left_rad_s: float, right_rad_s: float) -> None:
+        """Take one command (the event loop's or the emergency path's), under the lock."""
+        with self._lock:
+            now = time.monotonic()
+            self._integrate(now)
+            self._speeds = (left_rad_s, right_rad_s)
+            self.commands.append(RecordedCommand(now, left_rad_s, right_rad_s))
+            if self._log is not None:
+                self._log.write(f"{now:.6f} {left_rad_s:.6f} {right_rad_s:.6f}\n")
+            for listener in self.listeners:
+                listener(left_rad_s, right_rad_s)

@@ -535,6 +535,28 @@ class ODriveCanDriver(MotorDriver):
             "axes": {axis.side: _axis_health(axis, now) for axis in self._axes.values()},
         }
 
+    # -- emergency path (any thread) ---------------------------------------------------------
+
+    def _emergency_zero(self) -> bool:
+        """Set_Input_Vel 0 to both axes, straight onto the bus, each send bounded.
+
+        No lock is needed: python-can's send is safe from several threads on the interfaces
+        used here (socketcan and udp_multicast send one datagram per frame; virtual puts a
+        copy on each peer's thread-safe queue), and each frame is complete on its own.
+        """
+        bus = self._bus
+        if bus is None:
+            return False
+        sent = 0
+        for axis in self._axes.values():
+            axis.command_rev_s = 0.0  # the keep-alive re-sends zero from now on
+            with contextlib.suppress(can.CanError, OSError):
+                bus.send(_frame(axis.node_id, CMD_SET_INPUT_VEL, encode_set_input_vel(0.0)),
+                         timeout=self.SEND_TIMEOUT_S)
+                sent += 1
+        self.frames_tx += sent
+        return sent == len(self._axes)
+
 
 def _axis_health(axis: _Axis, now: float) -> dict[str, Any]:
     hb = axis.heartbeat

@@ -232,6 +232,7 @@ class PigpioDriver(MotorDriver):
         self.hw_pins = self._hardware_pwm_pins()
         self.decoders = (QuadratureDecoder(), QuadratureDecoder())
         self._decoder_lock = threading.Lock()
+        self._write_lock = threading.Lock()  # duty writes: the worker thread and emergency_stop()
         self._pi: Any = None
         self._io: SerialExecutor | None = None
         self._watch: asyncio.Task[None] | None = None
@@ -360,7 +361,7 @@ class PigpioDriver(MotorDriver):
         duties = (self._duty(left_rad_s, self.sides[0]), self._duty(right_rad_s, self.sides[1]))
         if self._io is None:
             raise DriverFault("pigpio: not connected")
-        await self._io.call(self._write_duties, duties)
+        await self._io.call(self._write_duties_locked, duties)
 
     def _duty(self, speed: float, side: Side) -> float:
         o = self.options
@@ -458,6 +459,40 @@ class PigpioDriver(MotorDriver):
             else None,
             "encoder_errors": sum(d.errors for d in self.decoders),
         }
+
+    # -- emergency path (any thread) -----------------------------------------------------------
+
+    def _write_duties_locked(self, duties: tuple[float, float]) -> None:
+        with self._write_lock:
+            self._write_duties(duties)
+
+    def _emergency_zero(self) -> bool:
+        """Duty 0 on both PWM pins, then both direction pins low, on the driver's connection.
+
+        pigpio's client locks each command on its socket, and the write lock keeps these
+        writes from interleaving with the worker thread's; each command waits at most
+        ``timeout`` for pigpiod's reply.
+        """
+        if not self._write_lock.acquire(timeout=self.options["timeout"]):
+            return False
+        try:
+            pi = self._pi
+            if pi is None or not pi.connected:
+                return False
+            self._written = {}  # whatever happens next, the next write sends every pin
+            for side in self.sides:
+                if side.pwm in self.hw_pins:
+                    pi.hardware_PWM(side.pwm, self.options["pwm_frequency"], 0)
+                else:
+                    pi.set_PWM_dutycycle(side.pwm, 0)
+            for side in self.sides:
+                pi.write(side.in1, 0)
+                pi.write(side.in2, 0)
+            self._written = {pin: 0 for side in self.sides
+                             for pin in (side.pwm, side.in1, side.in2)}
+            return True
+        finally:
+            self._write_lock.release()
 
 
 def check_pins(opts: Mapping[str, Any], keys: list[str], section: str) -> None:
