@@ -35,6 +35,9 @@ CONTROL_OPTIONS: Options = {
                                        length=6, minval=0.0),
     "twist_covariance_diagonal": Option(list, _COVARIANCE_DEFAULT, "odometry twist covariance "
                                         "diagonal", item=float, length=6, minval=0.0),
+    "stall_stop_s": Option(float, 0.2, "zero the wheels from a thread when the control tick "
+                           "has not run for this long (blocked event loop), s (0 disables it, "
+                           "with a warning)", minval=0.0, maxval=10.0),
     "late_tick_ms": Option(float, 5.0, "a tick later than this is late: the systemd watchdog "
                            "is not pet", above=0.0, maxval=1000.0),
     "reconnect_min_s": Option(float, 0.5, "first driver reconnect delay after a fault, s",

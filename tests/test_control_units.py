@@ -12,6 +12,7 @@ from daemon.control.commands import CommandError, Twist, parse_twist
 from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.odometry import Odometry
+from daemon.control.supervisor import RETRY_S, StallSupervisor
 
 LIMITS = AxisLimits(max_velocity=2.0, max_acceleration=1.0, max_deceleration=2.0,
                     emergency_deceleration=4.0)
@@ -154,3 +155,96 @@ def test_odometry_open_loop_arc() -> None:
     for _ in range(1000):
         odo.update_open_loop(math.pi / 10, math.pi / 10, 0.01)  # half circle of radius 1 in 10 s
     assert odo.x == pytest.approx(0.0, abs=1e-6) and odo.y == pytest.approx(2.0, abs=1e-6)
+
+
+# -- stall supervisor (its decisions, on a fake clock; the thread is in test_stall_supervisor) --
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class StubDriver:
+    """Answers ``emergency_stop()`` from a script (True = the hardware took it)."""
+
+    def __init__(self, *answers: bool) -> None:
+        self.answers = list(answers)
+        self.calls = 0
+        self.last_emergency_error = "no reply from pigpiod (timed out)"
+
+    def emergency_stop(self) -> bool:
+        self.calls += 1
+        return self.answers.pop(0) if self.answers else True
+
+
+def supervisor(driver: StubDriver, stall_stop_s: float = 0.2) -> tuple[StallSupervisor,
+                                                                        FakeClock]:
+    clock = FakeClock()
+    return StallSupervisor(driver, stall_stop_s, clock=clock), clock  # type: ignore[arg-type]
+
+
+def test_supervisor_waits_for_the_configured_time() -> None:
+    driver = StubDriver()
+    sup, clock = supervisor(driver)
+    clock.now += 0.15
+    sup.beat()
+    clock.now += 0.19
+    assert sup.check() == pytest.approx(0.01)  # next check due when the stall would begin
+    assert driver.calls == 0 and not sup.stalled() and not sup.take_stop()
+
+
+def test_supervisor_stops_once_per_stall_and_latches_for_the_loop() -> None:
+    driver = StubDriver()
+    sup, clock = supervisor(driver)
+    clock.now += 0.25
+    sup.check()
+    assert driver.calls == 1 and sup.stall_stops == 1 and sup.stalled()
+    clock.now += 2.0
+    sup.check()  # the same stall: the wheels are already zeroed
+    assert driver.calls == 1
+    assert sup.take_stop() and not sup.take_stop()  # the loop forgets its commands once
+    sup.beat()  # the tick runs again
+    assert sup.health()["longest_stall_ms"] == pytest.approx(2250.0)
+    assert sup.health()["last_stall_ms"] == pytest.approx(250.0)
+    clock.now += 0.3
+    sup.check()  # a second stall
+    assert driver.calls == 2 and sup.stall_stops == 2
+
+
+def test_supervisor_retries_an_emergency_stop_that_failed(caplog: pytest.LogCaptureFixture) -> None:
+    driver = StubDriver(False, False, True)
+    sup, clock = supervisor(driver)
+    clock.now += 0.3
+    assert sup.check() == RETRY_S
+    assert not sup.take_stop()  # nothing to forget yet: the wheels were not stopped
+    clock.now += RETRY_S
+    sup.check()
+    clock.now += RETRY_S
+    sup.check()
+    assert driver.calls == 3 and sup.failed_stops == 2 and sup.stall_stops == 1
+    assert sup.take_stop()
+    failures = [r for r in caplog.records if "did not reach the driver" in r.getMessage()]
+    assert len(failures) == 1 and "timed out" in failures[0].getMessage()  # logged once
+
+
+def test_supervisor_health_reports_a_stall_in_progress() -> None:
+    sup, clock = supervisor(StubDriver())
+    assert sup.health()["stalled"] is False
+    clock.now += 0.5
+    health = sup.health()
+    assert health["stalled"] is True and health["stall_stops"] == 0
+    assert health["stall_stop_s"] == 0.2
+
+
+def test_supervisor_disabled_warns_and_starts_no_thread(caplog: pytest.LogCaptureFixture) -> None:
+    driver = StubDriver()
+    sup, clock = supervisor(driver, stall_stop_s=0.0)
+    sup.start()
+    clock.now += 10.0
+    assert not sup.stalled() and sup._thread is None
+    sup.stop()
+    assert "stall supervisor is DISABLED" in caplog.text

@@ -17,6 +17,7 @@ from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.metronome import Metronome
 from daemon.control.odometry import Odometry
+from daemon.control.supervisor import StallSupervisor
 from daemon.latency import LatencyTracker
 from daemon.telemetry import LatencyReport, OdomSample
 from drivers import DriverError, MotorDriver
@@ -79,6 +80,8 @@ class ControlLoop:
         self._tick_task: asyncio.Task[None] | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
         self._metronome: Metronome | None = None
+        #: zeroes the wheels from its own thread when the tick stops (the loop is blocked)
+        self.supervisor = StallSupervisor(driver, self._stall_stop_s(control["stall_stop_s"]))
         self._ticks = 0
         self._stopping = False
 
@@ -90,9 +93,11 @@ class ControlLoop:
         self._metronome = Metronome(asyncio.get_running_loop(), self.period_s)
         self._metronome.start()
         self._tick_task = asyncio.create_task(self._tick_forever(), name="control-tick")
+        self.supervisor.start()
 
     async def stop(self) -> None:
         self._stopping = True
+        self.supervisor.stop()  # the tick stops now: that is no stall
         if self._metronome:
             self._metronome.stop()
         for task in (self._tick_task, self._reconnect_task):
@@ -118,6 +123,7 @@ class ControlLoop:
         refusal = self._refusal_reason()
         if refusal:
             return Applied(False, self.decision.source, self.wheels, [], None, refusal)
+        self._forget_after_stall()  # older commands are stale, this one is fresh
         self.arbiter.submit(source, twist, time.monotonic(), priority)
         async with self._lock:
             written = await self._step(time.monotonic())
@@ -163,6 +169,7 @@ class ControlLoop:
         assert self._metronome is not None
         while True:
             deadline = await self._metronome.wait()
+            self.supervisor.beat()
             now = time.monotonic()
             lateness = now - deadline
             on_time = lateness <= self.late_s
@@ -190,6 +197,7 @@ class ControlLoop:
 
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
+        self._forget_after_stall()
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
@@ -243,6 +251,27 @@ class ControlLoop:
             self.odometry.update_open_loop(linear, angular, self.period_s)
 
     # -- faults ------------------------------------------------------------------------------
+
+    def _stall_stop_s(self, configured: float) -> float:
+        """``stall_stop_s``, but never less than two tick periods (a late tick is no stall)."""
+        floor = 2 * self.period_s
+        if 0 < configured < floor:
+            log.warning("[control] stall_stop_s = %g is shorter than two control periods at "
+                        "update_rate %g Hz; using %g s", configured, 1 / self.period_s, floor)
+            return floor
+        return configured
+
+    def _forget_after_stall(self) -> None:
+        """The supervisor zeroed the wheels while this loop stood still: every command and the
+        ramp state are stale, so the robot waits for a fresh command (as after a reconnect)."""
+        if not self.supervisor.take_stop():
+            return
+        self.arbiter.invalidate_all()
+        self.linear.reset()
+        self.angular.reset()
+        self.wheels = (0.0, 0.0)
+        log.warning("control tick running again after a stall stop; wheels stay still until "
+                    "a fresh command")
 
     async def _on_fault(self, reason: str) -> None:
         if self.fault or self._stopping:
@@ -306,7 +335,8 @@ class ControlLoop:
         }
 
     def health(self) -> dict[str, Any]:
-        status = "error" if self.fault else "ok"
+        stall = self.supervisor.health()
+        status = "error" if self.fault or stall["stalled"] else "ok"
         return {"status": status, "fault": self.fault, "faults": self.faults,
                 "reconnects": self.reconnects, "driver": self.driver.health(),
-                "estop": self.arbiter.estop_engaged}
+                "estop": self.arbiter.estop_engaged, **stall}
