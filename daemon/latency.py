@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import time
-from collections import deque
-from collections.abc import Iterable
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -15,6 +15,8 @@ PERCENTILES = (50, 90, 95, 99)
 EXEC_BUCKETS = (5e-6, 1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.05)
 TRANSIT_BUCKETS = (1e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1, 0.5, 1.0)
 TICK_BUCKETS = (5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1)
+MAX_SOURCES = 64
+SOURCE_IDLE_S = 600.0
 CLOCK_NOTE = ("client wall clock vs daemon wall clock: only meaningful when the clocks are "
               "synchronised (same machine, or NTP/PTP)")
 
@@ -60,13 +62,47 @@ def summarize(samples: Iterable[float]) -> dict[str, Any]:
     return out
 
 
+class SourceCounts:
+    """Commands per source (``http``, ``ws:17``, ...), bounded: at most ``max_sources``
+    entries, least recently active first out, and a source silent for ``idle_s`` is dropped."""
+
+    def __init__(self, max_sources: int = MAX_SOURCES, idle_s: float = SOURCE_IDLE_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.max_sources = max_sources
+        self.idle_s = idle_s
+        self.clock = clock
+        self._counts: OrderedDict[str, tuple[int, float]] = OrderedDict()
+        self.dropped = 0
+
+    def add(self, source: str) -> None:
+        now = self.clock()
+        count, _ = self._counts.pop(source, (0, now))
+        self._counts[source] = (count + 1, now)
+        self._expire(now)
+
+    def _expire(self, now: float) -> None:
+        while self._counts:
+            oldest, (_, last) = next(iter(self._counts.items()))
+            if len(self._counts) <= self.max_sources and now - last < self.idle_s:
+                return
+            del self._counts[oldest]
+            self.dropped += 1
+
+    def snapshot(self) -> dict[str, int]:
+        self._expire(self.clock())
+        return {source: count for source, (count, _) in self._counts.items()}
+
+    def __len__(self) -> int:
+        return len(self._counts)
+
+
 class LatencyTracker:
     """Rolling windows of command latency and tick lateness, for ``/api/latency``."""
 
     def __init__(self, window: int = 2000) -> None:
         self.window = window
         self.metrics = LatencyMetrics()
-        self.per_source: dict[str, int] = {}
+        self.per_source = SourceCounts()
         self.exec_ms: deque[float] = deque(maxlen=window)
         self.transit_ms: deque[float] = deque(maxlen=window)
         self.tick_late_ms: deque[float] = deque(maxlen=window)
@@ -83,7 +119,7 @@ class LatencyTracker:
         wall_exec_ms = (time.time() - time.monotonic() + t_exec_mono) * 1e3
         wall_recv_ms = wall_exec_ms - exec_ms
         self.commands += 1
-        self.per_source[source] = self.per_source.get(source, 0) + 1
+        self.per_source.add(source)
         self.exec_ms.append(exec_ms)
         self.metrics.exec_s.observe(exec_ms / 1e3)
         self.metrics.count(source)
@@ -110,7 +146,10 @@ class LatencyTracker:
             "receipt_to_exec_ms": summarize(self.exec_ms),
             "client_to_receipt_ms": {**summarize(self.transit_ms), "clock_dependent": True,
                                      "note": CLOCK_NOTE},
-            "per_source": dict(self.per_source),
+            "per_source": self.per_source.snapshot(),
+            "per_source_limits": {"max_sources": self.per_source.max_sources,
+                                  "idle_expiry_s": self.per_source.idle_s,
+                                  "dropped": self.per_source.dropped},
             "tick": {"count": self.ticks, "late": self.late_ticks,
                      "missed": self.missed_ticks, "lateness_ms": summarize(self.tick_late_ms)},
         }
