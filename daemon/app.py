@@ -16,7 +16,7 @@ from daemon.component import Component, DaemonContext, worst
 from daemon.config import Config, ConfigError
 from daemon.control.api import ControlApi
 from daemon.control.loop import ControlLoop
-from daemon.http_api import HttpServer, json_response
+from daemon.http_api import Access, HttpServer, json_response
 from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
@@ -92,10 +92,10 @@ class Daemon:
         driver = build_driver(self.config, self.driver_name)
         loop = ControlLoop(self.config, driver, self.bus, self.latency)
         http_cfg = self.config["http"]
-        http = HttpServer(http_cfg["host"], http_cfg["port"], http_cfg["max_body_bytes"])
+        http = HttpServer(http_cfg, self.security)
         ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
                             self.mode)
-        ControlApi(loop, http, self.security, control["allow_fault_injection"])
+        ControlApi(loop, http, control["allow_fault_injection"])
         loop.on_tick.append(self.notifier.tick)
         self._add_own_routes(http)
         self.components = [loop]
@@ -113,10 +113,11 @@ class Daemon:
         return ctx
 
     def _add_own_routes(self, http: HttpServer) -> None:
-        http.add_route("GET", "/api/health", self._get_health)
-        http.add_route("GET", "/api/latency", self._get_latency)
-        http.add_route("GET", "/api/robot_info", self._get_robot_info)
-        http.add_route("GET", "/metrics", self._get_metrics)
+        health_access: Access = "open" if self.config["security"]["open_health"] else "read"
+        http.add_route("GET", "/api/health", self._get_health, access=health_access)
+        http.add_route("GET", "/api/latency", self._get_latency, access="read")
+        http.add_route("GET", "/api/robot_info", self._get_robot_info, access="read")
+        http.add_route("GET", "/metrics", self._get_metrics, access="read")
 
     # -- running -------------------------------------------------------------------------
 
@@ -266,20 +267,16 @@ class Daemon:
         return info
 
     async def _get_health(self, request: web.Request) -> web.Response:
-        self.security.require_read(request)
         body = self.health()
         return json_response(body, status=503 if body["status"] == "error" else 200)
 
     async def _get_latency(self, request: web.Request) -> web.Response:
-        self.security.require_read(request)
         return json_response(self.latency.stats())
 
     async def _get_robot_info(self, request: web.Request) -> web.Response:
-        self.security.require_read(request)
         return json_response(self.robot_info())
 
     async def _get_metrics(self, request: web.Request) -> web.Response:
-        self.security.require_read(request)
         text = prometheus_text(self.health(), self.latency.stats(),
                                self.latency.metrics.registry)
         return web.Response(text=text, content_type="text/plain", charset="utf-8")

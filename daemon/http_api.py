@@ -1,26 +1,40 @@
-# HTTP API server (aiohttp): components register their own routes; errors become JSON.
+# HTTP API server (aiohttp): routes declare who may call them; one guard enforces it; JSON errors.
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
-from collections.abc import Awaitable, Callable
-from typing import Any
+from collections.abc import Awaitable, Callable, Mapping
+from typing import Any, Literal
 
 from aiohttp import web
+from aiohttp.web_urldispatcher import AbstractRoute
+
+from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
+from daemon.security import Security
 
 log = logging.getLogger("arbiterd.http")
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+Access = Literal["open", "read", "drive"]
+ACCESS_LEVELS: tuple[Access, ...] = ("open", "read", "drive")
+MAX_JSON_DEPTH = 32
+MAX_INT_DIGITS = 64
+READ_CHUNK = 65536
+
+internal_error_log = LogLimiter(log, "internal-error", burst=2, window_s=60.0)
 
 
 class ApiError(Exception):
     """An error answered as ``{"error": message, "detail": detail}`` with ``status``."""
 
-    def __init__(self, status: int, message: str, detail: Any = None) -> None:
+    def __init__(self, status: int, message: str, detail: Any = None,
+                 headers: Mapping[str, str] | None = None) -> None:
         super().__init__(message)
         self.status = status
         self.message = message
         self.detail = detail
+        self.headers = dict(headers or {})
 
 
 def json_response(data: Any, status: int = 200) -> web.Response:
@@ -39,8 +53,11 @@ def _default(value: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def error_response(status: int, message: str, detail: Any = None) -> web.Response:
-    return web.json_response({"error": message, "detail": detail}, status=status)
+def error_response(status: int, message: str, detail: Any = None,
+                   headers: Mapping[str, str] | None = None) -> web.Response:
+    response = web.json_response({"error": message, "detail": detail}, status=status)
+    response.headers.update(headers or {})
+    return response
 
 
 @web.middleware
@@ -48,39 +65,159 @@ async def _errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     try:
         return await handler(request)
     except ApiError as exc:
-        return error_response(exc.status, exc.message, exc.detail)
+        _log_bad_request(request, exc.status, exc.message)
+        return error_response(exc.status, exc.message, exc.detail, exc.headers)
     except web.HTTPException as exc:
         if exc.status < 400:
             raise
-        return error_response(exc.status, exc.reason, None)
+        return _http_exception(request, exc)
     except Exception:
-        log.exception("%s %s failed", request.method, request.path)
+        internal_error_log(logging.ERROR, "%s %s failed", request.method, request.path,
+                           exc_info=True)
         return error_response(500, "internal error", "see the daemon log")
 
 
-async def read_json_object(request: web.Request, max_bytes: int) -> dict[str, Any]:
-    """The request body as a JSON object, or :class:`ApiError` saying what is wrong with it."""
-    if request.content_type != "application/json":
-        raise ApiError(415, "content type must be application/json",
-                       f"got {request.content_type or 'none'}")
+def _http_exception(request: web.Request, exc: web.HTTPException) -> web.Response:
+    """aiohttp's 404/405/413 as the documented JSON error; 405 keeps its ``Allow``."""
+    _log_bad_request(request, exc.status, exc.reason)
+    allow = exc.headers.get("Allow")
+    if allow is not None:
+        return error_response(exc.status, exc.reason, f"allowed: {allow}", {"Allow": allow})
+    return error_response(exc.status, exc.reason, None)
+
+
+def _log_bad_request(request: web.Request, status: int, message: str) -> None:
+    bad_request_log(logging.WARNING, "bad HTTP request from %s: %s %s -> %d %s",
+                    request.remote, request.method, request.path[:100], status, message)
+
+
+class Guard:
+    """The one place that decides who may call a route: the Host allow-list for every
+    request, then the route's declared access (open, read, drive) and, for drive routes, the
+    browser Origin."""
+
+    def __init__(self, security: Security) -> None:
+        self.security = security
+        self.access: dict[AbstractRoute, Access] = {}
+
+    @web.middleware
+    async def middleware(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        host = request.headers.get("Host")
+        if not self.security.host_ok(host):
+            raise ApiError(403, f"unknown Host {host!r}", "this daemon answers only to its IP "
+                           "addresses, localhost and its own names; add the name to "
+                           "[security] allowed_hosts if it is yours")
+        if request.match_info.http_exception is None:  # 404 and 405 need no authority
+            self.check(self.access.get(request.match_info.route, "drive"), request, host)
+        return await handler(request)
+
+    def check(self, access: Access, request: web.Request, host: str | None) -> None:
+        if access == "open":
+            return
+        if access == "drive":
+            origin = request.headers.get("Origin")
+            if not self.security.origin_ok(origin, host):
+                raise ApiError(403, f"Origin {origin!r} may not drive this robot",
+                               "a web page from another site sent this request; add the "
+                               "origin to [security] allowed_origins if it is yours")
+        if (access == "drive" or self.security.read_requires_token) and not (
+                self.security.token_ok(request.headers, request.query)):
+            raise ApiError(401, "a valid bearer token is required",
+                           "send 'Authorization: Bearer <token>'",
+                           {"WWW-Authenticate": 'Bearer realm="arbiterd"'})
+
+
+# -- request bodies ------------------------------------------------------------------------
+
+async def read_body(request: web.Request, max_bytes: int, timeout_s: float) -> bytes:
+    """The whole body (however many TCP segments it takes), decoded from its
+    Content-Encoding, at most ``max_bytes``, within ``timeout_s``; or :class:`ApiError`."""
     if request.content_length is not None and request.content_length > max_bytes:
         raise ApiError(413, f"body too large: {request.content_length} bytes, "
                        f"limit {max_bytes}")
-    raw = await request.content.read(max_bytes + 1)
-    if len(raw) > max_bytes:
-        raise ApiError(413, f"body too large: over {max_bytes} bytes")
+    chunks: list[bytes] = []
+    size = 0
     try:
-        body = json.loads(raw, parse_constant=_refuse_constant)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ApiError(400, "body is not valid JSON", str(exc)) from None
+        async with asyncio.timeout(timeout_s):
+            while chunk := await request.content.read(READ_CHUNK):
+                size += len(chunk)
+                if size > max_bytes:
+                    raise ApiError(413, f"body too large: over {max_bytes} bytes")
+                chunks.append(chunk)
+    except TimeoutError:
+        raise ApiError(408, f"body not received within {timeout_s:g} s",
+                       f"got {size} bytes; [http] body_timeout_s sets the limit") from None
+    except web.RequestPayloadError as exc:
+        raise ApiError(400, "body cannot be read", one_line(str(exc))) from None
+    return b"".join(chunks)
+
+
+async def read_json_body(request: web.Request, max_bytes: int, timeout_s: float) -> bytes:
+    """The raw body of a request that says it is JSON (415 otherwise)."""
+    if request.content_type != "application/json":
+        raise ApiError(415, "content type must be application/json",
+                       f"got {request.content_type or 'none'}")
+    return await read_body(request, max_bytes, timeout_s)
+
+
+async def read_json_object(request: web.Request, max_bytes: int,
+                           timeout_s: float = 10.0) -> dict[str, Any]:
+    """The request body as a JSON object, or :class:`ApiError` saying what is wrong with it."""
+    return json_object(await read_json_body(request, max_bytes, timeout_s))
+
+
+def json_object(raw: bytes) -> dict[str, Any]:
+    body = parse_json(raw)
     if not isinstance(body, dict):
         raise ApiError(400, "body must be a JSON object", f"got {type(body).__name__}")
     return body
 
 
+def parse_json(raw: bytes) -> Any:
+    """Strict JSON: UTF-8 only, no NaN/Infinity, integers of at most 64 digits, nesting at
+    most 32 deep; anything else is :class:`ApiError` 400 saying where."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ApiError(400, "body is not valid UTF-8", f"byte 0x{raw[exc.start]:02x} at "
+                       f"offset {exc.start}: {exc.reason}") from None
+    try:
+        value = json.loads(text, parse_constant=_refuse_constant, parse_int=_bounded_int)
+    except RecursionError:
+        raise ApiError(400, "body is not valid JSON", f"nested more than {MAX_JSON_DEPTH} "
+                       "deep") from None
+    except ValueError as exc:
+        raise ApiError(400, "body is not valid JSON", str(exc)) from None
+    if _depth(value) > MAX_JSON_DEPTH:
+        raise ApiError(400, "body is not valid JSON", f"nested more than {MAX_JSON_DEPTH} deep")
+    return value
+
+
 def _refuse_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a valid JSON number")
 
+
+def _bounded_int(digits: str) -> int:
+    if len(digits.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {len(digits.lstrip('-'))} digits; at most "
+                         f"{MAX_INT_DIGITS} are accepted")
+    return int(digits)
+
+
+def _depth(value: Any) -> int:
+    """Nesting depth of a parsed JSON value, without recursion."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict | list):
+            deepest = max(deepest, depth)
+            children = item.values() if isinstance(item, dict) else item
+            stack.extend((child, depth + 1) for child in children
+                         if isinstance(child, dict | list))
+    return deepest
+
+
+# -- the server ----------------------------------------------------------------------------
 
 class HttpServer:
     """The ``:8085`` server; a component (``http``) other components add routes to."""
@@ -88,19 +225,51 @@ class HttpServer:
     name = "http"
     core = True
 
-    def __init__(self, host: str, port: int, max_body_bytes: int) -> None:
-        self.host = host
-        self.port = port
-        self.max_body_bytes = max_body_bytes
-        self.app = web.Application(middlewares=[_errors], client_max_size=max_body_bytes)
-        self._runner: web.AppRunner | None = None
+    def __init__(self, options: Mapping[str, Any], security: Security) -> None:
+        self.host = str(options["host"])
+        self.port = int(options["port"])
+        self.max_body_bytes = int(options["max_body_bytes"])
+        self.body_timeout_s = float(options["body_timeout_s"])
+        self.idle_timeout_s = float(options["idle_timeout_s"])
+        self.max_connections = int(options["max_connections"])
+        self.guard = Guard(security)
+        self.app = web.Application(middlewares=[_errors, self.guard.middleware],
+                                   client_max_size=self.max_body_bytes)
+        self._runner: CappedRunner | None = None
+        self._accept_errors: AcceptErrorFilter | None = None
         self.bound_port: int | None = None
 
-    def add_route(self, method: str, path: str, handler: Handler) -> None:
-        self.app.router.add_route(method, path, handler)
+    def add_route(self, method: str, path: str, handler: Handler, *,
+                  access: Access = "drive") -> None:
+        """Serve ``method path``; ``access`` says who may call it: ``open`` (anyone who passes
+        the Host check), ``read`` (the token too when ``read_requires_token``) or ``drive``
+        (the token when one is configured, and a browser Origin of this host). A GET route
+        answers HEAD too."""
+        if access not in ACCESS_LEVELS:
+            raise ValueError(f"{method} {path}: access must be one of {ACCESS_LEVELS}, "
+                             f"got {access!r}")
+        methods = [method, "HEAD"] if method == "GET" else [method]
+        for verb in methods:
+            self.guard.access[self.app.router.add_route(verb, path, handler)] = access
+
+    def access_table(self) -> list[tuple[str, str, Access]]:
+        """(method, path, access) of every route, in registration order."""
+        return [(route.method, route.resource.canonical if route.resource else "", access)
+                for route, access in self.guard.access.items()]
+
+    async def read_json(self, request: web.Request) -> dict[str, Any]:
+        """The body as a JSON object within this server's size and time limits."""
+        return json_object(await self.read_json_body(request))
+
+    async def read_json_body(self, request: web.Request) -> bytes:
+        """The raw JSON body within this server's size and time limits."""
+        return await read_json_body(request, self.max_body_bytes, self.body_timeout_s)
 
     async def start(self) -> None:
-        self._runner = web.AppRunner(self.app, access_log=None, handle_signals=False)
+        self._accept_errors = AcceptErrorFilter(asyncio.get_running_loop())
+        self._accept_errors.install()
+        self._runner = CappedRunner(self.app, self.max_connections, access_log=None,
+                                    handle_signals=False, keepalive_timeout=self.idle_timeout_s)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         await site.start()
@@ -113,7 +282,13 @@ class HttpServer:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+        if self._accept_errors is not None:
+            self._accept_errors.uninstall()
 
     def health(self) -> dict[str, Any]:
         running = self._runner is not None
-        return {"status": "ok" if running else "error", "port": self.bound_port}
+        server = self._runner.server if self._runner else None
+        return {"status": "ok" if running else "error", "port": self.bound_port,
+                "connections": len(server.connections) if server else 0,
+                "connections_refused": getattr(server, "refused", 0),
+                "accept_errors": self._accept_errors.count if self._accept_errors else 0}

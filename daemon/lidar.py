@@ -93,7 +93,7 @@ def create(ctx: Any) -> LidarComponent | None:
     if not options["enabled"]:
         return None
     component = LidarComponent(ctx.bus, options)
-    ctx.http.add_route("GET", "/api/scan", component.get_scan)
+    ctx.http.add_route("GET", "/api/scan", component.get_scan, access="read")
     robot_info = getattr(ctx, "robot_info", None)
     if isinstance(robot_info, dict):
         robot_info["lidar"] = component.info

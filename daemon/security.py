@@ -7,10 +7,6 @@ import socket
 from collections.abc import Iterable, Mapping
 from urllib.parse import urlsplit
 
-from aiohttp import web
-
-from daemon.http_api import ApiError
-
 LOCAL_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
 
 
@@ -97,13 +93,3 @@ class Security:
         auth = headers.get("Authorization", "")
         offered = auth[7:].strip() if auth[:7].lower() == "bearer " else query.get("token", "")
         return hmac.compare_digest(offered.encode(), self.token.encode())
-
-    def require_token(self, request: web.Request) -> None:
-        """For anything that moves the robot or releases an e-stop."""
-        if not self.token_ok(request.headers, request.query):
-            raise ApiError(401, "a valid bearer token is required",
-                           "send 'Authorization: Bearer <token>'")
-
-    def require_read(self, request: web.Request) -> None:
-        if self.read_requires_token:
-            self.require_token(request)

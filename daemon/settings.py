@@ -80,8 +80,18 @@ HTTP_OPTIONS: Options = {
     "enabled": Option(bool, True, "serve the HTTP API"),
     "host": Option(str, "0.0.0.0", "HTTP listen address"),
     "port": Option(int, 8085, "HTTP listen port", minval=1, maxval=65535),
-    "max_body_bytes": Option(int, 65536, "largest accepted request body", minval=64,
+    "max_body_bytes": Option(int, 65536, "largest accepted request body (after "
+                             "Content-Encoding), bytes; larger gets 413", minval=64,
                              maxval=16 * 1024 * 1024),
+    "body_timeout_s": Option(float, 10.0, "a request body must arrive within this long, s; "
+                             "slower gets 408", above=0.0, maxval=300.0),
+    "idle_timeout_s": Option(float, 15.0, "close a connection that sends no complete request "
+                             "line and headers for this long after it opened or after the "
+                             "last answer (keep-alive and header-read timeout), s",
+                             above=0.0, maxval=3600.0),
+    "max_connections": Option(int, 256, "most open HTTP connections; one more closes the "
+                              "oldest idle one (keep it well under LimitNOFILE)",
+                              minval=4, maxval=65536),
 }
 
 SECURITY_OPTIONS: Options = {
@@ -90,6 +100,8 @@ SECURITY_OPTIONS: Options = {
     "allowed_origins": Option(list, [], "extra browser origins allowed on the WebSocket "
                               "(same host and localhost are always allowed)", item=str),
     "read_requires_token": Option(bool, False, "also require the token for read-only telemetry"),
+    "open_health": Option(bool, False, "answer GET /api/health without the token even when "
+                          "read_requires_token = true (for monitors and deploy health checks)"),
     "allowed_hosts": Option(list, [], "extra Host names the daemon answers to, besides IP "
                             "addresses, localhost and this machine's names (incl. .local); "
                             "any other Host gets 403 (DNS rebinding guard)", item=str),

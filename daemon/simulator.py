@@ -103,8 +103,8 @@ class SimRuntime:
 
     def register(self, http: HttpServer, bus: Any, status_extras: dict[str, Any]) -> None:
         self.bus = bus
-        http.add_route("POST", "/api/sim/reset", self._post_reset)
-        http.add_route("GET", "/api/sim/metrics", self._get_metrics)
+        http.add_route("POST", "/api/sim/reset", self._post_reset, access="drive")
+        http.add_route("GET", "/api/sim/metrics", self._get_metrics, access="read")
         status_extras["ground_truth"] = lambda: self.world.ground_truth().to_json()
 
     async def start(self) -> None:

@@ -205,7 +205,7 @@ class FakeHttp:
     def __init__(self) -> None:
         self.routes: dict[tuple[str, str], Any] = {}
 
-    def add_route(self, method: str, path: str, handler: Any) -> None:
+    def add_route(self, method: str, path: str, handler: Any, access: str = "drive") -> None:
         self.routes[(method, path)] = handler
 
 

@@ -121,6 +121,12 @@ def test_service_supervision_contract() -> None:
     assert exec_path(stop_post[0]) == start[0] and stop_post[1] == "safe-stop"
 
 
+def test_service_has_room_for_connections() -> None:
+    """Idle sockets must not take the last descriptor (the default soft limit is 1024)."""
+    limit = unit_values(service_text(), "Service", "LimitNOFILE")
+    assert limit and int(limit[0]) >= 4096
+
+
 def test_service_keeps_gpio_serial_pigpiod_and_can_usable() -> None:
     text = service_text()
     assert unit_values(text, "Service", "User") == ["arbiterd"]

@@ -1,0 +1,204 @@
+# HTTP connection layer under aiohttp: JSON parser errors, a connection cap, quiet accept errors.
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from aiohttp import web
+from aiohttp.web_protocol import RequestHandler
+from aiohttp.web_request import BaseRequest
+
+log = logging.getLogger("arbiterd.http")
+
+ACCEPT_ERRNOS = {errno.EMFILE: "too many open files (EMFILE)",
+                 errno.ENFILE: "the system file table is full (ENFILE)",
+                 errno.ENOBUFS: "no buffer space (ENOBUFS)", errno.ENOMEM: "out of memory (ENOMEM)"}
+
+
+class LogLimiter:
+    """At most ``burst`` lines per ``window_s``; the next line after a window says how many
+    were left out. Keeps a client that sends garbage from flooding the journal."""
+
+    def __init__(self, logger: logging.Logger, what: str, burst: int = 5,
+                 window_s: float = 10.0, clock: Callable[[], float] = time.monotonic) -> None:
+        self.logger = logger
+        self.what = what
+        self.burst = burst
+        self.window_s = window_s
+        self.clock = clock
+        self._window_start = -float("inf")
+        self._count = 0
+        self.suppressed = 0
+
+    def __call__(self, level: int, message: str, *args: Any, exc_info: Any = None) -> None:
+        now = self.clock()
+        if now - self._window_start >= self.window_s:
+            if self.suppressed:
+                self.logger.log(level, "%d more %s lines not logged in the last %.0f s",
+                                self.suppressed, self.what, now - self._window_start)
+            self._window_start, self._count, self.suppressed = now, 0, 0
+        if self._count < self.burst:
+            self._count += 1
+            self.logger.log(level, message, *args, exc_info=exc_info)
+        else:
+            self.suppressed += 1
+
+
+bad_request_log = LogLimiter(log, "bad-request")
+
+
+def error_body(status: int, message: str, detail: Any = None) -> web.Response:
+    return web.json_response({"error": message, "detail": detail}, status=status)
+
+
+class JsonRequestHandler(RequestHandler):
+    """aiohttp's protocol, answering its own parser errors (bad request line, bad or oversized
+    headers, bad chunking) with the documented JSON error and one rate-limited log line instead
+    of text/plain and a traceback. aiohttp has no public hook for these (aio-libs/aiohttp#3287)."""
+
+    def handle_error(self, request: BaseRequest, status: int = 500,
+                     exc: BaseException | None = None,
+                     message: str | None = None) -> web.StreamResponse:
+        if request.writer.output_size > 0:  # the answer has started: only closing is left
+            raise ConnectionError("response already started; closing the connection")
+        text = one_line(message or (str(exc) if exc else "")) or "bad request"
+        if status >= 500:
+            bad_request_log(logging.ERROR, "HTTP %d from %s: %s", status, request.remote,
+                            text, exc_info=exc)
+            response = error_body(status, "internal error", "see the daemon log")
+        else:
+            bad_request_log(logging.WARNING, "bad HTTP request from %s: %d %s", request.remote,
+                            status, text)
+            response = error_body(status, "malformed HTTP request", text)
+        response.force_close()
+        return response
+
+    def log_exception(self, *args: Any, **kw: Any) -> None:
+        """aiohttp's own "Unhandled exception" (e.g. a corrupt body it drains after the answer):
+        one rate-limited line, no traceback."""
+        exc = kw.get("exc_info")
+        detail = one_line(str(exc)) if isinstance(exc, BaseException) else ""
+        bad_request_log(logging.WARNING, "HTTP connection closed: %s%s", args[0] if args else
+                        "error", f": {type(exc).__name__}: {detail}" if detail else "")
+
+    @property
+    def closing(self) -> bool:
+        return self._force_close or self.transport is None
+
+    @property
+    def idle(self) -> bool:
+        """Waiting for (the rest of) a request line and headers, nothing being answered."""
+        return not self._request_in_progress and not self._messages and not self.closing
+
+
+def one_line(text: str, limit: int = 200) -> str:
+    """aiohttp's multi-line parser messages as one line, without the caret marker line."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and set(ln.strip()) != {"^"}]
+    return " ".join(lines)[:limit]
+
+
+class CappedServer(web.Server):
+    """The low-level server with :class:`JsonRequestHandler` and at most ``max_connections``
+    open: a new connection beyond the cap closes the oldest idle one (or itself if every
+    connection is busy), so idle sockets cannot use up the file descriptors."""
+
+    max_connections = 256
+    refused = 0
+
+    def __call__(self) -> RequestHandler:
+        return JsonRequestHandler(self, loop=self._loop, **self._kwargs)
+
+    def connection_made(self, handler: RequestHandler, transport: asyncio.Transport) -> None:
+        super().connection_made(handler, transport)
+        if len(self._connections) <= self.max_connections:
+            return
+        live = [h for h in self._connections if not getattr(h, "closing", False)]
+        if len(live) <= self.max_connections:
+            return  # the rest are closing already (their sockets go on the next loop pass)
+        victim = next((h for h in live if h is not handler and getattr(h, "idle", False)),
+                      handler)
+        self.refused += 1
+        bad_request_log(logging.WARNING, "HTTP connection limit (%d) reached: closing %s "
+                        "connection; [http] max_connections sets it", self.max_connections,
+                        "the oldest idle" if victim is not handler else "the new")
+        victim.force_close()
+
+
+def json_http_errors(handler: Callable[[BaseRequest], Awaitable[web.StreamResponse]]
+                     ) -> Callable[[BaseRequest], Awaitable[web.StreamResponse]]:
+    """The application's handler, with the HTTP errors aiohttp raises before the middlewares
+    run (e.g. 417 for an unknown ``Expect``) answered as the JSON error too."""
+
+    async def handle(request: BaseRequest) -> web.StreamResponse:
+        try:
+            return await handler(request)
+        except web.HTTPException as exc:
+            if exc.status < 400:
+                raise
+            bad_request_log(logging.WARNING, "bad HTTP request from %s: %s %s -> %d %s",
+                            request.remote, request.method, request.path[:100], exc.status,
+                            exc.reason)
+            response = error_body(exc.status, exc.reason, one_line(exc.text or ""))
+            response.headers.update({k: v for k, v in exc.headers.items() if k == "Allow"})
+            return response
+
+    return handle
+
+
+class CappedRunner(web.AppRunner):
+    """An :class:`~aiohttp.web.AppRunner` whose server is a :class:`CappedServer`."""
+
+    def __init__(self, app: web.Application, max_connections: int, **kwargs: Any) -> None:
+        super().__init__(app, **kwargs)
+        self.max_connections = max_connections
+
+    async def _make_server(self) -> web.Server:
+        server = await super()._make_server()
+        server.__class__ = CappedServer  # same state, our handler class and the cap
+        assert isinstance(server, CappedServer)
+        server.max_connections = self.max_connections
+        server.request_handler = json_http_errors(server.request_handler)
+        return server
+
+
+class AcceptErrorFilter:
+    """A loop exception handler: when ``accept()`` fails for lack of descriptors or memory
+    (asyncio retries every second and would log a traceback each time), log one rate-limited
+    line naming the cause and the fix; hand everything else to the previous handler."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
+        self.previous = loop.get_exception_handler()
+        self.limiter = LogLimiter(log, "accept-error", burst=1, window_s=30.0)
+        self.count = 0
+
+    def install(self) -> None:
+        self.loop.set_exception_handler(self)
+
+    def uninstall(self) -> None:
+        if self.loop.get_exception_handler() is self:
+            self.loop.set_exception_handler(self.previous)
+
+    def __call__(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        exc = context.get("exception")
+        if isinstance(exc, OSError) and _is_accept_failure(context):
+            self.count += 1
+            cause = ACCEPT_ERRNOS.get(exc.errno or 0, exc.strerror or str(exc))
+            self.limiter(logging.ERROR, "cannot accept connections: %s; raise LimitNOFILE= in "
+                         "the unit or lower [http] max_connections (retrying each second)",
+                         cause)
+            return
+        if self.previous is not None:
+            self.previous(loop, context)
+        else:
+            loop.default_exception_handler(context)
+
+
+def _is_accept_failure(context: dict[str, Any]) -> bool:
+    message = str(context.get("message", ""))
+    return message.startswith("socket.accept()") or "_accept_connection" in repr(
+        context.get("handle"))
