@@ -1,12 +1,12 @@
 # HTTP API of a running daemon: deadman stop, strict command validation, e-stop, token.
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
+from collections.abc import Callable, Iterator
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.conftest import wait_for
+from tests.daemon_proc import DaemonProcess
 
 TIMEOUT_S = 0.3
 
@@ -37,11 +37,11 @@ def test_health_reports_state_mode_version(daemon: DaemonProcess) -> None:
 
 
 def test_deadman_stops_the_wheels_after_silence(daemon: DaemonProcess) -> None:
-    wait_for(lambda: stopped(daemon), 5, "the robot at rest")
+    wait_for(lambda: stopped(daemon), "the robot at rest", 5)
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}, "angular": {"z": 0.2}})
     assert status == 200 and body["accepted"], body
-    wait_for(lambda: moving(daemon), 2, "the wheels to move")
-    wait_for(lambda: stopped(daemon), 5, "the deadman stop")
+    wait_for(lambda: moving(daemon), "the wheels to move", 2)
+    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
     rows = daemon.wheels()
     last_rest = max(i for i, (_, left, right) in enumerate(rows) if (left, right) != (0.0, 0.0))
     first_motion = last_rest
@@ -117,16 +117,16 @@ def test_bad_estop_requests(daemon: DaemonProcess, body: object, message: str) -
 
 def test_estop_latches_until_released_and_a_fresh_command(daemon: DaemonProcess) -> None:
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})[0] == 200
-    wait_for(lambda: moving(daemon), 2, "motion")
+    wait_for(lambda: moving(daemon), "motion", 2)
     assert daemon.post("/api/estop", {"engaged": True})[1] == {"engaged": True}
-    wait_for(lambda: stopped(daemon), 2, "the e-stop brake")
+    wait_for(lambda: stopped(daemon), "the e-stop brake", 2)
     status, answer = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})
     assert status == 409 and "e-stop engaged" in answer["error"]
     assert daemon.get("/api/status")[1]["estop"]["engaged"] is True
     assert daemon.post("/api/estop", {"engaged": False})[1] == {"engaged": False}
     assert stopped(daemon)
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0] == 200
-    wait_for(lambda: moving(daemon), 2, "motion after the release")
+    wait_for(lambda: moving(daemon), "motion after the release", 2)
 
 
 def test_out_of_range_is_clamped_and_reported(daemon: DaemonProcess) -> None:
@@ -135,7 +135,7 @@ def test_out_of_range_is_clamped_and_reported(daemon: DaemonProcess) -> None:
     status, body = daemon.get("/api/status")
     assert body["clamps"]["linear.x"] >= 1
     assert body["target"]["linear_x"] == 50.0
-    wait_for(lambda: stopped(daemon), 5, "the deadman stop")
+    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
 
 
 def test_stamped_command_latency_is_tracked(daemon: DaemonProcess) -> None:
@@ -157,7 +157,7 @@ def test_unknown_route_and_wrong_method_are_json(daemon: DaemonProcess) -> None:
     status, body = daemon.get("/api/nothing")
     assert status == 404 and "error" in body
     status, body = daemon.get("/api/cmd_vel")
-    assert status == 405 and "error" in body
+    assert status == 405 and "error" in body and "POST" in body["detail"]
 
 
 def test_metrics_and_robot_info(daemon: DaemonProcess) -> None:
@@ -173,14 +173,15 @@ def test_metrics_and_robot_info(daemon: DaemonProcess) -> None:
     assert info["driver"] == "mock" and info["geometry"]["wheel_separation"] == 0.3
 
 
-def test_token_guards_motion_but_not_health(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path, "[security]\ntoken = \"s3cret\"\n") as daemon:
-        status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
-        assert status == 401 and "token" in body["error"]
-        assert daemon.post("/api/estop", {"engaged": True})[0] == 401
-        assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="wrong")[0] == 401
-        assert stopped(daemon)
-        status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret")
-        assert status == 200 and body["accepted"]
-        assert daemon.get("/api/health")[0] == 200
-        assert daemon.get("/api/status")[0] == 200
+def test_token_guards_motion_but_not_health(
+        daemon_process: Callable[..., DaemonProcess]) -> None:
+    daemon = daemon_process("[security]\ntoken = \"s3cret\"\n")
+    status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
+    assert status == 401 and "token" in body["error"]
+    assert daemon.post("/api/estop", {"engaged": True})[0] == 401
+    assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="wrong")[0] == 401
+    assert stopped(daemon)
+    status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret")
+    assert status == 200 and body["accepted"]
+    assert daemon.get("/api/health")[0] == 200
+    assert daemon.get("/api/status")[0] == 200

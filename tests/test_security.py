@@ -1,0 +1,165 @@
+# The trust boundary's pieces: Host allow-list, Origin parsing, token, strict JSON, quiet logs.
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from daemon.http_api import MAX_INT_DIGITS, MAX_JSON_DEPTH, ApiError, parse_json
+from daemon.http_conn import AcceptErrorFilter, LogLimiter
+from daemon.security import Security, host_name
+
+OWN = ("robot", "robot.lan", "robot.local")
+
+
+def security(**kw: Any) -> Security:
+    return Security(kw.pop("token", ""), own_names=OWN, **kw)
+
+
+@pytest.mark.parametrize("host", [
+    None, "127.0.0.1", "127.0.0.1:8085", "[::1]:8085", "10.1.2.3", "localhost", "LOCALHOST:80",
+    "localhost.", "robot", "robot.local:8085", "Robot.LAN", "192.168.1.20:1",
+])
+def test_hosts_this_machine_answers_to(host: str | None) -> None:
+    assert security().host_ok(host)
+
+
+@pytest.mark.parametrize("host", [
+    "evil.example", "evil.example:8085", "robot.evil.example", "127.0.0.1.evil.example",
+    "localhost.evil.example", "", ":8085", "user@127.0.0.1", "127.0.0.1:port",
+    "127.0.0.1/path", "[::1", "robot.local.", "a b", "127.0.0.1:99999",
+])
+def test_hosts_refused(host: str) -> None:
+    sec = security()
+    if host == "robot.local.":  # a trailing dot is the same name
+        assert sec.host_ok(host)
+        return
+    assert not sec.host_ok(host), host
+
+
+def test_allowed_hosts_extend_the_list() -> None:
+    sec = security(allowed_hosts=["Robot.Example."])
+    assert sec.host_ok("robot.example:8085") and not sec.host_ok("evil.example")
+
+
+@given(st.text(max_size=40))
+def test_host_name_never_raises(text: str) -> None:
+    name = host_name(text)
+    assert name is None or name == name.lower()
+
+
+@pytest.mark.parametrize(("origin", "host", "ok"), [
+    (None, "evil.example", True),  # not a browser
+    ("", "127.0.0.1", True),
+    ("http://127.0.0.1:8085", "127.0.0.1:8085", True),
+    ("http://localhost:3000", "192.168.1.20:8085", True),
+    ("http://robot.local", "robot.local:8085", True),
+    ("http://evil.example", "evil.example", False),  # rebinding: the Host itself is foreign
+    ("http://evil.example", "127.0.0.1:8085", False),  # CSRF from another site
+    ("http://127.0.0.1@evil.example", "127.0.0.1:8085", False),  # userinfo trick
+    ("http://evil.example#@127.0.0.1", "127.0.0.1:8085", False),
+    ("null", "127.0.0.1:8085", False),
+    ("file://", "127.0.0.1", False),
+    ("javascript:alert(1)", "127.0.0.1", False),
+    ("http://192.168.1.20", "192.168.1.21", False),
+])
+def test_origins(origin: str | None, host: str, ok: bool) -> None:
+    assert security().origin_ok(origin, host) is ok
+
+
+def test_allowed_origins_are_exact() -> None:
+    sec = security(allowed_origins=["https://console.example/"])
+    assert sec.origin_ok("https://console.example", "127.0.0.1")
+    assert not sec.origin_ok("https://console.example.evil", "127.0.0.1")
+
+
+@pytest.mark.parametrize(("headers", "query", "ok"), [
+    ({"Authorization": "Bearer T0k"}, {}, True),
+    ({"Authorization": "bearer   T0k "}, {}, True),
+    ({}, {"token": "T0k"}, True),
+    ({"Authorization": "Bearer t0k"}, {}, False),
+    ({"Authorization": "Basic T0k"}, {}, False),
+    ({"Authorization": "Bearer nope"}, {"token": "T0k"}, False),  # the header wins
+    ({}, {"token": "T0k\u00e9"}, False),
+    ({}, {}, False),
+])
+def test_token(headers: dict[str, str], query: dict[str, str], ok: bool) -> None:
+    assert security(token="T0k").token_ok(headers, query) is ok
+    assert security().token_ok(headers, query)  # no token configured: everyone
+
+
+# -- strict JSON ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("raw", "detail"), [
+    (b"[" * (MAX_JSON_DEPTH + 1) + b"]" * (MAX_JSON_DEPTH + 1), "nested more than 32"),
+    (b"[" * 200000, "nested more than 32"),
+    (b"1" * (MAX_INT_DIGITS + 1), f"{MAX_INT_DIGITS + 1} digits"),
+    (b'{"a": NaN}', "NaN is not a valid JSON number"),
+    (b'"\xe2\x82"', "byte 0xe2 at offset 1"),
+    (b"\xef\xbb\xbf{}", "BOM"),
+])
+def test_parse_json_refuses(raw: bytes, detail: str) -> None:
+    with pytest.raises(ApiError) as err:
+        parse_json(raw)
+    assert err.value.status == 400
+    assert detail in f"{err.value.message} {err.value.detail}"
+
+
+def test_parse_json_accepts_the_limits() -> None:
+    deep = b"[" * MAX_JSON_DEPTH + b"]" * MAX_JSON_DEPTH
+    assert parse_json(deep) is not None
+    assert parse_json(b"-" + b"9" * MAX_INT_DIGITS) == -int("9" * MAX_INT_DIGITS)
+    assert parse_json('{"n": "é€😀"}'.encode()) == {"n": "é€😀"}
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.binary(max_size=300) | st.text(max_size=100).map(str.encode))
+def test_parse_json_only_ever_returns_or_raises_400(raw: bytes) -> None:
+    try:
+        parse_json(raw)
+    except ApiError as exc:
+        assert exc.status == 400 and exc.message and exc.detail
+
+
+# -- quiet logs ----------------------------------------------------------------------------
+
+def test_log_limiter_keeps_a_burst_then_counts(caplog: pytest.LogCaptureFixture) -> None:
+    now = [0.0]
+    limiter = LogLimiter(logging.getLogger("t"), "bad-request", burst=2, window_s=10.0,
+                         clock=lambda: now[0])
+    with caplog.at_level(logging.INFO, "t"):
+        for i in range(50):
+            limiter(logging.WARNING, "bad %d", i)
+        assert [r.getMessage() for r in caplog.records] == ["bad 0", "bad 1"]
+        now[0] = 10.0
+        limiter(logging.WARNING, "bad %d", 99)
+    assert [r.getMessage() for r in caplog.records][2:] == [
+        "48 more bad-request lines not logged in the last 10 s", "bad 99"]
+
+
+async def test_accept_errors_become_one_line(caplog: pytest.LogCaptureFixture) -> None:
+    loop = asyncio.get_running_loop()
+    seen: list[dict[str, Any]] = []
+    loop.set_exception_handler(lambda _loop, context: seen.append(context))
+    quiet = AcceptErrorFilter(loop)
+    quiet.install()
+    try:
+        with caplog.at_level(logging.INFO, "arbiterd.http"):
+            for _ in range(20):
+                loop.call_exception_handler({
+                    "message": "socket.accept() out of system resource",
+                    "exception": OSError(errno.EMFILE, "Too many open files")})
+            loop.call_exception_handler({"message": "something else"})
+    finally:
+        quiet.uninstall()
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "too many open files (EMFILE)" in lines[0]
+    assert "LimitNOFILE" in lines[0] and not any(r.exc_info for r in caplog.records)
+    assert quiet.count == 20
+    assert seen == [{"message": "something else"}]  # everything else reaches the old handler
+    assert loop.get_exception_handler() is not quiet
