@@ -29,7 +29,7 @@ StartDaemon = Callable[..., DaemonProcess]
 def robot_proc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
     """``arbiterd run`` (mock driver logging its wheels), default security, short timeouts."""
     tmp = tmp_path_factory.mktemp("hardening")
-    with DaemonProcess(tmp, env={"ARBITERD_HTTP_BODY_TIMEOUT_S": "0.5"}) as proc:
+    with DaemonProcess(tmp, env={"ARBITERD_HTTP_BODY_TIMEOUT_S": "2"}) as proc:
         yield proc
 
 
