@@ -85,6 +85,8 @@ def room_ranges(angles_rad: npt.NDArray[np.float64], t: float) -> npt.NDArray[np
 @dataclass
 class Faults:
     garbage: int = 0  # bytes of random junk to splice into the next stream batch
+    junk_every: int = 0  # records between bursts of junk, about (0 = off)
+    junk_max: int = 8  # longest burst, bytes
     drop: int = 0  # bytes to delete from the next stream batch
     stall_until: float = 0.0  # monotonic time until which no scan bytes are sent
     health: p.Health = field(default_factory=lambda: p.Health(0, 0))
@@ -118,6 +120,7 @@ class RplidarEmulator:
         self.motor_pwm: int | None = None
         self.resets = 0
         self._rng = random.Random(seed)
+        self._junk_in = -1  # stream bytes until the next junk burst (-1: not drawn yet)
         self._lock = threading.RLock()
         self._stream: _Stream | None = None
         self._rx = b""
@@ -163,6 +166,13 @@ class RplidarEmulator:
     def inject_garbage(self, count: int) -> None:
         with self._lock:
             self.faults.garbage += count
+
+    def sprinkle_junk(self, every_records: int, max_bytes: int = 8) -> None:
+        """From now on, 1..``max_bytes`` random bytes at a random place about every
+        ``every_records`` records of the stream (a flaky cable); 0 stops it."""
+        with self._lock:
+            self.faults.junk_every, self.faults.junk_max = every_records, max_bytes
+            self._junk_in = -1
 
     def drop_bytes(self, count: int) -> None:
         with self._lock:
@@ -371,7 +381,8 @@ class RplidarEmulator:
         batch = self._generate(stream, min(records_due, 400), per_record)
         if now < self.faults.stall_until:
             return  # the device is stuck: the samples are lost
-        self._queue(self._apply_faults(batch))
+        size = synth.STREAM_DESCRIPTORS[stream.mode.answer_type].length
+        self._queue(self._apply_faults(self._sprinkle_junk(batch, size)))
 
     def _generate(self, stream: _Stream, count: int, per_record: int) -> bytes:
         first = stream.sent
@@ -429,6 +440,23 @@ class RplidarEmulator:
         """The exact angles a receiver will compute (capsule angles depend on the next start)."""
         caps = np.frombuffer(probe, dtype=np.uint8).reshape(count + 1, -1)
         return decode(caps[:-1], caps[1:]).angle_deg
+
+    def _sprinkle_junk(self, batch: bytes, record_size: int) -> bytes:
+        every = self.faults.junk_every * record_size
+        if every <= 0:
+            return batch
+        if self._junk_in < 0:
+            self._junk_in = self._rng.randint(every // 2, every)
+        parts, last = [], 0
+        while self._junk_in < len(batch):
+            at = self._junk_in
+            burst = self._rng.randint(1, self.faults.junk_max)
+            parts += [batch[last:at], bytes(self._rng.randrange(256) for _ in range(burst))]
+            last = at
+            self._junk_in += self._rng.randint(3 * every // 4, 5 * every // 4)
+        self._junk_in -= len(batch)
+        parts.append(batch[last:])
+        return b"".join(parts)
 
     def _apply_faults(self, batch: bytes) -> bytes:
         faults = self.faults
