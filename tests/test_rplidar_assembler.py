@@ -58,7 +58,7 @@ def test_first_ray_timestamp_and_scan_time() -> None:
 
 
 def test_encoder_reset_abandons_the_revolution_in_progress() -> None:
-    asm = RevolutionAssembler()
+    asm = RevolutionAssembler(min_samples=1)  # toy turns of 4 samples
 
     def run(angles: list[float], new_rev: list[bool]) -> Samples:
         n = len(angles)

@@ -25,7 +25,8 @@ def test_standard_decode_agrees_with_roboticia_on_the_same_bytes() -> None:
     rplidar = pytest.importorskip("rplidar")
     streams = bench.make_streams(2000, 10)
     angle, dist = bench.arbiterd_decode(streams.node_stream)
-    peer = np.array(bench.roboticia_nodes(rplidar, streams.nodes))
+    # the last node waits for a successor to be judged
+    peer = np.array(bench.roboticia_nodes(rplidar, streams.nodes))[:-1]
     assert np.array_equal(angle, peer[:, 0]) and np.array_equal(dist, peer[:, 1])
 
 

@@ -47,7 +47,10 @@ def node_scans(draw: st.DrawFn) -> Scan:
 def capsule_scans(draw: st.DrawFn, data_type: int) -> Scan:
     k = draw(st.integers(3, 10))
     per = synth.SAMPLES_PER_CAPSULE[data_type]
-    deltas = draw(st.lists(st.integers(64, 40 * 64), min_size=k, max_size=k))
+    # a rotor turns steadily: the start-angle advance jitters by at most 20 % around its mean
+    mean = draw(st.integers(64, 40 * 64))
+    jitter = np.array(draw(st.lists(st.floats(-0.2, 0.2), min_size=k, max_size=k)))
+    deltas = np.rint(mean * (1 + jitter)).astype(int).tolist()
     start_q6 = (draw(st.integers(0, 23039)) + np.cumsum([0, *deltas[:-1]])) % 23040
     sync = np.arange(k) == 0
     if data_type == Ans.ULTRA_CAPSULE:  # smooth ranges: predictions are bounded
@@ -105,11 +108,12 @@ def stream_of(scan: Scan, records: list[bytes], junk: bytes = b"") -> bytes:
 
 
 def per_record_rows(scan: Scan) -> list[list[tuple[int, float, int]]]:
-    """Clean decode split per record (a capsule's samples need its successor)."""
+    """Clean decode split per record (a record waits for its successor to be judged, and a
+    capsule's samples need its successor's start angle: the last one is not decoded)."""
     runs, _ = decode(stream_of(scan, scan.records), [])
     rows = sample_rows(runs)
     per = 1 if scan.data_type == Ans.NODE else synth.SAMPLES_PER_CAPSULE[scan.data_type]
-    decodable = len(scan.records) - (0 if scan.data_type == Ans.NODE else 1)
+    decodable = len(scan.records) - 1
     assert len(rows) == decodable * per
     return [rows[i * per:(i + 1) * per] for i in range(decodable)]
 
@@ -122,10 +126,10 @@ def per_record_rows(scan: Scan) -> list[list[tuple[int, float, int]]]:
 def test_clean_decode_matches_what_was_encoded(scan: Scan, banner: bytes) -> None:
     runs, parser = decode(stream_of(scan, scan.records, b"RP LIDAR System.\r\n" + banner), [])
     dist = np.concatenate([r.distance_mm for r in runs])
-    if scan.data_type == Ans.NODE:
+    if scan.data_type == Ans.NODE:  # the last node waits for a successor to be judged
         angle = np.concatenate([r.angle_deg for r in runs])
-        assert np.array_equal(angle, scan.angle_deg)
-        assert np.array_equal(dist, scan.distance_mm)
+        assert np.array_equal(angle, scan.angle_deg[:-1])
+        assert np.array_equal(dist, scan.distance_mm[:-1])
     else:
         per = synth.SAMPLES_PER_CAPSULE[scan.data_type]
         want = scan.distance_mm[:len(scan.distance_mm) - per]
@@ -188,8 +192,8 @@ def corrupt(records: list[bytes], ops: dict[int, tuple[str, bytes, int]]) -> tup
 def recoverable(scan: Scan, ops: dict[int, tuple[str, bytes, int]], intact: set[int],
                 lock_nodes: int) -> list[int]:
     """Records the parser must deliver: nodes in untouched runs of at least ``lock_nodes``
-    (a byte phase is accepted only then); capsules whose successor is also untouched and
-    adjacent (SDK rule: a bad capsule also drops the cached previous one)."""
+    (a byte phase is accepted only then) but the first and last of each (the nodes next to
+    damage are dropped); capsules whose successor is also untouched and adjacent."""
     count = len(scan.records)
 
     def joined(i: int) -> bool:  # record i+1 follows record i with nothing inserted
@@ -204,7 +208,7 @@ def recoverable(scan: Scan, ops: dict[int, tuple[str, bytes, int]], intact: set[
             runs[-1].append(i)
         elif i in intact:
             runs.append([i])
-    return [i for run in runs if len(run) >= lock_nodes for i in run]
+    return [i for run in runs if len(run) >= lock_nodes for i in run[1:-1]]
 
 
 @SETTINGS

@@ -189,4 +189,7 @@ def test_standard_stream_resyncs_after_a_lost_byte() -> None:
     assert parser.resyncs == 1
     got_q6 = set(np.rint(got * 64).astype(int).tolist())
     want = np.rint(angle * 64).astype(int)
-    assert set(want[:100].tolist()) <= got_q6 and set(want[101:].tolist()) <= got_q6
+    # the nodes on either side of the damage may be dropped (junk may reach into them); the
+    # last node waits for its successor to be judged
+    assert set(want[:99].tolist()) <= got_q6 and set(want[102:-1].tolist()) <= got_q6
+    assert got_q6 <= set(want.tolist()) and len(got) >= n - 4

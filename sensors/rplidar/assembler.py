@@ -8,11 +8,15 @@ from typing import Any
 
 import numpy as np
 
-from sensors.rplidar.protocol import EncoderReset, Event, Samples
+from sensors.rplidar.protocol import Discontinuity, EncoderReset, Event, Samples
 from sensors.rplidar.records import F64, U8
 from sensors.scan import LaserScan, finite_list
 
 MAX_SAMPLES_PER_REVOLUTION = 8192
+#: a revolution with fewer than this share of the samples a whole turn has is not published
+MIN_FILL = 0.8
+#: fewer samples than this cannot be a revolution of any RPLIDAR mode
+MIN_SAMPLES_PER_REVOLUTION = 16
 
 
 @dataclass
@@ -51,15 +55,23 @@ class RevolutionAssembler:
     """Collects samples into whole revolutions; partial ones are discarded.
 
     A revolution starts at a sample flagged ``new_rev`` and ends where the next one starts; an
-    encoder reset or more than ``max_samples`` samples abandons the current one. Sample times
-    are estimated back from the chunk arrival time with the measured time per sample.
+    encoder reset, a discontinuity or more than ``max_samples`` samples abandons the current one
+    (``discarded``). A finished one with fewer than ``min_fill`` of the samples a whole turn has
+    (360° over its median angle step), or fewer than ``min_samples``, is not published either
+    (``short``). Sample times are
+    estimated back from the chunk arrival time with the measured time per sample.
     """
 
     def __init__(self, max_samples: int = MAX_SAMPLES_PER_REVOLUTION,
-                 sample_period: float = 0.0) -> None:
+                 sample_period: float = 0.0, min_fill: float = MIN_FILL,
+                 min_samples: int = MIN_SAMPLES_PER_REVOLUTION) -> None:
         self.max_samples = max_samples
         self.sample_period = sample_period
+        self.min_fill = min_fill
+        self.min_samples = min_samples
         self.discarded = 0
+        self.short = 0
+        self.last_short: tuple[int, float] | None = None  # (samples, expected) of the last one
         self._parts: list[tuple[F64, F64, U8]] = []
         self._count = 0
         self._t_first: float | None = None
@@ -72,16 +84,16 @@ class RevolutionAssembler:
 
     def feed(self, events: list[Event], t_arrival: float) -> list[Revolution]:
         """Take a chunk's events (received at wall clock ``t_arrival``); return finished turns."""
-        total = sum(len(e) for e in events if isinstance(e, Samples))
+        runs = [e for e in events if isinstance(e, Samples)]
+        # samples that arrived after each run: the later runs and what the parser holds back
+        after = sum(len(e) for e in runs) + (runs[-1].lag if runs else 0)
         done: list[Revolution] = []
-        seen = 0
         for event in events:
-            if isinstance(event, EncoderReset):
+            if isinstance(event, EncoderReset | Discontinuity):
                 self.reset()
             elif isinstance(event, Samples) and len(event):
-                t_end = t_arrival - (total - seen - len(event)) * self.sample_period
-                done += self._take(event, t_end)
-                seen += len(event)
+                after -= len(event)
+                done += self._take(event, t_arrival - after * self.sample_period)
         return done
 
     def _take(self, run: Samples, t_end: float) -> list[Revolution]:
@@ -110,12 +122,25 @@ class RevolutionAssembler:
         if self._t_first is None or not self._parts:
             return None
         angle, dist, quality = (np.concatenate(parts) for parts in zip(*self._parts, strict=True))
-        scan_time = max(t_next - self._t_first, 0.0)
-        if scan_time > 0 and len(angle):
-            self.sample_period = scan_time / len(angle)
-        rev = Revolution(self._t_first, scan_time, angle, dist, quality.astype(np.uint8))
         self._parts, self._count = [], 0
-        return rev
+        expected = expected_samples(angle)
+        if len(angle) < max(self.min_fill * expected, self.min_samples):
+            self.short += 1
+            self.last_short = (len(angle), expected)
+            return None
+        scan_time = max(t_next - self._t_first, 0.0)
+        if scan_time > 0:
+            self.sample_period = scan_time / len(angle)
+        return Revolution(self._t_first, scan_time, angle, dist, quality.astype(np.uint8))
+
+
+def expected_samples(angle_deg: F64) -> float:
+    """Samples a whole turn has at this revolution's median angle step (0 when unknown)."""
+    steps = np.diff(angle_deg)
+    steps = steps[(steps > 0) & (steps < 180)]
+    if not len(steps):
+        return 0.0
+    return 360.0 / float(np.median(steps))
 
 
 def to_laser_scan(rev: Revolution, geometry: ScanGeometry) -> LaserScan:

@@ -57,6 +57,9 @@ class LidarState:
     scan_rate_hz: float = 0.0
     revolutions: int = 0
     dropped_capsules: int = 0
+    dropped_nodes: int = 0
+    angle_misfits: int = 0
+    short_revolutions: int = 0
     resyncs: int = 0
     reconnects: int = 0
     stream_restarts: int = 0
@@ -89,8 +92,8 @@ class LidarManager:
         self._thread: threading.Thread | None = None
         self._client: RplidarClient | None = None
         self._lost_once = False
-        self._counted_drops = 0
-        self._counted_resyncs = 0
+        self._counted: dict[str, int] = {}  # parser counters already added to the state
+        self._standing_error: str | None = None  # what last_error returns to on recovery
 
     # -- lifecycle
 
@@ -122,7 +125,9 @@ class LidarManager:
                 "device_error_code": s.device_error_code,
                 "sample_rate_hz": round(s.sample_rate_hz, 1),
                 "scan_rate_hz": round(s.scan_rate_hz, 2), "revolutions": s.revolutions,
-                "dropped_capsules": s.dropped_capsules, "resyncs": s.resyncs,
+                "dropped_capsules": s.dropped_capsules, "dropped_nodes": s.dropped_nodes,
+                "angle_misfits": s.angle_misfits, "short_revolutions": s.short_revolutions,
+                "resyncs": s.resyncs,
                 "reconnects": s.reconnects, "stream_restarts": s.stream_restarts,
                 "device_resets": s.device_resets, "last_error": s.last_error}
 
@@ -212,10 +217,12 @@ class LidarManager:
         client.reset(self.config.banner_timeout)
 
     def _plan(self, client: RplidarClient, info: p.DeviceInfo) -> ScanPlan:
+        self._standing_error = None
         try:
             return client.plan(self.config.scan_mode, info)
         except UnknownScanMode as exc:
-            self.state.last_error = f"{exc}; using the device's typical mode"
+            self._standing_error = self.state.last_error = (
+                f"{exc}; using the device's typical mode")
             log.error("lidar: %s", self.state.last_error)
             return client.plan("express", info)
 
@@ -227,26 +234,37 @@ class LidarManager:
         last_progress = time.monotonic()
         while not self._stop.is_set():
             events, t_arrival = client.stream()
-            self._count_errors(client)
+            short = assembler.short
             now = time.monotonic()
             for rev in assembler.feed(events, t_arrival):
                 last_progress = now
                 self._publish(rev, now)
+            self._count_errors(client, assembler, short)
             if now - last_progress > self.config.revolution_timeout:
                 raise _Recover(f"no whole revolution for {self.config.revolution_timeout:.1f} s")
 
-    def _count_errors(self, client: RplidarClient) -> None:
-        parser = client.parser
-        drops, resyncs = parser.dropped_capsules, parser.resyncs
-        self.state.dropped_capsules += max(drops - self._counted_drops, 0)
-        self.state.resyncs += max(resyncs - self._counted_resyncs, 0)
-        self._counted_drops, self._counted_resyncs = drops, resyncs
+    def _count_errors(self, client: RplidarClient, assembler: RevolutionAssembler,
+                      short_before: int) -> None:
+        parser, s = client.parser, self.state
+        counts = {"dropped_capsules": parser.dropped_capsules,
+                  "dropped_nodes": parser.dropped_nodes, "resyncs": parser.resyncs,
+                  "angle_misfits": parser.angle_misfits}
+        for key, value in counts.items():
+            setattr(s, key, getattr(s, key) + max(value - self._counted.get(key, 0), 0))
+        self._counted = counts
+        if assembler.short > short_before and assembler.last_short is not None:
+            s.short_revolutions += assembler.short - short_before
+            samples, expected = assembler.last_short
+            s.last_error = (f"a revolution of {samples} samples was not published (a whole turn "
+                            f"has about {expected:.0f}): bytes lost or damaged on the serial "
+                            "line; check the cable if this keeps counting")
 
     def _publish(self, rev: Revolution, now: float) -> None:
         s = self.state
         s.revolutions += 1
         s.last_revolution_mono = now
         s.state = "streaming"
+        s.last_error = self._standing_error  # recovered: only a standing condition remains
         if rev.scan_time > 0:
             rate, per_s = 1.0 / rev.scan_time, len(rev) / rev.scan_time
             s.scan_rate_hz = rate if not s.scan_rate_hz else 0.8 * s.scan_rate_hz + 0.2 * rate
@@ -261,7 +279,7 @@ class LidarManager:
         client, self._client = self._client, None
         if client is None:
             return
-        self._counted_drops = self._counted_resyncs = 0
+        self._counted = {}
         try:
             client.write(p.stop())
             if self.info is not None:
