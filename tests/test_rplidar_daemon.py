@@ -91,6 +91,8 @@ def test_daemon_streams_and_survives_garbage_stall_and_unplug(
         wait_for(lambda: lidar_health(daemon)["revolutions"] >= 3, 15, "first revolutions")
         lidar = lidar_health(daemon)
         assert lidar["status"] == "ok" and lidar["model"] == "A1M8" and lidar["mode"] == "Express"
+        integrity = ("dropped_capsules", "dropped_nodes", "angle_misfits", "short_revolutions")
+        assert all(lidar[key] == 0 for key in integrity), lidar
         status, scan = daemon.get("/api/scan")
         assert status == 200 and scan["frame_id"] == "laser" and len(scan["ranges"]) > 300
 
