@@ -6,9 +6,10 @@ import json
 import subprocess
 import sys
 import threading
-import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -19,8 +20,17 @@ from hypothesis import strategies as st
 from sensors.rplidar import records, synth
 from sensors.rplidar.assembler import Revolution, RevolutionAssembler
 from sensors.rplidar.device import LidarManager, ManagerConfig
-from sensors.rplidar.protocol import Ans, Discontinuity, Event, Samples, StreamParser
+from sensors.rplidar.protocol import (
+    Ans,
+    Descriptor,
+    Discontinuity,
+    Event,
+    Health,
+    Samples,
+    StreamParser,
+)
 from sim.rplidar_emulator import A1, RplidarEmulator
+from tests.conftest import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,8 +107,10 @@ def node_stream(kind: Kind, turns: float) -> bytes:
 
 
 def _decoded(body: bytes, kind: Kind) -> records.DecodedSamples:
-    decode = {Ans.CAPSULE: records.decode_legacy, Ans.DENSE_CAPSULE: records.decode_dense,
-              Ans.ULTRA_CAPSULE: records.decode_ultra}[kind.data_type]
+    decoders: dict[int, Callable[[records.U8, records.U8], records.DecodedSamples]] = {
+        Ans.CAPSULE: records.decode_legacy, Ans.DENSE_CAPSULE: records.decode_dense,
+        Ans.ULTRA_CAPSULE: records.decode_ultra}
+    decode = decoders[kind.data_type]
     caps = np.frombuffer(body, dtype=np.uint8).reshape(-1, kind.size)
     return decode(caps[:-1], caps[1:])
 
@@ -277,6 +289,14 @@ def test_a_start_flag_without_a_wrap_does_not_cut_a_revolution() -> None:
     assert assembler.short == 0
 
 
+def test_the_held_back_node_is_emitted_when_the_stream_ends_cleanly() -> None:
+    stream = stream_of(STANDARD, 1.5)
+    health = Descriptor(3, False, Ans.HEALTH).encode() + bytes(3)
+    _, _, _, events = parse(stream + health)
+    count = sum(len(e) for e in events if isinstance(e, Samples))
+    assert count == len(nodes_of(stream)) and isinstance(events[-1], Health)
+
+
 def test_a_node_that_does_not_fit_is_dropped_and_counted() -> None:
     stream = stream_of(STANDARD, 4.0)
     nodes = nodes_of(stream)
@@ -390,6 +410,8 @@ def test_scan_json_through_a_flaky_cable(tmp_path: Path, mode: str, kind: Kind) 
 
 
 class Collector:
+    """The device manager's revolution consumer (called from its reader thread)."""
+
     def __init__(self) -> None:
         self.revolutions: list[Revolution] = []
         self.lock = threading.Lock()
@@ -402,13 +424,20 @@ class Collector:
         with self.lock:
             return len(self.revolutions)
 
-    def wait(self, count: int, timeout: float = 10.0) -> list[Revolution]:
-        deadline = time.monotonic() + timeout
-        while self.count() < count:
-            assert time.monotonic() < deadline, f"only {self.count()} of {count} revolutions"
-            time.sleep(0.02)
+    def wait(self, count: int) -> list[Revolution]:
+        wait_for(lambda: self.count() >= count, f"{count} revolutions", within_s=10.0)
         with self.lock:
             return list(self.revolutions)
+
+
+def health_when(manager: LidarManager, ok: Callable[[dict[str, Any]], bool],
+                what: str) -> dict[str, Any]:
+    """The manager's health once ``ok`` holds for it."""
+    def check() -> dict[str, Any] | None:
+        health = manager.snapshot()
+        return health if ok(health) else None
+    found: dict[str, Any] = wait_for(check, what, within_s=10.0)
+    return found
 
 
 def test_device_manager_through_a_flaky_cable_counts_and_recovers(tmp_path: Path) -> None:
@@ -423,25 +452,28 @@ def test_device_manager_through_a_flaky_cable_counts_and_recovers(tmp_path: Path
             revs = collector.wait(15)
             health = manager.snapshot()
             emulator.sprinkle_junk(0)
+            emulator.stall(0.05)  # half a turn lost, no junk: the angle jumps, a turn is short
+            after_gap = health_when(
+                manager, lambda h: h["short_revolutions"] > health["short_revolutions"],
+                "a short revolution")
             emulator.stall(2.5)  # no revolution for 2 s: the stream is restarted
-            deadline = time.monotonic() + 10
-            while manager.snapshot()["stream_restarts"] == 0:
-                assert time.monotonic() < deadline, "no stream restart"
-                time.sleep(0.02)
-            assert manager.snapshot()["last_error"]
-            collector.wait(len(collector.revolutions) + 3)
+            restarting = health_when(manager, lambda h: h["stream_restarts"] > 0,
+                                     "a stream restart")
+            assert restarting["last_error"], restarting
+            collector.wait(collector.count() + 3)
             recovered = manager.snapshot()
         finally:
             manager.stop()
-    angle = np.concatenate([r.angle_deg for r in revs[1:]])
-    dist = np.concatenate([r.distance_mm for r in revs[1:]])
+    angle = np.concatenate([r.angle_deg for r in revs])
+    dist = np.concatenate([r.distance_mm for r in revs])
     off = ~on_profile(angle, dist, STANDARD.tolerance_mm)
-    fill = np.array([len(r) for r in revs[1:]]) / STANDARD.per_revolution
+    fill = np.array([len(r) for r in revs]) / STANDARD.per_revolution
     summary = f"{off.sum()}/{len(off)} samples off the profile, fill {np.round(fill, 3)}"
     assert off.sum() <= 0.001 * len(off), summary
     assert fill.min() >= 0.90 and fill.max() <= 1.01, summary
     assert health["status"] == "ok" and health["resyncs"] >= 5, health
     for key in ("dropped_nodes", "angle_misfits", "short_revolutions"):
         assert isinstance(health[key], int), (key, health)
-    assert health["dropped_nodes"] >= 5, health
+    assert health["dropped_nodes"] >= 5 and health["angle_misfits"] >= 1, health
+    assert after_gap["angle_misfits"] > health["angle_misfits"], after_gap
     assert recovered["status"] == "ok" and recovered["last_error"] is None, recovered

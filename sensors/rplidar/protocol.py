@@ -522,7 +522,7 @@ class _NodeStream(_RecordStream):
             return []
         return [self._emit(buf[first:end].reshape(-1, self.size), angle, first)]
 
-    def _emit(self, recs: U8, angle_q6: records.I64, first: int) -> Samples:
+    def _emit(self, recs: U8, angle_q6: records.I64, first: int, lag: int = 1) -> Samples:
         """Samples of ``recs`` (from buffer position ``first``), whose angles are known."""
         end = first + len(recs) * self.size
         self.emitted_end[first % self.size] = end
@@ -535,7 +535,7 @@ class _NodeStream(_RecordStream):
         self.anchor_q6, self.anchor_end = int(angle_q6[-1]), end
         dist = (recs[:, 3].astype(np.int64) | (recs[:, 4].astype(np.int64) << 8)) / 4.0
         return Samples(self.data_type, angle_q6 / 64.0, dist, (recs[:, 0] >> 2).astype(np.uint8),
-                       new_rev, lag=1)
+                       new_rev, lag)
 
     def lose_sync(self, rec: U8, passed_check: bool) -> None:
         super().lose_sync(rec, passed_check)
@@ -548,10 +548,8 @@ class _NodeStream(_RecordStream):
         if not self.pending:
             return []
         self.pending = False
-        last = self._emit(buf[pos - self.size:pos].reshape(1, self.size),
-                          np.array([self.pending_q6], dtype=np.int64), pos - self.size)
-        last.lag = 0
-        return [last]
+        return [self._emit(buf[pos - self.size:pos].reshape(1, self.size),
+                           np.array([self.pending_q6], dtype=np.int64), pos - self.size, lag=0)]
 
     def shift(self, dropped: int) -> None:
         self.emitted_end = {(end - dropped) % self.size: end - dropped
