@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.test_rosbridge_server import Robot, connect, running_daemon, wait_until
+from tests.conftest import Robot, eventually, running_robot
+from tests.test_rosbridge_server import connect
 
 STALL_S = 5.0
 
@@ -79,16 +80,17 @@ async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
 
 
 async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
-    async with running_daemon(tmp_path) as robot, connect(robot.ws_url) as healthy:
+    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as healthy:
         port = int(robot.ws_url.rsplit(":", 1)[1].strip("/"))
+        bridge = robot.component("rosbridge")
         frames = [json.dumps({"op": "subscribe", "topic": t}) for t in ("/scan", "/odom", "/tf")]
         sock = await asyncio.to_thread(stalled_client, port, frames)
         try:
-            await wait_until(lambda: len(robot.bridge.clients) == 2
+            await eventually(lambda: len(bridge.clients) == 2
                              and any("/tf" in c.outbox.topics
-                                     for c in robot.bridge.clients.values()),
+                                     for c in bridge.clients.values()),
                              "the stalled client's subscriptions")
-            stalled = next(c for c in robot.bridge.clients.values() if "/tf" in c.outbox.topics)
+            stalled = next(c for c in bridge.clients.values() if "/tf" in c.outbox.topics)
             # a small send buffer stands in for a congested radio link: without it the
             # kernel would absorb several megabytes before the server's writer felt anything
             assert stalled.transport is not None
@@ -128,4 +130,4 @@ async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
             assert late <= max(2, ticks // 20), f"{late} late ticks of {ticks}"
         finally:
             sock.close()
-        await wait_until(lambda: len(robot.bridge.clients) == 1, "the stalled client to go")
+        await eventually(lambda: len(bridge.clients) == 1, "the stalled client to go")
