@@ -10,7 +10,7 @@ from typing import Any
 
 from aiohttp import web
 
-from daemon import __version__, lidar
+from daemon import __version__, console, lidar
 from daemon.bus import Bus
 from daemon.component import Component, DaemonContext, worst
 from daemon.config import Config, ConfigError
@@ -98,6 +98,8 @@ class Daemon:
         ControlApi(loop, http, control["allow_fault_injection"])
         loop.on_tick.append(self.notifier.tick)
         self._add_own_routes(http)
+        if http_cfg["console"]:
+            console.register(http, self.config)
         self.components = [loop]
         if runtime is not None:
             runtime.attach(driver)

@@ -92,6 +92,8 @@ HTTP_OPTIONS: Options = {
     "max_connections": Option(int, 256, "most open HTTP connections; one more closes the "
                               "oldest idle one (keep it well under LimitNOFILE)",
                               minval=4, maxval=65536),
+    "console": Option(bool, True, "serve the web console at / (its files are open; what moves "
+                      "the robot still needs the token)"),
 }
 
 SECURITY_OPTIONS: Options = {
