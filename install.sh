@@ -16,7 +16,8 @@ PROG="install.sh"
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
 DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench}"
-INTEROP_DIR="${SRCDIR}/tests/interop"
+NODE_TEST_DIRS=(tests/interop tests/console)   # npm ci in each (lock files committed)
+WITH_BROWSER=0   # test mode: Debian's chromium for the web console's browser tests
 DRY_RUN="${ARBITERD_DRY_RUN:-0}"
 
 ######################################################################
@@ -68,6 +69,9 @@ missing_dev_packages() {
         || missing+=(openssh-client)
     command -v rsync >/dev/null 2>&1 || missing+=(rsync)
     command -v systemd-analyze >/dev/null 2>&1 || missing+=(systemd)
+    if [[ "${WITH_BROWSER}" == 1 ]]; then
+        [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
+    fi
     (( ${#missing[@]} == 0 )) || printf '%s\n' "${missing[@]}"
 }
 
@@ -119,17 +123,22 @@ dev_step_venv() {
     [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${want}" >"${stamp}"
 }
 
-# Step 3: the Node packages of the interop tests (roslib), when the tests pin them.
+# Step 3: the Node packages of the tests that run real JavaScript clients (roslib, the
+# console's browser driver), from their committed lock files.
 dev_step_node_packages() {
-    local lock="${INTEROP_DIR}/package-lock.json" stamp="${INTEROP_DIR}/node_modules/.arbiterd-stamp"
-    [[ -f "${lock}" ]] || { report_status "no ${lock#"${SRCDIR}"/}: skipping npm ci"; return 0; }
-    if [[ -f "${stamp}" && "$(cat "${stamp}")" == "$(sha256_of "${lock}")" ]]; then
-        report_status "node packages in tests/interop: up to date"
-        return 0
-    fi
-    report_status "installing node packages in tests/interop (npm ci)"
-    (cd "${INTEROP_DIR}" && run npm ci --no-audit --no-fund --loglevel=error)
-    [[ "${DRY_RUN}" == 1 ]] || sha256_of "${lock}" >"${stamp}"
+    local rel dir lock stamp
+    for rel in "${NODE_TEST_DIRS[@]}"; do
+        dir="${SRCDIR}/${rel}" lock="${SRCDIR}/${rel}/package-lock.json"
+        stamp="${dir}/node_modules/.arbiterd-stamp"
+        [[ -f "${lock}" ]] || { report_status "no ${rel}/package-lock.json: skipping npm ci"; continue; }
+        if [[ -f "${stamp}" && "$(cat "${stamp}")" == "$(sha256_of "${lock}")" ]]; then
+            report_status "node packages in ${rel}: up to date"
+            continue
+        fi
+        report_status "installing node packages in ${rel} (npm ci)"
+        (cd "${dir}" && run npm ci --no-audit --no-fund --loglevel=error)
+        [[ "${DRY_RUN}" == 1 ]] || sha256_of "${lock}" >"${stamp}"
+    done
 }
 
 setup_dev() {
@@ -141,17 +150,18 @@ setup_dev() {
 
 cmd_dev() {
     setup_dev
-    report_status "ready: ${DEV_VENV}/bin/arbiterd run --sim  |  ./install.sh test"
+    report_status "ready: ${DEV_VENV}/bin/arbiterd run --sim, then open http://localhost:8085/  |  ./install.sh test"
 }
 
 cmd_sim() {
     setup_dev
-    report_status "starting the daemon on the simulated robot (Ctrl-C stops it)"
+    report_status "starting the daemon on the simulated robot: open http://localhost:8085/ (Ctrl-C stops it)"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/arbiterd" run --sim "$@"; return 0; }
     exec "${DEV_VENV}/bin/arbiterd" run --sim "$@"
 }
 
 cmd_test() {
+    WITH_BROWSER=1
     setup_dev
     report_status "running the test suite"
     cd "${SRCDIR}"
@@ -336,7 +346,8 @@ print(tomllib.load(open(sys.argv[1], "rb"))["project"]["version"])' "${SRCDIR}/p
 # A content hash of the package sources, so re-installing unchanged sources is a no-op.
 source_hash() {
     (cd "${SRCDIR}" && find pyproject.toml daemon drivers sensors sim -type f \
-        \( -name '*.py' -o -name '*.toml' -o -name '*.json' -o -name 'py.typed' \) \
+        \( -name '*.py' -o -name '*.toml' -o -name '*.json' -o -name 'py.typed' \
+           -o -name '*.html' -o -name '*.css' -o -name '*.js' -o -name '*.svg' \) \
         -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum) \
         | sha256sum | cut -c1-12
 }
@@ -662,6 +673,7 @@ print_connect_info() {
     port="$(config_get http port 8085)"
     ws="$(config_get rosbridge port 9090)"
     report_status "arbiterd is running. Connect to:"
+    printf '    console   http://%s:%s/\n' "${addr:-<robot-ip>}" "${port}"
     printf '    HTTP      http://%s:%s/api/health\n' "${addr:-<robot-ip>}" "${port}"
     printf '    rosbridge ws://%s:%s   (token: %s/token, send as Bearer or ?token=)\n' \
         "${addr:-<robot-ip>}" "${ws}" "${CONFIG_DIR}"
@@ -770,9 +782,11 @@ usage() {
 usage: ./install.sh COMMAND [OPTIONS]
 
 Developer commands (run from a clone, as a normal user; apt packages go through sudo):
-  dev                  set up .venv (package editable + test/dev/bench extras), npm ci for interop
+  dev                  set up .venv (package editable + test/dev/bench extras), npm ci for the
+                       JavaScript test clients (tests/interop, tests/console)
   sim [ARGS...]        dev, then run 'arbiterd run --sim ARGS...' in the foreground
-  test [ARGS...]       dev, then run 'python -m pytest ARGS...'
+                       (the console is at http://localhost:8085/)
+  test [ARGS...]       dev plus Debian's chromium (browser tests), then 'python -m pytest ARGS...'
 
 Robot commands (Raspberry Pi OS Bookworm / Debian 12, as root):
   systemd              install or update the service: apt packages, user 'arbiterd', a release

@@ -127,6 +127,11 @@ def test_release_venv_runs_the_installed_package(
     result = subprocess.run([str(venv / "bin/arbiterd"), "--version"], capture_output=True,
                             text=True, timeout=60, check=False)
     assert result.returncode == 0 and result.stdout.startswith("arbiterd "), result.stderr
+    console = subprocess.run(  # the web console's files are inside the installed wheel
+        [str(venv / "bin/python"), "-c", "from daemon.console import FILES, load\n"
+         "print(sum(len(load(name).body) for name in FILES.values()))"],
+        capture_output=True, text=True, timeout=60, check=False)
+    assert console.returncode == 0 and int(console.stdout) > 10_000, console.stderr
     shipped = root / "opt/arbiterd/current"
     assert (shipped / "install.sh").read_bytes() == INSTALL_SH.read_bytes()
     assert (shipped / "systemd/arbiterd.service").is_file()

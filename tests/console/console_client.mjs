@@ -1,0 +1,221 @@
+// Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
+// Usage: node console_client.mjs URL drive|token [--shots DIR] [--token T]
+// Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
+import { chromium } from "playwright-core";
+
+const [url, scenario] = process.argv.slice(2);
+const option = (name) => {
+  const i = process.argv.indexOf(name);
+  return i > 0 ? process.argv[i + 1] : undefined;
+};
+const shots = option("--shots");
+const secret = option("--token");
+const CHROMIUM = process.env.ARBITERD_CHROMIUM || "/usr/bin/chromium";
+const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+  "--disable-component-update", "--no-first-run"];
+const LAPTOP = { width: 1366, height: 768 };
+const PHONE = { viewport: { width: 390, height: 844 }, deviceScaleFactor: 2, isMobile: true,
+  hasTouch: true };
+
+const report = (step, data = {}) => console.log(JSON.stringify({ step, ...data }));
+const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+setTimeout(() => { report("fail", { error: "overall timeout" }); process.exit(1); }, 150000).unref();
+
+async function status() {
+  const response = await fetch(new URL("/api/status", url));
+  return response.json();
+}
+
+const truth = async () => (await status()).ground_truth;
+
+// Samples /api/status every 25 ms until `done(sample)` or `ms` pass; returns the samples.
+async function watch(ms, done = () => false) {
+  const samples = [];
+  const t0 = Date.now();
+  while (Date.now() - t0 < ms) {
+    const s = await status();
+    samples.push({ t: Date.now() - t0, target: s.target.linear_x, targetW: s.target.angular_z,
+      v: s.twist.linear_x, w: s.twist.angular_z, reason: s.reason, truth: s.ground_truth });
+    if (done(s)) break;
+    await sleep(25);
+  }
+  return samples;
+}
+
+const still = (s) => s.twist.linear_x === 0 && s.twist.angular_z === 0;
+
+// Holds a key for `ms`, then releases it and follows the robot until it is still.
+async function holdKey(page, key, ms) {
+  const before = await truth();
+  await page.keyboard.down(key);
+  const held = await watch(ms);
+  await page.keyboard.up(key);
+  const stopping = await watch(3000, still);
+  return { before, atRelease: held[held.length - 1].truth, held: summary(held),
+    stop: summary(stopping) };
+}
+
+function summary(samples) {
+  const last = samples[samples.length - 1];
+  return {
+    ms: last.t, reasons: [...new Set(samples.map((s) => s.reason))],
+    still: last.v === 0 && last.w === 0,
+    zeroCommanded: samples.some((s) => s.reason === "command" && s.target === 0 &&
+      s.targetW === 0),
+    end: last.truth,
+  };
+}
+
+async function waitReady(page) {
+  await page.waitForSelector("#conn[data-state=connected]", { timeout: 15000 });
+  await page.waitForFunction(() => /scan [1-9]\d* points/.test(
+    document.getElementById("view-info").textContent), null, { timeout: 15000 });
+  await page.waitForSelector("#components tr", { timeout: 15000 });
+}
+
+async function newPage(browser, options) {
+  const context = await browser.newContext(options);
+  const page = await context.newPage();
+  const errors = [];
+  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  page.on("pageerror", (e) => errors.push(`pageerror: ${e.message}`));
+  await page.goto(url);
+  return { page, context, errors };
+}
+
+// Headless Chromium keeps every tab visible, so the page is told it was hidden the way a
+// browser says it: document.visibilityState "hidden" and a visibilitychange event.
+async function hideTab(page) {
+  await page.evaluate(() => {
+    Object.defineProperty(document, "visibilityState", { configurable: true, get: () => "hidden" });
+    Object.defineProperty(document, "hidden", { configurable: true, get: () => true });
+    document.dispatchEvent(new Event("visibilitychange"));
+  });
+}
+
+const text = (page, selector) => page.$eval(selector, (e) => e.textContent);
+
+async function driveScenario(browser) {
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  report("loaded", {
+    conn: await text(page, "#conn"), access: await page.$eval("#access", (e) => e.dataset.state),
+    components: await page.$$eval("#components tr", (rows) => rows.map((r) => r.dataset.component)),
+    scan: await text(page, "#view-info"), health: await text(page, "#health-status"),
+    mode: await text(page, "#mode"), errors: [...errors],
+  });
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+
+  report("forward", await holdKey(page, "w", 1000));
+  report("left", await holdKey(page, "a", 600));
+  report("right", await holdKey(page, "d", 600));
+
+  const box = await page.locator("#joystick").boundingBox();
+  const cx = box.x + box.width / 2;
+  const cy = box.y + box.height / 2;
+  const before = await truth();
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  await page.mouse.move(cx, cy - box.width * 0.4, { steps: 5 });
+  const held = await watch(1000);
+  await hideTab(page);
+  const hidden = await watch(3000, still);
+  await page.mouse.up();
+  report("joystick", { before, atHide: held[held.length - 1].truth, held: summary(held),
+    hidden: summary(hidden), command: await text(page, "#command") });
+  await page.evaluate(() => {
+    delete document.visibilityState;
+    delete document.hidden;
+    document.dispatchEvent(new Event("visibilitychange"));
+  });
+
+  if (shots) await page.screenshot({ path: `${shots}/console-laptop.png` });
+  await page.keyboard.press("Space");
+  await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
+  const latched = await status();
+  const blocked = await holdKey(page, "w", 800);
+  report("estop", { engaged: latched.estop.engaged, reason: latched.estop.reason,
+    shown: await text(page, "#estop-state"), blocked });
+
+  const release = page.locator("#estop-release");
+  await release.click(); // a click is not a deliberate release
+  await sleep(300);
+  const afterClick = (await status()).estop.engaged;
+  const rb = await release.boundingBox();
+  await page.mouse.move(rb.x + rb.width / 2, rb.y + rb.height / 2);
+  await page.mouse.down();
+  await sleep(1300);
+  await page.mouse.up();
+  await page.waitForSelector("#estop-box[data-engaged=false]", { timeout: 5000 });
+  report("release", { afterClick, afterHold: (await status()).estop.engaged });
+  report("errors", { errors });
+  await context.close();
+  await phone(browser);
+}
+
+async function phone(browser) {
+  const { page, context, errors } = await newPage(browser, PHONE);
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const box = await page.locator("#joystick").boundingBox();
+  const x = box.x + box.width / 2;
+  const y = box.y + box.height / 2;
+  const cdp = await context.newCDPSession(page);
+  const touch = (type, points) => cdp.send("Input.dispatchTouchEvent", { type, touchPoints: points });
+  const before = await truth();
+  await touch("touchStart", [{ x, y }]);
+  for (let i = 1; i <= 5; i++) await touch("touchMove", [{ x, y: y - (box.height * 0.08) * i }]);
+  const held = await watch(1000);
+  await touch("touchEnd", []);
+  const stop = await watch(3000, still);
+  if (shots) await page.screenshot({ path: `${shots}/console-phone.png` });
+  report("touch", { before, atRelease: held[held.length - 1].truth, held: summary(held),
+    stop: summary(stop), errors });
+  await context.close();
+}
+
+async function tokenScenario(browser) {
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#token-dialog[open]", { timeout: 10000 });
+  const asked = await text(page, "#token-why");
+  await page.click("#token-cancel");
+  await page.waitForSelector("#access[data-state=read-only]", { timeout: 5000 });
+  const none = await holdKey(page, "w", 1000);
+  report("without", { asked, access: await text(page, "#access"),
+    banner: await text(page, "#banner"), command: await text(page, "#command"), moved: none });
+
+  await page.click("#token-button");
+  await page.fill("#token-input", `${secret}-wrong`);
+  await page.click("#token-ok");
+  await page.waitForSelector("#access[data-state=refused]", { timeout: 10000 });
+  const wrong = await holdKey(page, "w", 1000);
+  report("wrong", { access: await text(page, "#access"), banner: await text(page, "#banner"),
+    moved: wrong });
+
+  await page.click("#token-button");
+  await page.fill("#token-input", secret);
+  await page.click("#token-ok");
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const right = await holdKey(page, "w", 1000);
+  const stored = await page.evaluate(() => sessionStorage.getItem("arbiterd.token"));
+  await page.keyboard.press("Space");
+  await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
+  report("with", { access: await text(page, "#access"), banner: await text(page, "#banner"),
+    moved: right, stored: stored === secret, estop: (await status()).estop.engaged });
+  report("errors", { errors });
+  await context.close();
+}
+
+const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
+try {
+  if (scenario === "drive") await driveScenario(browser);
+  else if (scenario === "token") await tokenScenario(browser);
+  else throw new Error(`unknown scenario ${scenario}`);
+  report("done", { ok: true });
+} catch (error) {
+  report("fail", { error: String(error?.stack ?? error) });
+  process.exitCode = 1;
+} finally {
+  await browser.close();
+}

@@ -1,0 +1,132 @@
+# The web console end to end: Debian's Chromium (playwright-core on Node) against
+# `arbiterd run --sim`, driving with keys, joystick and touch; e-stop; token; screenshots.
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.daemon_proc import DaemonProcess, wait_for
+
+HERE = Path(__file__).resolve().parent
+NODE = shutil.which("node")
+CHROMIUM = os.environ.get("ARBITERD_CHROMIUM", "/usr/bin/chromium")
+# Set to a folder (e.g. docs) to keep the run's screenshots there as well.
+SHOTS_TO = os.environ.get("ARBITERD_CONSOLE_SCREENSHOTS")
+Steps = dict[str, dict[str, Any]]
+
+
+def _require_browser() -> None:
+    """Node, Chromium and the locked playwright-core are prerequisites (`./install.sh test`)."""
+    if NODE is None:
+        pytest.fail("node is not installed; run ./install.sh test")
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing; ./install.sh test installs Debian's chromium "
+                    "(or set ARBITERD_CHROMIUM to a Chromium binary)")
+    if not (HERE / "node_modules" / "playwright-core" / "package.json").exists():
+        pytest.fail("tests/console/node_modules/playwright-core is missing; run `npm ci` in "
+                    "tests/console (./install.sh dev does it)")
+
+
+def _run_console(daemon: DaemonProcess, *args: str) -> Steps:
+    wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok", 20,
+             "the simulated robot healthy (lidar streaming)")
+    assert NODE is not None
+    result = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
+                             *args], cwd=HERE, capture_output=True, text=True, timeout=170)
+    steps = {}
+    for line in result.stdout.splitlines():
+        if line.startswith("{"):
+            record = json.loads(line)
+            steps[record["step"]] = record
+    assert result.returncode == 0 and "done" in steps, (
+        f"console client failed:\n{result.stdout}\n{result.stderr}\n--- daemon log ---\n"
+        f"{daemon.log()}")
+    return steps
+
+
+def moved(step: dict[str, Any], end: str = "atRelease") -> float:
+    a, b = step["before"], step[end]
+    return math.hypot(b["x"] - a["x"], b["y"] - a["y"])
+
+
+def ahead(step: dict[str, Any], end: str) -> float:
+    """Distance travelled along the robot's heading at the start."""
+    a, b = step["before"], step[end]
+    return (b["x"] - a["x"]) * math.cos(a["theta"]) + (b["y"] - a["y"]) * math.sin(a["theta"])
+
+
+def stopped_by_zero_command(phase: dict[str, Any]) -> bool:
+    """Still, and the page's zero command stopped it, not the deadman."""
+    return bool(phase["still"] and phase["zeroCommanded"]
+                and not any(r.startswith("deadman") for r in phase["reasons"]))
+
+
+def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    with DaemonProcess(tmp_path, args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "drive", "--shots", str(shots))
+        assert daemon.stop() == 0
+    loaded = steps["loaded"]
+    assert loaded["errors"] == [] and loaded["conn"] == "connected"
+    assert {"control", "lidar", "rosbridge", "http", "sim"} <= set(loaded["components"])
+    assert loaded["health"] == "ok" and loaded["mode"] == "simulated robot"
+    assert int(loaded["scan"].split("scan ")[1].split()[0]) > 50
+
+    forward = steps["forward"]
+    assert ahead(forward, "atRelease") >= 0.2
+    held = forward["held"]["reasons"]  # steady commands while held: no deadman mid-drive
+    assert "command" in held and not any(r.startswith("deadman") for r in held)
+    assert stopped_by_zero_command(forward["stop"])
+    assert steps["left"]["atRelease"]["theta"] - steps["left"]["before"]["theta"] > 0.1
+    assert steps["right"]["atRelease"]["theta"] - steps["right"]["before"]["theta"] < -0.1
+    assert stopped_by_zero_command(steps["left"]["stop"])
+    assert stopped_by_zero_command(steps["right"]["stop"])
+
+    joystick = steps["joystick"]
+    assert ahead(joystick, "atHide") >= 0.2
+    assert stopped_by_zero_command(joystick["hidden"])
+
+    estop = steps["estop"]
+    assert estop["engaged"] is True and "ENGAGED" in estop["shown"]
+    assert moved(estop["blocked"]) < 0.01
+    assert all(r.startswith("e-stop") for r in estop["blocked"]["held"]["reasons"])
+    assert steps["release"] == {"step": "release", "afterClick": True, "afterHold": False}
+    assert steps["errors"]["errors"] == []
+
+    touch = steps["touch"]
+    assert ahead(touch, "atRelease") >= 0.2 and stopped_by_zero_command(touch["stop"])
+    assert touch["errors"] == []
+    for name in ("console-laptop.png", "console-phone.png"):
+        assert (shots / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        if SHOTS_TO:
+            shutil.copy(shots / name, Path(SHOTS_TO) / name)
+
+
+def test_console_with_a_token(tmp_path: Path) -> None:
+    _require_browser()
+    with DaemonProcess(tmp_path, '[security]\ntoken = "console-t0ken"\n',
+                       args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "token", "--token", "console-t0ken")
+        assert daemon.stop() == 0
+    without = steps["without"]
+    assert "needs a token" in without["asked"]
+    assert without["access"] == "read-only: token needed"
+    assert "needs a token to drive" in without["banner"]
+    assert "not sent: this robot needs a token" in without["command"]
+    assert moved(without["moved"]) < 0.01
+    wrong = steps["wrong"]
+    assert wrong["access"] == "token refused" and "token was refused" in wrong["banner"]
+    assert moved(wrong["moved"]) < 0.01
+    right = steps["with"]
+    assert right["access"] == "can drive" and right["banner"] == ""
+    assert ahead(right["moved"], "atRelease") >= 0.2 and right["stored"] is True
+    assert right["estop"] is True  # the e-stop goes over HTTP with the Bearer token
