@@ -43,4 +43,5 @@ SUITES: dict[str, str] = {
     "sim": "daemon.bench.sim",
     "process": "daemon.bench.process",
     "rosbridge": "daemon.bench.rosbridge",
+    "console": "daemon.bench.console",
 }

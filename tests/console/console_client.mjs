@@ -1,5 +1,5 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token [--shots DIR] [--token T]
+// Usage: node console_client.mjs URL drive|token|hold [--shots DIR] [--token T] [--seconds S]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { chromium } from "playwright-core";
 
@@ -207,10 +207,27 @@ async function tokenScenario(browser) {
   await context.close();
 }
 
+// For `arbiterd bench --only console`: the page drives in a circle (W+A held) for --seconds.
+async function holdScenario(browser) {
+  const seconds = Number(option("--seconds") || 3);
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  await page.keyboard.down("w");
+  await page.keyboard.down("a");
+  report("driving");
+  await sleep(seconds * 1000);
+  await page.keyboard.up("a");
+  await page.keyboard.up("w");
+  report("held", { seconds, errors });
+  await context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
   else if (scenario === "token") await tokenScenario(browser);
+  else if (scenario === "hold") await holdScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {
