@@ -20,7 +20,7 @@ from typing import Any
 import aiohttp
 
 from daemon.bench import BenchResult
-from daemon.latency import summarize
+from daemon.latency import LatencyTracker, summarize
 
 SUITE = "console"
 REPO = Path(__file__).resolve().parents[2]
@@ -60,6 +60,24 @@ async def replay(http_url: str, ws_url: str, seconds: float) -> dict[str, Any]:
         for task in tasks:
             task.cancel()
     return counts
+
+
+async def alternate(http_url: str, ws_url: str, window_s: float, cycles: int) -> dict[str, Any]:
+    """``cycles`` times: ``window_s`` with no client, then ``window_s`` with one console
+    connected and driving. The windows (monotonic s, the same clock as the daemon's) let the
+    daemon side sort its ticks into the two, so both see the same machine load."""
+    windows: dict[str, list[tuple[float, float]]] = {"idle": [], "console": []}
+    totals = {"messages": 0, "commands": 0, "polls": 0}
+    for _ in range(cycles):
+        t0 = time.monotonic()
+        await asyncio.sleep(window_s)
+        windows["idle"].append((t0, time.monotonic()))
+        t0 = time.monotonic()
+        counts = await replay(http_url, ws_url, window_s)
+        windows["console"].append((t0, time.monotonic()))
+        for key, value in counts.items():
+            totals[key] += value
+    return {"windows": windows, **totals}
 
 
 async def _read(ws: aiohttp.ClientWebSocketResponse, counts: dict[str, int]) -> None:
@@ -103,13 +121,35 @@ def worker_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m daemon.bench.console")
     parser.add_argument("--http", required=True)
     parser.add_argument("--ws", required=True)
-    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--seconds", type=float, default=3.0, help="one window")
+    parser.add_argument("--cycles", type=int, default=0,
+                        help="alternate idle and console windows this many times (0: one "
+                        "console window only)")
     args = parser.parse_args(argv)
-    print(json.dumps(asyncio.run(replay(args.http, args.ws, args.seconds))), flush=True)
+    if args.cycles:
+        out = asyncio.run(alternate(args.http, args.ws, args.seconds, args.cycles))
+    else:
+        out = asyncio.run(replay(args.http, args.ws, args.seconds))
+    print(json.dumps(out), flush=True)
     return 0
 
 
 # -- the daemon side (this process) -----------------------------------------------------------
+
+
+class TimedLatency(LatencyTracker):
+    """Also keeps when each tick's lateness was recorded, to sort ticks into windows."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.timed_ticks: list[tuple[float, float]] = []
+
+    def record_tick(self, lateness_s: float, late: bool) -> None:
+        super().record_tick(lateness_s, late)
+        self.timed_ticks.append((time.monotonic(), lateness_s * 1e3))
+
+    def within(self, windows: list[tuple[float, float]]) -> list[float]:
+        return [ms for t, ms in self.timed_ticks if any(a <= t <= b for a, b in windows)]
 
 
 @contextlib.asynccontextmanager
@@ -123,6 +163,7 @@ async def sim_daemon(workdir: Path) -> AsyncIterator[tuple[Any, str, str]]:
     config_path.write_text(f'[http]\nhost = "127.0.0.1"\nport = {http_port}\n'
                            f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n')
     daemon = Daemon(load_config(config_path, sim=True, env={}))
+    daemon.latency = TimedLatency()
     task = asyncio.create_task(daemon.run())
     deadline = time.monotonic() + 30
     while daemon.health()["status"] != "ok" or daemon.state == "startup":
@@ -161,15 +202,19 @@ async def _measure(daemon: Any, work: Awaitable[Any]) -> tuple[list[float], int,
 
 
 async def _run(quick: bool) -> list[BenchResult]:
-    seconds = 3.0 if quick else 15.0
+    window, cycles = (1.0, 3) if quick else (1.5, 10)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         async with sim_daemon(Path(tmp)) as (daemon, http_url, ws_url):
-            idle, _, _ = await _measure(daemon, asyncio.sleep(seconds))
-            replayed = await _measure(daemon, _process(
-                sys.executable, "-m", "daemon.bench.console", "--http", http_url, "--ws", ws_url,
-                "--seconds", str(seconds)))
-            browser = await _browser(daemon, http_url, seconds) if browser_available() else None
-    return _results(idle, replayed, browser, seconds)
+            out = await _process(sys.executable, "-m", "daemon.bench.console", "--http",
+                                 http_url, "--ws", ws_url, "--seconds", str(window),
+                                 "--cycles", str(cycles))
+            replayed = json.loads(out.strip().splitlines()[-1])
+            idle = daemon.latency.within(replayed["windows"]["idle"])
+            driving = daemon.latency.within(replayed["windows"]["console"])
+            browser = None
+            if browser_available():
+                browser = await _browser(daemon, http_url, window * cycles)
+    return _results(idle, driving, replayed, browser, window, cycles)
 
 
 async def _browser(daemon: Any, http_url: str, seconds: float) -> tuple[list[float], int, Any]:
@@ -195,17 +240,21 @@ def _p99(samples: list[float]) -> float:
     return float(summarize(samples).get("p99", float("nan")))
 
 
-def _results(idle: list[float], replayed: tuple[list[float], int, Any],
-             browser: tuple[list[float], int, Any] | None, seconds: float) -> list[BenchResult]:
-    ticks, commands, output = replayed
-    counts = json.loads(output.strip().splitlines()[-1])
+def _results(idle: list[float], driving: list[float], replayed: dict[str, Any],
+             browser: tuple[list[float], int, Any] | None, window: float,
+             cycles: int) -> list[BenchResult]:
+    seconds = window * cycles
     out = [
         BenchResult(SUITE, "tick lateness p99 idle (sim)", _p99(idle), "ms",
-                    note=f"simulated robot with its lidar, no client, {seconds:g} s"),
-        BenchResult(SUITE, "tick lateness p99, one console driving", _p99(ticks), "ms",
-                    note=f"the console's traffic replayed from another process: {commands} "
-                    f"commands applied at 20 Hz, {counts['messages']} telemetry messages, "
-                    f"{counts['polls']} HTTP polls over {seconds:g} s"),
+                    note=f"simulated robot with its lidar, no client: {len(idle)} ticks in "
+                    f"{cycles} windows of {window:g} s, interleaved with the console's"),
+        BenchResult(SUITE, "tick lateness p99, one console driving", _p99(driving), "ms",
+                    note=f"the console's traffic replayed from another process: "
+                    f"{len(driving)} ticks; {replayed['commands']} commands at 20 Hz, "
+                    f"{replayed['messages']} telemetry messages, {replayed['polls']} HTTP polls "
+                    f"over {seconds:g} s"),
+        BenchResult(SUITE, "console / idle tick lateness at p99", _p99(driving) / _p99(idle),
+                    "x"),
     ]
     if browser is None:
         out.append(BenchResult(SUITE, "tick lateness p99, console in Chromium", float("nan"),
@@ -215,7 +264,8 @@ def _results(idle: list[float], replayed: tuple[list[float], int, Any],
         b_ticks, b_commands, _ = browser
         out.append(BenchResult(SUITE, "tick lateness p99, console in Chromium", _p99(b_ticks),
                                "ms", note=f"the real page in headless Chromium on this machine "
-                               f"(it shares the CPU), holding W+A: {b_commands} commands"))
+                               f"(it shares the CPU), holding W+A for {seconds:g} s after the "
+                               f"idle windows: {b_commands} commands"))
     return out
 
 

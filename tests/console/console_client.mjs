@@ -1,5 +1,5 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|hold [--shots DIR] [--token T] [--seconds S]
+// Usage: node console_client.mjs URL drive|token|reconnect|hold [--shots DIR] [--token T] [--seconds S]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { chromium } from "playwright-core";
 
@@ -44,10 +44,15 @@ async function watch(ms, done = () => false) {
 
 const still = (s) => s.twist.linear_x === 0 && s.twist.angular_z === 0;
 
+// The first command of a press reached the robot (a loaded machine can delay the page's first
+// input by a few hundred ms): the timed hold starts from here.
+const commanded = () => watch(5000, (s) => s.reason === "command");
+
 // Holds a key for `ms`, then releases it and follows the robot until it is still.
 async function holdKey(page, key, ms) {
   const before = await truth();
   await page.keyboard.down(key);
+  await commanded();
   const held = await watch(ms);
   await page.keyboard.up(key);
   const stopping = await watch(3000, still);
@@ -117,6 +122,7 @@ async function driveScenario(browser) {
   await page.mouse.move(cx, cy);
   await page.mouse.down();
   await page.mouse.move(cx, cy - box.width * 0.4, { steps: 5 });
+  await commanded();
   const held = await watch(1000);
   await hideTab(page);
   const hidden = await watch(3000, still);
@@ -165,6 +171,7 @@ async function phone(browser) {
   const before = await truth();
   await touch("touchStart", [{ x, y }]);
   for (let i = 1; i <= 5; i++) await touch("touchMove", [{ x, y: y - (box.height * 0.08) * i }]);
+  await commanded();
   const held = await watch(1000);
   await touch("touchEnd", []);
   const stop = await watch(3000, still);
@@ -207,6 +214,23 @@ async function tokenScenario(browser) {
   await context.close();
 }
 
+// The daemon is stopped after "ready" and started again after "lost" (by the pytest side).
+async function reconnectScenario(browser) {
+  const { page, context } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  report("ready");
+  await page.waitForFunction(() => document.getElementById("conn").textContent === "disconnected",
+    null, { timeout: 20000 });
+  report("lost", { conn: await text(page, "#conn"), banner: await text(page, "#banner") });
+  await page.waitForSelector("#conn[data-state=connected]", { timeout: 40000 });
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const drove = await holdKey(page, "w", 1000);
+  report("back", { conn: await text(page, "#conn"), banner: await text(page, "#banner"),
+    bannerHidden: await page.$eval("#banner", (e) => e.hidden), drove });
+  await context.close();
+}
+
 // For `arbiterd bench --only console`: the page drives in a circle (W+A held) for --seconds.
 async function holdScenario(browser) {
   const seconds = Number(option("--seconds") || 3);
@@ -228,6 +252,7 @@ try {
   if (scenario === "drive") await driveScenario(browser);
   else if (scenario === "token") await tokenScenario(browser);
   else if (scenario === "hold") await holdScenario(browser);
+  else if (scenario === "reconnect") await reconnectScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

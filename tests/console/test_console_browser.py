@@ -34,9 +34,13 @@ def _require_browser() -> None:
                     "tests/console (./install.sh dev does it)")
 
 
-def _run_console(daemon: DaemonProcess, *args: str) -> Steps:
+def _wait_healthy(daemon: DaemonProcess) -> None:
     wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok", 20,
              "the simulated robot healthy (lidar streaming)")
+
+
+def _run_console(daemon: DaemonProcess, *args: str) -> Steps:
+    _wait_healthy(daemon)
     assert NODE is not None
     result = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
                              *args], cwd=HERE, capture_output=True, text=True, timeout=170)
@@ -130,3 +134,40 @@ def test_console_with_a_token(tmp_path: Path) -> None:
     assert right["access"] == "can drive" and right["banner"] == ""
     assert ahead(right["moved"], "atRelease") >= 0.2 and right["stored"] is True
     assert right["estop"] is True  # the e-stop goes over HTTP with the Bearer token
+
+
+def test_console_says_it_lost_the_robot_and_reconnects(tmp_path: Path) -> None:
+    _require_browser()
+    assert NODE is not None
+    with DaemonProcess(tmp_path, args=("--sim",)) as daemon:
+        _wait_healthy(daemon)
+        client = subprocess.Popen([NODE, str(HERE / "console_client.mjs"),
+                                   daemon.base_url + "/", "reconnect"], cwd=HERE,
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            steps = _follow(client, daemon)
+        finally:
+            client.kill()
+    assert client.wait(10) == 0 and "done" in steps, steps
+    assert steps["lost"]["conn"] == "disconnected"
+    assert "Disconnected: the robot at 127.0.0.1" in steps["lost"]["banner"]
+    back = steps["back"]
+    assert back["conn"] == "connected" and back["bannerHidden"] is True
+    assert ahead(back["drove"], "atRelease") >= 0.2
+
+
+def _follow(client: subprocess.Popen[str], daemon: DaemonProcess) -> Steps:
+    """The client's steps; stops the daemon when the page is ready, restarts it once lost."""
+    steps: Steps = {}
+    assert client.stdout is not None
+    for line in client.stdout:
+        if not line.startswith("{"):
+            continue
+        record = json.loads(line)
+        steps[record["step"]] = record
+        if record["step"] == "ready":
+            assert daemon.stop() == 0  # the robot goes away...
+        elif record["step"] == "lost":
+            daemon.start()  # ...and comes back on the same ports
+            _wait_healthy(daemon)
+    return steps

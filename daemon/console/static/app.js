@@ -347,15 +347,21 @@ $("estop").addEventListener("click", engageEstop);
     cancel();
     estopRequest(false);
   };
+  const start = () => {
+    if (started) return;
+    started = performance.now();
+    frame = requestAnimationFrame(step);
+  };
   button.addEventListener("pointerdown", (event) => {
     event.preventDefault();
     button.setPointerCapture(event.pointerId);
-    started = performance.now();
-    frame = requestAnimationFrame(step);
+    start();
   });
   for (const name of ["pointerup", "pointercancel", "lostpointercapture"]) {
     button.addEventListener(name, cancel);
   }
+  button.addEventListener("keydown", (event) => { if (event.key === "Enter") start(); });
+  button.addEventListener("keyup", (event) => { if (event.key === "Enter") cancel(); });
 }
 
 // -- view controls ----------------------------------------------------------------------------

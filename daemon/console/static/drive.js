@@ -71,6 +71,7 @@ export class Drive {
   }
 
   readGamepad() {
+    if (document.visibilityState !== "visible") { this.pad = { x: 0, y: 0 }; return; }
     const pads = navigator.getGamepads ? navigator.getGamepads() : [];
     const pad = Array.from(pads || []).find((p) => p && p.connected);
     if (!pad) return;
