@@ -12,7 +12,7 @@ import pytest
 from aiohttp import web
 from aiohttp.test_utils import TestServer
 
-from daemon.console import FILES, Console
+from daemon.console import FILES, Console, url_of
 from tests.daemon_proc import DaemonProcess, wait_for
 
 STATIC = Path(__file__).resolve().parent.parent / "daemon" / "console" / "static"
@@ -22,9 +22,8 @@ STATIC = Path(__file__).resolve().parent.parent / "daemon" / "console" / "static
 async def server() -> AsyncIterator[TestServer]:
     console = Console(ws_port=9191)
     app = web.Application()
-    for path in FILES:
-        app.router.add_route("GET", path, console.handle)
-        app.router.add_route("HEAD", path, console.handle)
+    for path, handler in console.routes():
+        app.router.add_get(path, handler)  # and HEAD
     async with TestServer(app, host="127.0.0.1") as test_server:
         yield test_server
 
@@ -42,7 +41,7 @@ async def raw_get(port: int, target: str) -> tuple[int, bytes]:
 
 def test_the_table_and_the_static_folder_hold_the_same_files() -> None:
     on_disk = {p.name for p in STATIC.iterdir() if p.is_file()}
-    assert set(FILES.values()) == on_disk
+    assert set(FILES) == on_disk
 
 
 def test_no_inline_script_or_handler_in_the_page() -> None:
@@ -54,16 +53,19 @@ def test_no_inline_script_or_handler_in_the_page() -> None:
 
 
 def test_every_module_import_is_served() -> None:
-    for name in (n for n in FILES.values() if n.endswith(".js")):
+    for name in (n for n in FILES if n.endswith(".js")):
         for imported in re.findall(r'from "\./([\w.]+)"', (STATIC / name).read_text()):
-            assert f"/console/{imported}" in FILES, f"{name} imports {imported}, not served"
+            assert imported in FILES, f"{name} imports {imported}, which is not served"
+    html = (STATIC / "index.html").read_text()
+    for url in re.findall(r'(?:src|href)="([^"]+)"', html):
+        assert url in {url_of(name) for name in FILES}, url
 
 
 async def test_page_and_modules_are_served_with_safe_headers(server: TestServer) -> None:
     async with aiohttp.ClientSession() as session:
-        for path, name in FILES.items():
-            async with session.get(server.make_url(path)) as response:
-                assert response.status == 200, path
+        for name in FILES:
+            async with session.get(server.make_url(url_of(name))) as response:
+                assert response.status == 200, name
                 assert await response.read() == (STATIC / name).read_bytes()
                 headers = response.headers
                 assert headers["X-Content-Type-Options"] == "nosniff"
@@ -93,7 +95,8 @@ async def test_gzip_etag_and_head(server: TestServer) -> None:
     "/console/../daemon/app.py", "/console/%2e%2e/__init__.py", "/console/..%2f__init__.py",
     "/console/static/app.js", "/console/", "/console", "/index.html", "/console/app.js/",
     "/console/APP.JS", "/console/app.js%00", "//etc/passwd", "/console/__init__.py",
-    "/console/../../../../etc/passwd",
+    "/console/../../../../etc/passwd", "/console/index.html", "/console/%2e%2e",
+    "/console/..", "/console/app.js%2f..%2f__init__.py", "/console/.%2e/static/app.js",
 ])
 async def test_nothing_outside_the_table_is_served(server: TestServer, target: str) -> None:
     status, body = await raw_get(server.port, target)  # type: ignore[arg-type]

@@ -12,6 +12,8 @@ from tests.conftest import Robot, running_robot
 
 TOKEN = "s3cret-Token"
 DOC = Path(__file__).resolve().parent.parent / "docs" / "http-api.md"
+# The web console's routes (page and files), open in every configuration.
+CONSOLE = {("GET", "/"), ("HEAD", "/"), ("GET", "/console/{name}"), ("HEAD", "/console/{name}")}
 LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
           '[control]\nallow_fault_injection = true\n')
 
@@ -70,8 +72,13 @@ async def test_every_route_is_in_the_access_table(locked: Robot) -> None:
 
 
 async def test_without_the_token_every_route_answers_401(locked: Robot) -> None:
-    refused = {(m, p): await status_of(locked, m, p) for m, p, _ in routes(locked)}
+    """All but the web console's page and files, which must load to ask for the token."""
+    opened = {(m, p) for m, p, a in routes(locked) if a == "open"}
+    assert opened == CONSOLE
+    refused = {(m, p): await status_of(locked, m, p) for m, p, a in routes(locked)
+               if a != "open"}
     assert refused and all(status == 401 for status in refused.values()), refused
+    assert await status_of(locked, "GET", "/") == 200
     assert not locked.moving()
 
 
@@ -97,9 +104,9 @@ async def test_open_health_is_the_documented_exception(tmp_path: Path) -> None:
                             "read_requires_token = true\nopen_health = true\n")
     async with running_robot(tmp_path, config) as robot:
         opened = {(m, p) for m, p, a in routes(robot) if a == "open"}
-        assert opened == {("GET", "/api/health"), ("HEAD", "/api/health")}
+        assert opened == {("GET", "/api/health"), ("HEAD", "/api/health"), *CONSOLE}
         for method, path, access in routes(robot):
-            expected = 200 if access == "open" else 401
+            expected = 401 if access != "open" else 404 if "{" in path else 200
             assert await status_of(robot, method, path) == expected, (method, path)
 
 

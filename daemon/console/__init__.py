@@ -11,24 +11,20 @@ from aiohttp import web
 
 if TYPE_CHECKING:
     from daemon.config import Config
-    from daemon.http_api import HttpServer
+    from daemon.http_api import Handler, HttpServer
 
-# URL path => file in daemon/console/static/. Nothing else is served: no directory walk, so no
-# request can name a file of its own.
-FILES: dict[str, str] = {
-    "/": "index.html",
-    "/console/console.css": "console.css",
-    "/console/icon.svg": "icon.svg",
-    "/console/app.js": "app.js",
-    "/console/api.js": "api.js",
-    "/console/bridge.js": "bridge.js",
-    "/console/drive.js": "drive.js",
-    "/console/joystick.js": "joystick.js",
-    "/console/view.js": "view.js",
-    "/console/hud.js": "hud.js",
-    "/console/health.js": "health.js",
-    "/console/token.js": "token.js",
-}
+# The console's files (in daemon/console/static/): the page is served at /, every other one at
+# /console/<name>. Nothing else is served: a request names an entry of this table or gets 404,
+# so no path can reach another file (there is no directory walk).
+PAGE = "index.html"
+ASSETS = ("console.css", "icon.svg", "app.js", "api.js", "bridge.js", "drive.js",
+          "joystick.js", "view.js", "hud.js", "health.js", "token.js")
+FILES = (PAGE, *ASSETS)
+
+
+def url_of(name: str) -> str:
+    return "/" if name == PAGE else f"/console/{name}"
+
 
 CONTENT_TYPES = {
     "html": "text/html; charset=utf-8",
@@ -67,7 +63,7 @@ class Console:
     """Serves the table of files with fixed, safe headers (CSP, nosniff, no framing)."""
 
     def __init__(self, ws_port: int | None) -> None:
-        self.files = {path: load(name) for path, name in FILES.items()}
+        self.files = {name: load(name) for name in FILES}
         self.headers = {
             "Content-Security-Policy": content_security_policy(ws_port),
             "X-Content-Type-Options": "nosniff",
@@ -78,8 +74,16 @@ class Console:
             "Vary": "Accept-Encoding",
         }
 
-    async def handle(self, request: web.Request) -> web.StreamResponse:
-        static = self.files[request.path]
+    async def page(self, request: web.Request) -> web.StreamResponse:
+        return self.answer(request, self.files[PAGE])
+
+    async def asset(self, request: web.Request) -> web.StreamResponse:
+        name = request.match_info["name"]
+        if name not in ASSETS:
+            raise web.HTTPNotFound()
+        return self.answer(request, self.files[name])
+
+    def answer(self, request: web.Request, static: StaticFile) -> web.StreamResponse:
         headers = {**self.headers, "ETag": static.etag}
         if static.etag in request.headers.get("If-None-Match", ""):
             return web.Response(status=304, headers=headers)
@@ -89,6 +93,9 @@ class Console:
             body, headers["Content-Encoding"] = static.gzipped, "gzip"
         return web.Response(body=body, headers=headers)
 
+    def routes(self) -> list[tuple[str, Handler]]:
+        return [("/", self.page), ("/console/{name}", self.asset)]
+
     def sizes(self) -> tuple[int, int]:
         """Total bytes of the console as stored and as sent gzip-compressed."""
         return (sum(len(f.body) for f in self.files.values()),
@@ -96,10 +103,10 @@ class Console:
 
 
 def register(http: HttpServer, config: Config) -> Console:
-    """Adds the console's routes (GET, and so HEAD), open to everyone: the page asks for the
-    token itself, and holds nothing secret."""
+    """Adds the console's two routes (GET, and so HEAD), open to everyone: the page asks for
+    the token itself, and holds nothing secret."""
     rosbridge = config["rosbridge"]
     console = Console(rosbridge["port"] if rosbridge["enabled"] else None)
-    for path in FILES:
-        http.add_route("GET", path, console.handle, access="open")
+    for path, handler in console.routes():
+        http.add_route("GET", path, handler, access="open")
     return console
