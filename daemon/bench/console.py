@@ -182,7 +182,7 @@ async def _process(*args: str) -> str:
         *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
     out, err = await proc.communicate()
     if proc.returncode != 0:
-        raise RuntimeError(f"{Path(args[1]).name} failed: {(out + err).decode()[-2000:]}")
+        raise RuntimeError(f"{' '.join(args[:3])} failed: {(out + err).decode()[-2000:]}")
     return out.decode()
 
 
