@@ -1,4 +1,4 @@
-# Motor driver registry: one table, name -> (module, class), imported only when chosen.
+# Motor driver registry: one table (drivers.registry), name -> class, imported only when chosen.
 from __future__ import annotations
 
 import importlib
@@ -6,15 +6,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from drivers.base import DriverClosed, DriverError, DriverFault, EncoderReading, MotorDriver
-
-# driver name => (module, class name)
-DRIVERS: dict[str, tuple[str, str]] = {
-    "mock": ("drivers.mock", "MockDriver"),
-    "l298n": ("drivers.l298n", "L298NDriver"),
-    "pigpio": ("drivers.pigpio_pwm", "PigpioDriver"),
-    "serial": ("drivers.arduino_serial", "SerialBridgeDriver"),
-    "odrive_can": ("drivers.odrive_can", "ODriveCanDriver"),
-}
+from drivers.registry import DRIVERS
 
 __all__ = ["DRIVERS", "DriverClosed", "DriverError", "DriverFault", "EncoderReading",
            "MotorDriver", "UnknownDriver", "create_driver", "driver_class"]
@@ -40,5 +32,7 @@ def driver_class(name: str) -> type[MotorDriver]:
 
 
 def create_driver(name: str, options: Mapping[str, Any], *, max_wheel_speed: float) -> MotorDriver:
-    """Build (but do not open) the driver registered as ``name``."""
+    """Build (but do not open) the driver registered as ``name`` from its ``[driver.<name>]``
+    options (missing keys take their defaults). A bad option is a ``ValueError`` naming the
+    section and key."""
     return driver_class(name)(options, max_wheel_speed=max_wheel_speed)

@@ -9,92 +9,32 @@ import select
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from base.options import Options, defaults
+from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
-
-MAX_REPLY_LINE = 64  # longest sane reply ("-2147483648 -2147483648" is 23 bytes)
-
-
-class ProtocolError(DriverFault):
-    """The board answered something that is not a ROSArduinoBridge reply."""
-
-
-# -- the wire protocol: pure functions, no I/O ------------------------------------------------
-
-def encode_command(letter: str, *args: int | str) -> bytes:
-    """A command line as the firmware reads it: letter, space-separated args, CR."""
-    return " ".join([letter, *map(str, args)]).encode("ascii") + b"\r"
-
-
-def encode_pid(kp: int, kd: int, ki: int, ko: int) -> bytes:
-    return encode_command("u", f"{kp}:{kd}:{ki}:{ko}")
-
-
-def rad_s_to_ticks(rad_s: float, counts_per_rev: int, pid_rate: float) -> int:
-    """Wheel speed as encoder ticks per PID frame, the unit of ``m L R``."""
-    return round(rad_s * counts_per_rev / (2 * math.pi) / pid_rate)
-
-
-def rad_s_to_pwm(rad_s: float, full_speed: float, max_pwm: int) -> int:
-    """Wheel speed as a raw PWM value for ``o L R`` (linear, clamped to ``±max_pwm``)."""
-    pwm = round(rad_s / full_speed * max_pwm) if full_speed > 0 else 0
-    return max(-max_pwm, min(max_pwm, pwm))
-
-
-def decode_line(raw: bytes) -> str:
-    """One reply line without its CRLF; anything but printable ASCII is a garbled reply."""
-    text = raw.rstrip(b"\r")
-    if not all(0x20 <= byte < 0x7F for byte in text):
-        raise ProtocolError(f"garbled reply {raw!r}: non-printable byte")
-    return text.decode("ascii")
-
-
-def parse_ok(command: str, line: str) -> None:
-    if line != "OK":
-        raise ProtocolError(f"reply to {command!r} was {line!r}, expected 'OK'")
-
-
-def parse_counts(line: str) -> tuple[int, int]:
-    """The reply to ``e``: two signed encoder counts."""
-    parts = line.split()
-    if len(parts) != 2 or not all(_is_integer(part) for part in parts):
-        raise ProtocolError(f"reply to 'e' was {line!r}, expected two integers")
-    return int(parts[0]), int(parts[1])
-
-
-def parse_baud(line: str) -> int:
-    if not _is_integer(line.strip()):
-        raise ProtocolError(f"reply to 'b' was {line!r}, expected the baud rate")
-    return int(line)
-
-
-def _is_integer(text: str) -> bool:
-    return text.lstrip("+-").isdigit() and len(text) <= 11
-
-
-def count_delta(new: int, old: int) -> int:
-    """Counts moved between two readings of a signed 32-bit counter, across wrap-around."""
-    return (new - old + 2**31) % 2**32 - 2**31
-
-
-class LineSplitter:
-    """Bytes in, complete ``\\n``-terminated lines out; an endless line is a garbled stream."""
-
-    def __init__(self, max_line: int = MAX_REPLY_LINE) -> None:
-        self.max_line = max_line
-        self._buffer = bytearray()
-
-    def feed(self, data: bytes) -> list[bytes]:
-        self._buffer += data
-        *lines, rest = self._buffer.split(b"\n")
-        self._buffer = bytearray(rest)
-        if len(self._buffer) > self.max_line:
-            raise ProtocolError(f"garbled reply: {len(self._buffer)} bytes without a line end")
-        return [bytes(line) for line in lines]
-
+from drivers.rosarduino import (
+    BAUDRATE,
+    DEFAULT_GAINS,
+    MAX_PWM,
+    MOTOR_RAW_PWM,
+    MOTOR_SPEEDS,
+    PID_RATE_HZ,
+    READ_ENCODERS,
+    UPDATE_PID,
+    LineSplitter,
+    ProtocolError,
+    count_delta,
+    decode_line,
+    encode_command,
+    encode_pid,
+    parse_counts,
+    parse_ok,
+    rad_s_to_pwm,
+    rad_s_to_ticks,
+)
 
 # -- I/O: one serial port, driven by the event loop --------------------------------------------
 
@@ -263,6 +203,39 @@ class BridgeLink:
 
 # -- the driver ---------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class SerialSettings:
+    """The ``[driver.serial]`` section, read once (see ``SerialBridgeDriver.OPTIONS``)."""
+
+    port: str
+    baudrate: int
+    mode: str
+    pid_rate: float
+    counts_per_rev: int
+    pid_p: int
+    pid_d: int
+    pid_i: int
+    pid_o: int
+    max_pwm: int
+    full_pwm_speed: float
+    encoders: bool
+    poll_rate: float
+    timeout_s: float
+    reset_wait_s: float
+    keepalive_s: float
+    invert_left: bool
+    invert_right: bool
+
+
+@contextlib.contextmanager
+def _as_fault() -> Iterator[None]:
+    """A reply that breaks the protocol faults the driver (the board or the line is bad)."""
+    try:
+        yield
+    except ProtocolError as exc:
+        raise DriverFault(str(exc)) from exc
+
+
 class SerialBridgeDriver(MotorDriver):
     """Drives an Arduino running ROSArduinoBridge over USB serial.
 
@@ -275,18 +248,20 @@ class SerialBridgeDriver(MotorDriver):
 
     OPTIONS: ClassVar[Options] = {
         "port": option(str, "/dev/ttyACM0", "serial device of the board (a udev symlink is best)"),
-        "baudrate": option(int, 57600, "serial speed, the firmware's BAUDRATE", minval=300),
+        "baudrate": option(int, BAUDRATE, "serial speed, the firmware's BAUDRATE", minval=300),
         "mode": option(str, "closed_loop", "closed_loop: 'm' ticks per PID frame; "
                        "open_loop: 'o' raw PWM", choices=("closed_loop", "open_loop")),
-        "pid_rate": option(float, 30.0, "the firmware's PID_RATE in Hz ('m' is ticks per frame)",
-                           above=0),
+        "pid_rate": option(float, PID_RATE_HZ, "the firmware's PID_RATE in Hz ('m' is ticks "
+                           "per frame)", above=0),
         "counts_per_rev": option(int, 1440, "encoder counts per wheel revolution", minval=1),
-        "pid_p": option(int, 20, "Kp sent with 'u' on open; 0 keeps the firmware's gains",
-                        minval=0),
-        "pid_d": option(int, 12, "Kd sent with 'u' on open", minval=0),
-        "pid_i": option(int, 0, "Ki sent with 'u' on open", minval=0),
-        "pid_o": option(int, 50, "Ko (output divisor) sent with 'u' on open", minval=1),
-        "max_pwm": option(int, 255, "PWM value at full speed (open_loop)", minval=1, maxval=255),
+        "pid_p": option(int, DEFAULT_GAINS[0], "Kp sent with 'u' on open; 0 keeps the "
+                        "firmware's gains", minval=0),
+        "pid_d": option(int, DEFAULT_GAINS[1], "Kd sent with 'u' on open", minval=0),
+        "pid_i": option(int, DEFAULT_GAINS[2], "Ki sent with 'u' on open", minval=0),
+        "pid_o": option(int, DEFAULT_GAINS[3], "Ko (output divisor) sent with 'u' on open",
+                        minval=1),
+        "max_pwm": option(int, MAX_PWM, "PWM value at full speed (open_loop)", minval=1,
+                          maxval=MAX_PWM),
         "full_pwm_speed": option(float, 0.0, "wheel speed in rad/s at max_pwm (open_loop); "
                                  "0 = the robot's max wheel speed", minval=0),
         "encoders": option(bool, True, "poll 'e' for wheel positions (closed-loop odometry)"),
@@ -299,17 +274,19 @@ class SerialBridgeDriver(MotorDriver):
         "invert_left": option(bool, False, "left motor and encoder mounted mirrored"),
         "invert_right": option(bool, False, "right motor and encoder mounted mirrored"),
     }
+    SETTINGS = SerialSettings
+    settings: SerialSettings
 
     #: how long emergency_stop() waits for the port to take ``m 0 0``
     EMERGENCY_WRITE_TIMEOUT_S = 0.1
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
-        super().__init__(_validated(self.OPTIONS, options), max_wheel_speed=max_wheel_speed)
-        opts = self.options
-        self._signs = (-1 if opts["invert_left"] else 1, -1 if opts["invert_right"] else 1)
+        super().__init__(options, max_wheel_speed=max_wheel_speed)
+        s = self.settings
+        self._signs = (-1 if s.invert_left else 1, -1 if s.invert_right else 1)
         self._link: BridgeLink | None = None
         self._poll_task: asyncio.Task[None] | None = None
-        self._wire_command = encode_command("m", 0, 0)
+        self._wire_command = encode_command(MOTOR_SPEEDS, 0, 0)
         self._wire_sent_mono = 0.0
         self._last_counts: tuple[int, int] | None = None
         self._position_counts = [0, 0]
@@ -319,10 +296,6 @@ class SerialBridgeDriver(MotorDriver):
         self.keepalives = 0
         self.last_rtt_s = 0.0
 
-    @classmethod
-    def name(cls) -> str:
-        return "serial"
-
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def _open(self) -> None:
@@ -331,7 +304,7 @@ class SerialBridgeDriver(MotorDriver):
         port = await asyncio.to_thread(self._open_port)
         self.fault = None
         try:
-            await asyncio.sleep(self.options["reset_wait_s"])
+            await asyncio.sleep(self.settings.reset_wait_s)
             port.reset_input_buffer()
             self._link = BridgeLink(port, self.report_fault)
             await self._handshake()
@@ -345,19 +318,18 @@ class SerialBridgeDriver(MotorDriver):
         import serial  # pyserial; imported here so the module imports without it
 
         try:
-            return serial.Serial(self.options["port"], self.options["baudrate"], timeout=0,
+            return serial.Serial(self.settings.port, self.settings.baudrate, timeout=0,
                                  write_timeout=0, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DriverFault(f"cannot open serial port {self.options['port']}: {exc}") from None
+            raise DriverFault(f"cannot open serial port {self.settings.port}: {exc}") from None
 
     async def _handshake(self) -> None:
         """Check the board answers, take an encoder baseline, set the gains, stop the motors."""
         self._last_counts = None
         await self._poll_encoders()
-        opts = self.options
-        if opts["pid_p"] > 0:
-            line = encode_pid(opts["pid_p"], opts["pid_d"], opts["pid_i"], opts["pid_o"])
-            parse_ok("u", await self._request(line))
+        s = self.settings
+        if s.pid_p > 0:
+            await self._command(UPDATE_PID, encode_pid(s.pid_p, s.pid_d, s.pid_i, s.pid_o))
         await self._send_speeds(0.0, 0.0)
 
     async def _close(self) -> None:
@@ -394,48 +366,54 @@ class SerialBridgeDriver(MotorDriver):
 
     async def _send_speeds(self, left_rad_s: float, right_rad_s: float) -> None:
         line = self._speed_command(left_rad_s * self._signs[0], right_rad_s * self._signs[1])
-        command = line.decode("ascii").rstrip("\r")
         self._wire_command, self._wire_sent_mono = line, time.monotonic()
-        parse_ok(command.split()[0], await self._request(line))
+        await self._command(line[:1].decode("ascii"), line)
 
     def _speed_command(self, left: float, right: float) -> bytes:
-        opts = self.options
-        if opts["mode"] == "open_loop":
-            full = opts["full_pwm_speed"] or self.max_wheel_speed
-            return encode_command("o", rad_s_to_pwm(left, full, opts["max_pwm"]),
-                                  rad_s_to_pwm(right, full, opts["max_pwm"]))
-        cpr, rate = opts["counts_per_rev"], opts["pid_rate"]
-        return encode_command("m", rad_s_to_ticks(left, cpr, rate),
+        s = self.settings
+        if s.mode == "open_loop":
+            full = s.full_pwm_speed or self.max_wheel_speed
+            return encode_command(MOTOR_RAW_PWM, rad_s_to_pwm(left, full, s.max_pwm),
+                                  rad_s_to_pwm(right, full, s.max_pwm))
+        cpr, rate = s.counts_per_rev, s.pid_rate
+        return encode_command(MOTOR_SPEEDS, rad_s_to_ticks(left, cpr, rate),
                               rad_s_to_ticks(right, cpr, rate))
 
     def _stop_command(self) -> bytes:
-        return encode_command("o" if self.options["mode"] == "open_loop" else "m", 0, 0)
+        return encode_command(MOTOR_RAW_PWM if self.settings.mode == "open_loop"
+                              else MOTOR_SPEEDS, 0, 0)
 
     async def _request(self, line: bytes) -> str:
         if self._link is None:
             raise DriverFault("serial link is not open")
         start = time.monotonic()
-        reply = await self._link.request(line, self.options["timeout_s"])
+        reply = await self._link.request(line, self.settings.timeout_s)
         self.last_rtt_s = time.monotonic() - start
         return reply
+
+    async def _command(self, letter: str, line: bytes) -> None:
+        """Send a command the board answers with OK."""
+        reply = await self._request(line)
+        with _as_fault():
+            parse_ok(letter, reply)
 
     # -- encoders and keep-alive -------------------------------------------------------------
 
     async def _read_encoders(self) -> EncoderReading | None:
-        if not self.options["encoders"]:
+        if not self.settings.encoders:
             return None
         if self.fault is not None:
             raise DriverFault(f"driver faulted: {self.fault}")
         return self._reading
 
     async def _poll_loop(self) -> None:
-        period = 1.0 / (self.options["poll_rate"] or self.options["pid_rate"])
+        period = 1.0 / (self.settings.poll_rate or self.settings.pid_rate)
         deadline = time.monotonic()
         while self.fault is None:
             deadline = max(deadline + period, time.monotonic())
             await asyncio.sleep(deadline - time.monotonic())
             try:
-                if self.options["encoders"]:
+                if self.settings.encoders:
                     await self._poll_encoders()
                 await self._keep_alive()
             except DriverFault as exc:
@@ -443,7 +421,9 @@ class SerialBridgeDriver(MotorDriver):
 
     async def _poll_encoders(self) -> None:
         sent = time.monotonic()
-        counts = parse_counts(await self._request(encode_command("e")))
+        reply = await self._request(encode_command(READ_ENCODERS))
+        with _as_fault():
+            counts = parse_counts(reply)
         self.polls += 1
         self._absorb_counts(counts, (sent + time.monotonic()) / 2)
 
@@ -454,18 +434,18 @@ class SerialBridgeDriver(MotorDriver):
                 moved = count_delta(counts[side], self._last_counts[side])
                 self._position_counts[side] += moved * self._signs[side]
         self._last_counts = counts
-        cpr = self.options["counts_per_rev"]
+        cpr = self.settings.counts_per_rev
         left, right = (2 * math.pi * c / cpr for c in self._position_counts)
         self._reading = EncoderReading(left, right, t_mono)
 
     async def _keep_alive(self) -> None:
         """Re-send a held non-zero command before the firmware's auto-stop fires."""
         held = time.monotonic() - self._wire_sent_mono
-        if self._wire_command == self._stop_command() or held < self.options["keepalive_s"]:
+        if self._wire_command == self._stop_command() or held < self.settings.keepalive_s:
             return
         line = self._wire_command
         self._wire_sent_mono = time.monotonic()
-        parse_ok(line[:1].decode(), await self._request(line))
+        await self._command(line[:1].decode("ascii"), line)
         self.keepalives += 1
 
     def _emergency_zero(self) -> bool:
@@ -478,8 +458,8 @@ class SerialBridgeDriver(MotorDriver):
 
     def _health(self) -> dict[str, Any]:
         return {
-            "port": self.options["port"],
-            "mode": self.options["mode"],
+            "port": self.settings.port,
+            "mode": self.settings.mode,
             "opens": self.opens,
             "encoder_polls": self.polls,
             "keepalives": self.keepalives,
@@ -487,17 +467,3 @@ class SerialBridgeDriver(MotorDriver):
             "wire_command": self._wire_command.decode("ascii").rstrip("\r"),
         }
 
-
-def _validated(declared: Options, given: Mapping[str, Any]) -> dict[str, Any]:
-    """Defaults plus the given options, each checked (a driver may be built without the loader)."""
-    unknown = sorted(set(given) - set(declared))
-    if unknown:
-        raise ValueError(f"[driver.serial] unknown option(s): {', '.join(unknown)}; "
-                         f"valid: {', '.join(sorted(declared))}")
-    values = defaults(declared)
-    for key, value in given.items():
-        normalised, error = declared[key].validate(value)
-        if error:
-            raise ValueError(f"[driver.serial] {key}: {error}")
-        values[key] = normalised
-    return values

@@ -8,9 +8,12 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
-from base.options import Option, Options
+from base.options import Option, Options, defaults
+from drivers.registry import registered_name
+
+S = TypeVar("S")
 
 
 class DriverError(Exception):
@@ -50,13 +53,19 @@ class MotorDriver(ABC):
     A driver that notices a fault on its own (a missed heartbeat, a vanished peer) calls
     :meth:`report_fault`; the control loop polls :attr:`fault` every tick, stops the wheels and
     reconnects with back-off (``close()`` then ``open()`` on the same object).
+
+    The ``[driver.<name>]`` options are read once, at construction, into ``self.settings``: an
+    instance of ``SETTINGS``, a frozen dataclass with one typed field per key of ``OPTIONS``.
     """
 
     #: Options of this driver's ``[driver.<name>]`` config section.
     OPTIONS: ClassVar[Options] = {}
+    #: The typed settings those options are read into (one field per key).
+    SETTINGS: ClassVar[type[Any]]
+    settings: Any
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
-        self.options = dict(options)
+        self.settings = read_settings(self.SETTINGS, self.OPTIONS, options, self.name())
         self.max_wheel_speed = max_wheel_speed
         self.is_open = False
         self.is_closed = False
@@ -205,6 +214,11 @@ class MotorDriver(ABC):
 
     @classmethod
     def name(cls) -> str:
+        """The name this class (or the registered class it extends) has in ``DRIVERS``."""
+        for klass in cls.__mro__:
+            name = registered_name(klass.__module__, klass.__name__)
+            if name is not None:
+                return name
         return cls.__name__
 
     def _count_write_error(self, reason: str) -> None:
@@ -247,3 +261,21 @@ class MotorDriver(ABC):
 def option(kind: type, default: Any, doc: str, **kw: Any) -> Option:
     """Shorthand for driver modules declaring their ``OPTIONS``."""
     return Option(kind, default, doc, **kw)
+
+
+def read_settings(settings: type[S], declared: Options, given: Mapping[str, Any],
+                  name: str) -> S:
+    """The defaults plus ``given``, each key checked against ``declared``, as ``settings``
+    (a dataclass with one field per declared key). A driver may be built without the config
+    loader, so an unknown key or a bad value is a ``ValueError`` naming ``[driver.<name>]``."""
+    unknown = sorted(set(given) - set(declared))
+    if unknown:
+        raise ValueError(f"[driver.{name}] unknown option(s): {', '.join(unknown)}; "
+                         f"valid: {', '.join(sorted(declared))}")
+    values = defaults(declared)
+    for key, value in given.items():
+        normalised, error = declared[key].validate(value)
+        if error:
+            raise ValueError(f"[driver.{name}] {key}: {error}")
+        values[key] = normalised
+    return settings(**values)

@@ -9,24 +9,25 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.pigpio_protocol import PI4B_REVISION
 from drivers.pigpio_pwm import (
     DUTY_MAP_OPTIONS,
     ENCODER_PIN_OPTIONS,
+    BridgeSettings,
     SerialExecutor,
     check_pins,
     describe_io_error,
     drop_pigpio,
     probe_tcp,
-    speed_to_duty,
 )
 
 T = TypeVar("T")
 PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
-PI4B_REVISION = "c03111"
 
 _mock_factory: Any = None
 
@@ -40,7 +41,7 @@ def mock_pin_factory() -> Any:
     if _mock_factory is None:
         from gpiozero.pins.mock import MockFactory, MockPWMPin
 
-        _mock_factory = MockFactory(revision=PI4B_REVISION, pin_class=MockPWMPin)
+        _mock_factory = MockFactory(revision=f"{PI4B_REVISION:x}", pin_class=MockPWMPin)
     return _mock_factory
 
 
@@ -48,14 +49,14 @@ def _pin(default: int, doc: str, *, optional: bool = False) -> Any:
     return option(int, default, doc, minval=-1 if optional else 0, maxval=27)
 
 
-def build_pin_factory(opts: Mapping[str, Any]) -> Any:
+def build_pin_factory(settings: L298NSettings) -> Any:
     """The gpiozero pin factory the config names; DriverFault when it cannot work here."""
-    kind = opts["pin_factory"]
+    kind = settings.pin_factory
     try:
         if kind == "mock":
             return mock_pin_factory()
         if kind == "pigpio":
-            return _pigpio_factory(opts)
+            return _pigpio_factory(settings)
         if kind == "lgpio":
             # importing lgpio creates a notification FIFO in $LG_WD (default: the cwd)
             os.environ.setdefault("LG_WD", os.environ.get("RUNTIME_DIRECTORY",
@@ -77,14 +78,30 @@ def build_pin_factory(opts: Mapping[str, Any]) -> Any:
                           f"{type(exc).__name__}: {exc}") from exc
 
 
-def _pigpio_factory(opts: Mapping[str, Any]) -> Any:
+def _pigpio_factory(settings: L298NSettings) -> Any:
     from gpiozero.pins.pigpio import PiGPIOFactory
 
-    host, port, timeout = opts["pigpio_host"], opts["pigpio_port"], opts["timeout"]
+    host, port, timeout = settings.pigpio_host, settings.pigpio_port, settings.timeout
     probe_tcp(host, port, timeout)
     factory = PiGPIOFactory(host=host, port=port)
     factory.connection.sl.s.settimeout(timeout)
     return factory
+
+
+@dataclass(frozen=True)
+class L298NSettings(BridgeSettings):
+    """The ``[driver.l298n]`` section, read once (see ``L298NDriver.OPTIONS``)."""
+
+    pin_factory: str
+    pigpio_host: str
+    pigpio_port: int
+    left_forward: int
+    left_backward: int
+    left_enable: int
+    right_forward: int
+    right_backward: int
+    right_enable: int
+    encoder_bounce: float
 
 
 class L298NDriver(MotorDriver):
@@ -122,16 +139,17 @@ class L298NDriver(MotorDriver):
         "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
                                  "(pin_factory = 'pigpio'; 0 = only when writing)", minval=0.0),
     }
+    SETTINGS = L298NSettings
+    settings: L298NSettings
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
-        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
-        super().__init__(opts, max_wheel_speed=max_wheel_speed)
-        self.full_duty_speed = float(opts["max_wheel_speed"]) or max_wheel_speed
-        keys = [f"{s}_{p}" for s in ("left", "right") for p in ("forward", "backward", "enable")]
-        if opts["encoders"]:
-            keys += [f"{s}_encoder_{c}" for s in ("left", "right") for c in "ab"]
-        check_pins(opts, keys, "l298n")
-        self.remote = opts["pin_factory"] == "pigpio"
+        super().__init__(options, max_wheel_speed=max_wheel_speed)
+        s = self.settings
+        self.full_duty_speed = s.max_wheel_speed or max_wheel_speed
+        keys = [f"{side}_{p}" for side in ("left", "right")
+                for p in ("forward", "backward", "enable")]
+        check_pins(s, keys + s.encoder_pin_keys(), self.name())
+        self.remote = s.pin_factory == "pigpio"
         self._factory: Any = None
         self._motors: list[Any] = []
         self._encoders: list[Any] = []
@@ -141,10 +159,6 @@ class L298NDriver(MotorDriver):
         self._io: SerialExecutor | None = None
         self._watch: asyncio.Task[None] | None = None
         self.connects = 0
-
-    @classmethod
-    def name(cls) -> str:
-        return "l298n"
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -158,7 +172,7 @@ class L298NDriver(MotorDriver):
                 self._io.shutdown()
                 self._io = None
             raise
-        if self.remote and self.options["watch_interval"] > 0:
+        if self.remote and self.settings.watch_interval > 0:
             self._watch = asyncio.create_task(self._watch_peer(), name="l298n-pigpio-watch")
 
     async def _call(self, fn: Callable[..., T], *args: Any) -> T:
@@ -168,10 +182,10 @@ class L298NDriver(MotorDriver):
         return await self._io.call(fn, *args)
 
     def _build(self) -> None:
-        factory = build_pin_factory(self.options)
+        factory = build_pin_factory(self.settings)
         try:
             self._motors = [self._motor(factory, side) for side in ("left", "right")]
-            if self.options["encoders"]:
+            if self.settings.encoders:
                 self._encoders = [self._encoder(factory, side) for side in ("left", "right")]
         except Exception as exc:
             self._factory = factory
@@ -184,13 +198,13 @@ class L298NDriver(MotorDriver):
     def _motor(self, factory: Any, side: str) -> Any:
         from gpiozero import Motor
 
-        o = self.options
-        enable = o[f"{side}_enable"] if o[f"{side}_enable"] >= 0 else None
-        motor = Motor(o[f"{side}_forward"], o[f"{side}_backward"], enable=enable, pwm=True,
-                      pin_factory=factory)
+        s = self.settings
+        enable = getattr(s, f"{side}_enable")
+        motor = Motor(getattr(s, f"{side}_forward"), getattr(s, f"{side}_backward"),
+                      enable=enable if enable >= 0 else None, pwm=True, pin_factory=factory)
         try:
-            motor.forward_device.frequency = o["pwm_frequency"]
-            motor.backward_device.frequency = o["pwm_frequency"]
+            motor.forward_device.frequency = s.pwm_frequency
+            motor.backward_device.frequency = s.pwm_frequency
             motor.stop()
         except Exception:
             motor.close()
@@ -200,9 +214,11 @@ class L298NDriver(MotorDriver):
     def _encoder(self, factory: Any, side: str) -> Any:
         from gpiozero import RotaryEncoder
 
-        o = self.options
-        return RotaryEncoder(o[f"{side}_encoder_a"], o[f"{side}_encoder_b"], max_steps=0,
-                             bounce_time=o["encoder_bounce"] or None, pin_factory=factory)
+        pins = self.settings.encoder_pins(side)
+        assert pins is not None  # built only with encoders on
+        return RotaryEncoder(*pins, max_steps=0,
+                             bounce_time=self.settings.encoder_bounce or None,
+                             pin_factory=factory)
 
     async def _close(self) -> None:
         if self._watch is not None:
@@ -228,7 +244,7 @@ class L298NDriver(MotorDriver):
             with contextlib.suppress(Exception):
                 device.close()
         self._encoders, self._motors, self._values = [], [], [None, None]
-        if factory is not None and self.options["pin_factory"] != "mock":
+        if factory is not None and self.settings.pin_factory != "mock":
             with contextlib.suppress(Exception):
                 factory.close()
         if connection is not None:
@@ -237,11 +253,11 @@ class L298NDriver(MotorDriver):
     # -- commands -----------------------------------------------------------------------------
 
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
-        o = self.options
+        s = self.settings
         values = []
-        for side, speed in (("left", left_rad_s), ("right", right_rad_s)):
-            duty = speed_to_duty(speed, self.full_duty_speed, o["min_duty"], o["deadband"])
-            values.append(-duty if o[f"{side}_invert"] else duty)
+        for invert, speed in ((s.left_invert, left_rad_s), (s.right_invert, right_rad_s)):
+            duty = s.duty(speed, self.full_duty_speed)
+            values.append(-duty if invert else duty)
         if not self._motors:
             raise DriverFault("l298n: motors are not set up")
         await self._call(self._write_locked, values)
@@ -260,14 +276,13 @@ class L298NDriver(MotorDriver):
             raise DriverFault(f"l298n: GPIO write failed: {type(exc).__name__}: {exc}") from exc
 
     def _lost(self, reason: str) -> None:
-        o = self.options
-        self.report_fault(f"pigpiod at {o['pigpio_host']}:{o['pigpio_port']} lost: {reason}")
+        self.report_fault(f"pigpiod at {self._where()} lost: {reason}")
         factory = self._factory
         if factory is not None and factory._connection is not None:
             drop_pigpio(factory._connection, peer_alive=False)
 
     async def _watch_peer(self) -> None:
-        interval = self.options["watch_interval"]
+        interval = self.settings.watch_interval
         while self.fault is None:
             await asyncio.sleep(interval)
             factory, io = self._factory, self._io
@@ -282,7 +297,7 @@ class L298NDriver(MotorDriver):
     # -- encoders and health ------------------------------------------------------------------
 
     async def _read_encoders(self) -> EncoderReading | None:
-        if not self.options["encoders"]:
+        if not self.settings.encoders:
             return None
         left, right = (self._position(i, side) for i, side in enumerate(("left", "right")))
         return EncoderReading(left, right, time.monotonic())
@@ -291,15 +306,17 @@ class L298NDriver(MotorDriver):
         steps = self._offsets[index]
         if self._encoders:
             steps += self._encoders[index].steps
-        sign = -1.0 if self.options[f"{side}_encoder_invert"] else 1.0
-        return sign * steps / self.options["encoder_counts_per_rev"] * 2.0 * math.pi
+        sign = -1.0 if getattr(self.settings, f"{side}_encoder_invert") else 1.0
+        return sign * steps / self.settings.encoder_counts_per_rev * 2.0 * math.pi
+
+    def _where(self) -> str:
+        return f"{self.settings.pigpio_host}:{self.settings.pigpio_port}"
 
     def _health(self) -> dict[str, Any]:
-        o = self.options
-        extra: dict[str, Any] = {"pin_factory": o["pin_factory"], "connects": self.connects,
-                                 "duty": list(self._values)}
+        extra: dict[str, Any] = {"pin_factory": self.settings.pin_factory,
+                                 "connects": self.connects, "duty": list(self._values)}
         if self.remote:
-            extra["pigpiod"] = f"{o['pigpio_host']}:{o['pigpio_port']}"
+            extra["pigpiod"] = self._where()
         return extra
 
     # -- emergency path (any thread) -----------------------------------------------------------

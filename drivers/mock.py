@@ -4,7 +4,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -21,6 +21,15 @@ class RecordedCommand:
     right_rad_s: float
 
 
+@dataclass(frozen=True)
+class MockSettings:
+    """The ``[driver.mock]`` section, read once (see ``MockDriver.OPTIONS``)."""
+
+    encoders: bool
+    history: int
+    log_file: str
+
+
 class MockDriver(MotorDriver):
     """A registered driver with no hardware: ideal wheels that follow each command at once.
 
@@ -35,11 +44,12 @@ class MockDriver(MotorDriver):
         "history": option(int, 100000, "how many commands to keep in memory", minval=1),
         "log_file": option(str, "", "append every command to this file ('' = off)"),
     }
+    SETTINGS = MockSettings
+    settings: MockSettings
 
-    def __init__(self, options: Any, *, max_wheel_speed: float) -> None:
-        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
-        super().__init__(opts, max_wheel_speed=max_wheel_speed)
-        self.commands: deque[RecordedCommand] = deque(maxlen=int(opts["history"]))
+    def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
+        super().__init__(options, max_wheel_speed=max_wheel_speed)
+        self.commands: deque[RecordedCommand] = deque(maxlen=self.settings.history)
         self._positions = [0.0, 0.0]
         self._speeds = (0.0, 0.0)
         self._since = time.monotonic()
@@ -48,21 +58,17 @@ class MockDriver(MotorDriver):
         #: called with (left, right) after every write (the simulator turns its wheels here)
         self.listeners: list[Callable[[float, float], None]] = []
 
-    @classmethod
-    def name(cls) -> str:
-        return "mock"
-
     async def _open(self) -> None:
         self._since = time.monotonic()
         self._speeds = (0.0, 0.0)
-        if self.options["log_file"]:
-            self._log = open(self.options["log_file"], "a", buffering=1)  # noqa: SIM115, ASYNC230
+        if self.settings.log_file:
+            self._log = open(self.settings.log_file, "a", buffering=1)  # noqa: SIM115, ASYNC230
 
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         self._record(left_rad_s, right_rad_s)
 
     async def _read_encoders(self) -> EncoderReading | None:
-        if not self.options["encoders"]:
+        if not self.settings.encoders:
             return None
         with self._lock:
             now = time.monotonic()

@@ -4,118 +4,39 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-import struct
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
 import can
 
 from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
-
-# -- CANSimple wire format (pure: no I/O) -----------------------------------------------------
-
-CMD_HEARTBEAT = 0x01
-CMD_ESTOP = 0x02
-CMD_SET_AXIS_STATE = 0x07
-CMD_GET_ENCODER_ESTIMATES = 0x09
-CMD_SET_CONTROLLER_MODE = 0x0B
-CMD_SET_INPUT_VEL = 0x0D
-CMD_CLEAR_ERRORS = 0x18
-
-AXIS_STATE_IDLE = 1
-AXIS_STATE_CLOSED_LOOP_CONTROL = 8
-CONTROL_MODE_VELOCITY = 2
-INPUT_MODES = {"passthrough": 1, "vel_ramp": 2}
-
-AXIS_STATE_NAMES = {
-    0: "UNDEFINED", 1: "IDLE", 2: "STARTUP_SEQUENCE", 3: "FULL_CALIBRATION_SEQUENCE",
-    4: "MOTOR_CALIBRATION", 6: "ENCODER_INDEX_SEARCH", 7: "ENCODER_OFFSET_CALIBRATION",
-    8: "CLOSED_LOOP_CONTROL", 9: "LOCKIN_SPIN", 10: "ENCODER_DIR_FIND", 11: "HOMING",
-}
-
-MAX_NODE_ID = 0x3F
-MAX_CMD_ID = 0x1F
-
-
-class FrameError(ValueError):
-    """A CANSimple frame whose id or payload does not fit the protocol."""
-
-
-@dataclass(frozen=True)
-class Heartbeat:
-    """The part of the cyclic heartbeat the driver uses (bytes 0-3 error, byte 4 state)."""
-
-    axis_error: int
-    axis_state: int
-
-
-@dataclass(frozen=True)
-class EncoderEstimate:
-    """A Get_Encoder_Estimates payload: position in turns and velocity in turns/s."""
-
-    pos_rev: float
-    vel_rev_s: float
-
-
-def arbitration_id(node_id: int, cmd_id: int) -> int:
-    """The 11-bit CAN id of a command: ``node_id << 5 | cmd_id``."""
-    if not 0 <= node_id <= MAX_NODE_ID:
-        raise FrameError(f"node id must be 0..{MAX_NODE_ID}, got {node_id}")
-    if not 0 <= cmd_id <= MAX_CMD_ID:
-        raise FrameError(f"command id must be 0..{MAX_CMD_ID:#x}, got {cmd_id:#x}")
-    return node_id << 5 | cmd_id
-
-
-def split_arbitration_id(arb_id: int) -> tuple[int, int]:
-    """(node id, command id) of an 11-bit CANSimple id."""
-    if not 0 <= arb_id <= 0x7FF:
-        raise FrameError(f"CANSimple uses 11-bit ids, got {arb_id:#x}")
-    return arb_id >> 5, arb_id & MAX_CMD_ID
-
-
-def encode_set_input_vel(vel_rev_s: float, torque_ff_nm: float = 0.0) -> bytes:
-    """Set_Input_Vel payload: two little-endian float32, velocity [turn/s] and torque [Nm]."""
-    if not (math.isfinite(vel_rev_s) and math.isfinite(torque_ff_nm)):
-        raise FrameError(f"Set_Input_Vel needs finite values, got {vel_rev_s}, {torque_ff_nm}")
-    return struct.pack("<ff", vel_rev_s, torque_ff_nm)
-
-
-def encode_set_axis_state(state: int) -> bytes:
-    """Set_Axis_State payload: the requested state as little-endian uint32."""
-    return struct.pack("<I", state)
-
-
-def encode_set_controller_mode(control_mode: int, input_mode: int) -> bytes:
-    """Set_Controller_Mode payload: control mode and input mode as little-endian uint32."""
-    return struct.pack("<II", control_mode, input_mode)
-
-
-def decode_heartbeat(data: bytes) -> Heartbeat:
-    """Parse a heartbeat; only the axis error (bytes 0-3) and state (byte 4) are needed."""
-    if len(data) < 5:
-        raise FrameError(f"heartbeat needs at least 5 data bytes, got {len(data)}")
-    axis_error, axis_state = struct.unpack_from("<IB", data)
-    return Heartbeat(axis_error, axis_state)
-
-
-def decode_encoder_estimates(data: bytes) -> EncoderEstimate:
-    """Parse Get_Encoder_Estimates: position (bytes 0-3) and velocity (bytes 4-7), float32."""
-    if len(data) < 8:
-        raise FrameError(f"encoder estimates need 8 data bytes, got {len(data)}")
-    pos, vel = struct.unpack_from("<ff", data)
-    if not math.isfinite(pos):
-        raise FrameError(f"encoder position (bytes 0-3) is not finite: {pos}")
-    if not math.isfinite(vel):
-        raise FrameError(f"encoder velocity (bytes 4-7) is not finite: {vel}")
-    return EncoderEstimate(pos, vel)
-
-
-def axis_state_name(state: int) -> str:
-    return AXIS_STATE_NAMES.get(state, f"STATE_{state}")
-
+from drivers.cansimple import (
+    AXIS_STATE_CLOSED_LOOP_CONTROL,
+    AXIS_STATE_IDLE,
+    CMD_CLEAR_ERRORS,
+    CMD_GET_ENCODER_ESTIMATES,
+    CMD_HEARTBEAT,
+    CMD_SET_AXIS_STATE,
+    CMD_SET_CONTROLLER_MODE,
+    CMD_SET_INPUT_VEL,
+    CONTROL_MODE_VELOCITY,
+    INPUT_MODES,
+    MAX_NODE_ID,
+    EncoderEstimate,
+    FrameError,
+    Heartbeat,
+    arbitration_id,
+    axis_state_name,
+    decode_encoder_estimates,
+    decode_heartbeat,
+    encode_set_axis_state,
+    encode_set_controller_mode,
+    encode_set_input_vel,
+    split_arbitration_id,
+)
 
 # -- the driver --------------------------------------------------------------------------------
 
@@ -126,6 +47,29 @@ def _check_interface(name: str) -> str | None:
     if name in VALID_INTERFACES:
         return None
     return f"unknown python-can interface {name!r}; valid: {', '.join(sorted(VALID_INTERFACES))}"
+
+
+@dataclass(frozen=True)
+class ODriveSettings:
+    """The ``[driver.odrive_can]`` section, read once (see ``ODriveCanDriver.OPTIONS``)."""
+
+    interface: str
+    channel: str
+    bitrate: int
+    multicast_port: int
+    left_node_id: int
+    right_node_id: int
+    left_inverted: bool
+    right_inverted: bool
+    gear_ratio: float
+    input_mode: str
+    heartbeat_period_s: float
+    heartbeat_misses: int
+    encoder_timeout_s: float
+    request_encoders: bool
+    startup_timeout_s: float
+    clear_errors_on_open: bool
+    keepalive_period_s: float
 
 
 @dataclass
@@ -221,18 +165,19 @@ class ODriveCanDriver(MotorDriver):
         "keepalive_period_s": option(float, 0.1, "resend the last Set_Input_Vel this often to "
                                      "feed the ODrive watchdog (0 = off)", minval=0.0),
     }
+    SETTINGS = ODriveSettings
+    settings: ODriveSettings
 
     SEND_TIMEOUT_S = 0.05
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
-        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
-        super().__init__(opts, max_wheel_speed=max_wheel_speed)
-        problems = self.check_options(opts)
+        super().__init__(options, max_wheel_speed=max_wheel_speed)
+        s = self.settings
+        problems = self.check_options(asdict(s))
         if problems:
             raise ValueError("; ".join(problems))
-        self._left = _Axis("left", opts["left_node_id"], -1.0 if opts["left_inverted"] else 1.0)
-        self._right = _Axis("right", opts["right_node_id"],
-                            -1.0 if opts["right_inverted"] else 1.0)
+        self._left = _Axis("left", s.left_node_id, -1.0 if s.left_inverted else 1.0)
+        self._right = _Axis("right", s.right_node_id, -1.0 if s.right_inverted else 1.0)
         self._axes = {axis.node_id: axis for axis in (self._left, self._right)}
         self._bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
@@ -242,10 +187,6 @@ class ODriveCanDriver(MotorDriver):
         self.frames_tx = 0
         self.bad_frames = 0
         self.last_bad_frame = ""
-
-    @classmethod
-    def name(cls) -> str:
-        return "odrive_can"
 
     @classmethod
     def check_options(cls, values: Mapping[str, Any]) -> list[str]:
@@ -259,10 +200,10 @@ class ODriveCanDriver(MotorDriver):
     # -- unit conversion --------------------------------------------------------------------
 
     def _rad_to_rev(self, axis: _Axis, rad: float) -> float:
-        return axis.sign * rad * float(self.options["gear_ratio"]) / (2 * math.pi)
+        return axis.sign * rad * self.settings.gear_ratio / (2 * math.pi)
 
     def _rev_to_rad(self, axis: _Axis, rev: float) -> float:
-        return axis.sign * rev * 2 * math.pi / float(self.options["gear_ratio"])
+        return axis.sign * rev * 2 * math.pi / self.settings.gear_ratio
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -280,25 +221,25 @@ class ODriveCanDriver(MotorDriver):
             await self._release_bus(idle=True)
             raise
         self._tasks = [asyncio.create_task(self._monitor(), name="odrive-monitor")]
-        if self.options["keepalive_period_s"] > 0:
+        if self.settings.keepalive_period_s > 0:
             self._tasks.append(asyncio.create_task(self._keepalive(), name="odrive-keepalive"))
 
     def _connect(self) -> can.BusABC:
         kwargs: dict[str, Any] = {}
-        if self.options["bitrate"]:
-            kwargs["bitrate"] = self.options["bitrate"]
-        if self.options["interface"] == "udp_multicast":
-            kwargs["port"] = self.options["multicast_port"]
-        return can.Bus(interface=self.options["interface"], channel=self.options["channel"],
+        if self.settings.bitrate:
+            kwargs["bitrate"] = self.settings.bitrate
+        if self.settings.interface == "udp_multicast":
+            kwargs["port"] = self.settings.multicast_port
+        return can.Bus(interface=self.settings.interface, channel=self.settings.channel,
                        **kwargs)
 
     async def _start_axes(self) -> None:
         axes = list(self._axes.values())
         await self._wait_until(lambda: all(a.heartbeat is not None for a in axes),
                                "a heartbeat")
-        input_mode = INPUT_MODES[self.options["input_mode"]]
+        input_mode = INPUT_MODES[self.settings.input_mode]
         for axis in axes:
-            if self.options["clear_errors_on_open"]:
+            if self.settings.clear_errors_on_open:
                 self._send(axis, CMD_CLEAR_ERRORS, b"\x00")
             # zero the set-point first: entering closed loop must not resume an old velocity
             self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(0.0))
@@ -315,11 +256,11 @@ class ODriveCanDriver(MotorDriver):
     async def _wait_until(self, done: Callable[[], bool], what: str,
                           poke: Callable[[], None] | None = None) -> None:
         assert self._frame_event is not None
-        deadline = time.monotonic() + float(self.options["startup_timeout_s"])
+        deadline = time.monotonic() + self.settings.startup_timeout_s
         while not done():
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise DriverFault(f"waited {self.options['startup_timeout_s']} s for {what} on "
+                raise DriverFault(f"waited {self.settings.startup_timeout_s} s for {what} on "
                                   f"{self._where()}: {self._axes_summary()}")
             self._frame_event.clear()
             with contextlib.suppress(TimeoutError):
@@ -373,8 +314,7 @@ class ODriveCanDriver(MotorDriver):
                               f"no IDLE heartbeat came back from {', '.join(missing)}")
 
     def _confirm_idle(self, bus: can.BusABC) -> set[int]:
-        window = float(self.options["heartbeat_period_s"]) * (self.options["heartbeat_misses"]
-                                                              + 1)
+        window = self.settings.heartbeat_period_s * (self.settings.heartbeat_misses + 1)
         deadline = time.monotonic() + window
         idle: set[int] = set()
         while idle != set(self._axes) and (remaining := deadline - time.monotonic()) > 0:
@@ -402,7 +342,7 @@ class ODriveCanDriver(MotorDriver):
             axis.command_rev_s = rev_s
 
     async def _read_encoders(self) -> EncoderReading | None:
-        if self.options["request_encoders"]:
+        if self.settings.request_encoders:
             self._request_estimates()
         left, right = self._left, self._right
         if left.estimate is None or right.estimate is None:
@@ -412,7 +352,7 @@ class ODriveCanDriver(MotorDriver):
                               self._rev_to_rad(right, right.estimate.pos_rev), t_mono)
 
     def _request_estimates(self) -> None:
-        if self.options["request_encoders"]:
+        if self.settings.request_encoders:
             for axis in self._axes.values():
                 self._send(axis, CMD_GET_ENCODER_ESTIMATES, b"", remote=True)
 
@@ -457,8 +397,8 @@ class ODriveCanDriver(MotorDriver):
 
     def _link_fault(self, now: float) -> str | None:
         """Why the ODrives cannot be trusted right now, or ``None``."""
-        limit = float(self.options["heartbeat_period_s"]) * self.options["heartbeat_misses"]
-        encoder_limit = float(self.options["encoder_timeout_s"])
+        limit = self.settings.heartbeat_period_s * self.settings.heartbeat_misses
+        encoder_limit = self.settings.encoder_timeout_s
         for axis in self._axes.values():
             age = now - (axis.heartbeat_mono or 0.0)
             if axis.heartbeat is None or age > limit:
@@ -477,7 +417,7 @@ class ODriveCanDriver(MotorDriver):
         return None
 
     async def _monitor(self) -> None:
-        period = float(self.options["heartbeat_period_s"]) / 2
+        period = self.settings.heartbeat_period_s / 2
         while True:
             await asyncio.sleep(period)
             reason = self._link_fault(time.monotonic())
@@ -495,7 +435,7 @@ class ODriveCanDriver(MotorDriver):
                 self.frames_tx += 1
 
     async def _keepalive(self) -> None:
-        period = float(self.options["keepalive_period_s"])
+        period = self.settings.keepalive_period_s
         while True:
             await asyncio.sleep(period)
             if self.fault is not None:
@@ -509,7 +449,7 @@ class ODriveCanDriver(MotorDriver):
     # -- reporting --------------------------------------------------------------------------
 
     def _where(self) -> str:
-        return f"{self.options['interface']} channel {self.options['channel']!r}"
+        return f"{self.settings.interface} channel {self.settings.channel!r}"
 
     def _axes_summary(self) -> str:
         parts = []
@@ -526,8 +466,8 @@ class ODriveCanDriver(MotorDriver):
     def _health(self) -> dict[str, Any]:
         now = time.monotonic()
         return {
-            "interface": self.options["interface"],
-            "channel": self.options["channel"],
+            "interface": self.settings.interface,
+            "channel": self.settings.channel,
             "frames_rx": self.frames_rx,
             "frames_tx": self.frames_tx,
             "bad_frames": self.bad_frames,

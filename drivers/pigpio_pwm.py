@@ -16,14 +16,18 @@ from typing import Any, ClassVar, TypeVar
 
 from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.pigpio_protocol import (
+    EITHER_EDGE,
+    HARDWARE_DUTY_FULL,
+    HARDWARE_PWM_CHANNEL,
+    MODE_INPUT,
+    MODE_OUTPUT,
+    PI_TIMEOUT_LEVEL,
+    PUD_UP,
+)
+from drivers.quadrature import QuadratureDecoder
 
 T = TypeVar("T")
-
-#: GPIO => hardware PWM channel (12/18 share channel 0, 13/19 channel 1).
-HARDWARE_PWM_CHANNEL = {12: 0, 18: 0, 13: 1, 19: 1}
-HARDWARE_DUTY_FULL = 1_000_000
-EITHER_EDGE, PI_TIMEOUT_LEVEL = 2, 2
-MODE_INPUT, MODE_OUTPUT, PUD_UP = 0, 1, 2
 
 
 def _gpio(default: int, doc: str) -> Any:
@@ -66,37 +70,6 @@ def speed_to_duty(speed: float, full_speed: float, min_duty: float, deadband: fl
     return math.copysign(min_duty + (1.0 - min_duty) * fraction, speed)
 
 
-class QuadratureDecoder:
-    """Counts a quadrature encoder from its A and B levels, one edge at a time (x4 decoding).
-
-    Counting up, the (A, B) levels go 11 -> 01 -> 00 -> 10 -> 11 (A falls first). A jump that
-    changes both levels at once (a missed edge) is counted in ``errors``, not guessed.
-    """
-
-    _UP = {(3, 1), (1, 0), (0, 2), (2, 3)}
-    _DOWN = {(1, 3), (0, 1), (2, 0), (3, 2)}
-
-    def __init__(self) -> None:
-        self.count = 0
-        self.errors = 0
-        self.state = 3
-
-    def reset_levels(self, a: int, b: int) -> None:
-        """Take the current levels as the new reference without counting (after a reconnect)."""
-        self.state = (a << 1) | b
-
-    def update(self, a: int, b: int) -> None:
-        new = (a << 1) | b
-        step = (self.state, new)
-        if step in self._UP:
-            self.count += 1
-        elif step in self._DOWN:
-            self.count -= 1
-        elif new != self.state:
-            self.errors += 1
-        self.state = new
-
-
 @dataclass(frozen=True)
 class Side:
     """One wheel's wiring as the pigpio driver uses it."""
@@ -108,6 +81,61 @@ class Side:
     invert: bool
     encoder: tuple[int, int] | None
     encoder_invert: bool
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """The keys the pigpio and l298n sections share: bridges, duty map, encoders, pigpiod."""
+
+    left_invert: bool
+    right_invert: bool
+    pwm_frequency: int
+    max_wheel_speed: float
+    min_duty: float
+    deadband: float
+    encoders: bool
+    left_encoder_a: int
+    left_encoder_b: int
+    right_encoder_a: int
+    right_encoder_b: int
+    left_encoder_invert: bool
+    right_encoder_invert: bool
+    encoder_counts_per_rev: int
+    timeout: float
+    watch_interval: float
+
+    def duty(self, speed: float, full_speed: float) -> float:
+        """The open-loop duty map (see :func:`speed_to_duty`) with this section's keys."""
+        return speed_to_duty(speed, full_speed, self.min_duty, self.deadband)
+
+    def encoder_pin_keys(self) -> list[str]:
+        """The encoder GPIO keys in use (none with ``encoders`` off)."""
+        if not self.encoders:
+            return []
+        return [f"{side}_encoder_{ch}" for side in ("left", "right") for ch in "ab"]
+
+    def encoder_pins(self, side: str) -> tuple[int, int] | None:
+        """(A, B) of one side's encoder, or ``None`` with ``encoders`` off."""
+        if not self.encoders:
+            return None
+        return getattr(self, f"{side}_encoder_a"), getattr(self, f"{side}_encoder_b")
+
+
+@dataclass(frozen=True)
+class PigpioSettings(BridgeSettings):
+    """The ``[driver.pigpio]`` section, read once (see ``PigpioDriver.OPTIONS``)."""
+
+    host: str
+    port: int
+    left_pwm: int
+    left_in1: int
+    left_in2: int
+    right_pwm: int
+    right_in1: int
+    right_in2: int
+    hardware_pwm: bool
+    pwm_range: int
+    glitch_filter_us: int
 
 
 # -- connection helpers (shared with the l298n driver) ---------------------------------------------
@@ -222,13 +250,15 @@ class PigpioDriver(MotorDriver):
         "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
                                  "(0 = only when writing)", minval=0.0),
     }
+    SETTINGS = PigpioSettings
+    settings: PigpioSettings
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
-        opts = {k: o.default for k, o in self.OPTIONS.items()} | dict(options)
-        super().__init__(opts, max_wheel_speed=max_wheel_speed)
-        self.full_duty_speed = float(opts["max_wheel_speed"]) or max_wheel_speed
+        super().__init__(options, max_wheel_speed=max_wheel_speed)
+        s = self.settings
+        self.full_duty_speed = s.max_wheel_speed or max_wheel_speed
         self.sides = (self._side("left"), self._side("right"))
-        check_pins(opts, self._pin_keys(), "pigpio")
+        check_pins(s, self._pin_keys(), self.name())
         self.hw_pins = self._hardware_pwm_pins()
         self.decoders = (QuadratureDecoder(), QuadratureDecoder())
         self._decoder_lock = threading.Lock()
@@ -243,24 +273,21 @@ class PigpioDriver(MotorDriver):
         self.pigpio_version: int | None = None
         self.hardware_revision: str | None = None
 
-    @classmethod
-    def name(cls) -> str:
-        return "pigpio"
-
     def _side(self, name: str) -> Side:
-        o = self.options
-        encoder = (o[f"{name}_encoder_a"], o[f"{name}_encoder_b"]) if o["encoders"] else None
-        return Side(name, o[f"{name}_pwm"], o[f"{name}_in1"], o[f"{name}_in2"],
-                    o[f"{name}_invert"], encoder, o[f"{name}_encoder_invert"])
+        s = self.settings
+
+        def key(suffix: str) -> Any:
+            return getattr(s, f"{name}_{suffix}")
+
+        return Side(name, key("pwm"), key("in1"), key("in2"), key("invert"),
+                    s.encoder_pins(name), key("encoder_invert"))
 
     def _pin_keys(self) -> list[str]:
         keys = [f"{side}_{pin}" for side in ("left", "right") for pin in ("pwm", "in1", "in2")]
-        if self.options["encoders"]:
-            keys += [f"{side}_encoder_{ch}" for side in ("left", "right") for ch in "ab"]
-        return keys
+        return keys + self.settings.encoder_pin_keys()
 
     def _hardware_pwm_pins(self) -> set[int]:
-        if not self.options["hardware_pwm"]:
+        if not self.settings.hardware_pwm:
             return set()
         pins = {s.pwm for s in self.sides if s.pwm in HARDWARE_PWM_CHANNEL}
         channels = [HARDWARE_PWM_CHANNEL[p] for p in pins]
@@ -281,12 +308,12 @@ class PigpioDriver(MotorDriver):
             self._io.shutdown()
             self._io = None
             raise
-        if self.options["watch_interval"] > 0:
+        if self.settings.watch_interval > 0:
             self._watch = asyncio.create_task(self._watch_peer(), name="pigpio-watch")
 
     def _connect(self) -> None:
-        o = self.options
-        pi = connect_pigpio(o["host"], o["port"], o["timeout"])
+        s = self.settings
+        pi = connect_pigpio(s.host, s.port, s.timeout)
         try:
             self.pigpio_version = pi.get_pigpio_version()
             self.hardware_revision = f"{pi.get_hardware_revision():x}"
@@ -297,7 +324,7 @@ class PigpioDriver(MotorDriver):
                                if s.encoder is not None]
         except Exception as exc:
             drop_pigpio(pi, peer_alive=True)
-            raise DriverFault(f"pigpiod at {o['host']}:{o['port']}: setup failed: {exc}") from exc
+            raise DriverFault(f"pigpiod at {self._where()}: setup failed: {exc}") from exc
         self._pi = pi
         self.connects += 1
 
@@ -306,13 +333,13 @@ class PigpioDriver(MotorDriver):
             pi.set_mode(pin, MODE_OUTPUT)
             self._write_pin(pi, pin, 0)
         if side.pwm in self.hw_pins:
-            pi.hardware_PWM(side.pwm, self.options["pwm_frequency"], 0)
-            self.real_pwm_frequency[side.pwm] = self.options["pwm_frequency"]
+            pi.hardware_PWM(side.pwm, self.settings.pwm_frequency, 0)
+            self.real_pwm_frequency[side.pwm] = self.settings.pwm_frequency
         else:
             pi.set_mode(side.pwm, MODE_OUTPUT)
             self.real_pwm_frequency[side.pwm] = pi.set_PWM_frequency(
-                side.pwm, self.options["pwm_frequency"])
-            pi.set_PWM_range(side.pwm, self.options["pwm_range"])
+                side.pwm, self.settings.pwm_frequency)
+            pi.set_PWM_range(side.pwm, self.settings.pwm_range)
             pi.set_PWM_dutycycle(side.pwm, 0)
         self._written[side.pwm] = 0
 
@@ -322,7 +349,7 @@ class PigpioDriver(MotorDriver):
         for pin in (pin_a, pin_b):
             pi.set_mode(pin, MODE_INPUT)
             pi.set_pull_up_down(pin, PUD_UP)
-            pi.set_glitch_filter(pin, self.options["glitch_filter_us"])
+            pi.set_glitch_filter(pin, self.settings.glitch_filter_us)
         levels = {pin_a: pi.read(pin_a), pin_b: pi.read(pin_b)}
         decoder = self.decoders[index]
         with self._decoder_lock:
@@ -364,8 +391,7 @@ class PigpioDriver(MotorDriver):
         await self._io.call(self._write_duties_locked, duties)
 
     def _duty(self, speed: float, side: Side) -> float:
-        o = self.options
-        duty = speed_to_duty(speed, self.full_duty_speed, o["min_duty"], o["deadband"])
+        duty = self.settings.duty(speed, self.full_duty_speed)
         return -duty if side.invert else duty
 
     def _write_duties(self, duties: tuple[float, float]) -> None:
@@ -404,9 +430,9 @@ class PigpioDriver(MotorDriver):
         if pin in self.hw_pins:
             value = round(duty * HARDWARE_DUTY_FULL)
             if self._written.get(pin) != value:
-                pi.hardware_PWM(pin, self.options["pwm_frequency"], value)
+                pi.hardware_PWM(pin, self.settings.pwm_frequency, value)
         else:
-            value = round(duty * self.options["pwm_range"])
+            value = round(duty * self.settings.pwm_range)
             if self._written.get(pin) != value:
                 pi.set_PWM_dutycycle(pin, value)
         self._written[pin] = value
@@ -415,12 +441,11 @@ class PigpioDriver(MotorDriver):
 
     def _lost(self, pi: Any, reason: str) -> None:
         """pigpiod is gone: mark the fault and stop the client's notification thread now."""
-        o = self.options
-        self.report_fault(f"pigpiod at {o['host']}:{o['port']} lost: {reason}")
+        self.report_fault(f"pigpiod at {self._where()} lost: {reason}")
         drop_pigpio(pi, peer_alive=False)
 
     async def _watch_peer(self) -> None:
-        interval = self.options["watch_interval"]
+        interval = self.settings.watch_interval
         while self.fault is None and self._io is not None:
             await asyncio.sleep(interval)
             pi, io = self._pi, self._io
@@ -435,7 +460,7 @@ class PigpioDriver(MotorDriver):
     # -- encoders and health ------------------------------------------------------------------
 
     async def _read_encoders(self) -> EncoderReading | None:
-        if not self.options["encoders"]:
+        if not self.settings.encoders:
             return None
         left, right = (self._position(i) for i in range(2))
         return EncoderReading(left, right, time.monotonic())
@@ -445,17 +470,20 @@ class PigpioDriver(MotorDriver):
         with self._decoder_lock:
             count = decoder.count
         sign = -1.0 if side.encoder_invert else 1.0
-        return sign * count / self.options["encoder_counts_per_rev"] * 2.0 * math.pi
+        return sign * count / self.settings.encoder_counts_per_rev * 2.0 * math.pi
+
+    def _where(self) -> str:
+        return f"{self.settings.host}:{self.settings.port}"
 
     def _health(self) -> dict[str, Any]:
         return {
-            "pigpiod": f"{self.options['host']}:{self.options['port']}",
+            "pigpiod": self._where(),
             "connects": self.connects,
             "pigpio_version": self.pigpio_version,
             "hardware_revision": self.hardware_revision,
             "hardware_pwm_pins": sorted(self.hw_pins),
             "pwm_frequency_hz": {str(k): v for k, v in self.real_pwm_frequency.items()},
-            "encoder_counts": [d.count for d in self.decoders] if self.options["encoders"]
+            "encoder_counts": [d.count for d in self.decoders] if self.settings.encoders
             else None,
             "encoder_errors": sum(d.errors for d in self.decoders),
         }
@@ -495,11 +523,11 @@ class PigpioDriver(MotorDriver):
             self._write_lock.release()
 
 
-def check_pins(opts: Mapping[str, Any], keys: list[str], section: str) -> None:
+def check_pins(settings: object, keys: list[str], section: str) -> None:
     """Refuse a GPIO used twice, naming both config keys (negative = not wired)."""
     seen: dict[int, str] = {}
     for key in keys:
-        pin = opts[key]
+        pin = getattr(settings, key)
         if pin < 0:
             continue
         if pin in seen:

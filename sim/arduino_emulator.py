@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import random
 import select
@@ -17,16 +16,36 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers.rosarduino import (
+    ANALOG_READ,
+    ANALOG_WRITE,
+    AUTO_STOP_S,
+    BAUDRATE,
+    DEFAULT_GAINS,
+    DIGITAL_READ,
+    DIGITAL_WRITE,
+    GET_BAUDRATE,
+    INVALID_COMMAND,
+    MAX_PWM,
+    MOTOR_RAW_PWM,
+    MOTOR_SPEEDS,
+    OK,
+    PID_RATE_HZ,
+    PIN_MODE,
+    PING,
+    READ_ENCODERS,
+    RESET_ENCODERS,
+    UPDATE_PID,
+    encode_reply,
+    format_counts,
+    ticks_to_rad_s,
+    wrap_long,
+)
 from sim.motor_model import MotorPair
 
-BAUDRATE = 57600
-PID_RATE_HZ = 30.0
-AUTO_STOP_S = 2.0
-MAX_PWM = 255
 ARG_BUFFER = 15  # the firmware's argv buffers are char[16]
-DEFAULT_GAINS = (20, 12, 0, 50)  # Kp, Kd, Ki, Ko of the joshnewans fork
-OK_REPLY_COMMANDS = "cwx"  # pin mode, digital write, analog write: answer OK
-ZERO_REPLY_COMMANDS = "adp"  # analog read, digital read, ping: answer 0 (nothing attached)
+OK_REPLY_COMMANDS = PIN_MODE + DIGITAL_WRITE + ANALOG_WRITE  # answer OK
+ZERO_REPLY_COMMANDS = ANALOG_READ + DIGITAL_READ + PING  # answer 0 (nothing attached)
 
 
 @dataclass(frozen=True)
@@ -82,7 +101,7 @@ class Firmware:
         for byte in data:
             reply = self._feed_char(chr(byte))
             if reply is not None:
-                out += self._garble(reply) if self.garbage else reply.encode() + b"\r\n"
+                out += self._garble(reply) if self.garbage else encode_reply(reply)
         return bytes(out)
 
     def tick(self) -> None:
@@ -95,7 +114,7 @@ class Firmware:
 
     def encoder_counts(self) -> tuple[int, int]:
         left, right = self._raw_counts()
-        return _to_long(left - self._offsets[0]), _to_long(right - self._offsets[1])
+        return wrap_long(left - self._offsets[0]), wrap_long(right - self._offsets[1])
 
     def _raw_counts(self) -> tuple[int, int]:
         return self.motors.counts()
@@ -125,33 +144,32 @@ class Firmware:
         self.history.append(ReceivedCommand(self.clock(), text))
         arg1, arg2 = _atoi(argv1), _atoi(argv2)
         handlers: dict[str, Callable[[], str]] = {
-            "b": lambda: str(BAUDRATE),
-            "e": self._read_encoders,
-            "r": self._reset_encoders,
-            "m": lambda: self._motor_speeds(arg1, arg2),
-            "o": lambda: self._raw_pwm(arg1, arg2),
-            "u": lambda: self._update_pid(argv1),
+            GET_BAUDRATE: lambda: str(BAUDRATE),
+            READ_ENCODERS: self._read_encoders,
+            RESET_ENCODERS: self._reset_encoders,
+            MOTOR_SPEEDS: lambda: self._motor_speeds(arg1, arg2),
+            MOTOR_RAW_PWM: lambda: self._raw_pwm(arg1, arg2),
+            UPDATE_PID: lambda: self._update_pid(argv1),
         }
         if cmd in handlers:
             return handlers[cmd]()
         if cmd and cmd in OK_REPLY_COMMANDS:
-            return "OK"
+            return OK
         if cmd and cmd in ZERO_REPLY_COMMANDS:
             return "0"
-        return "Invalid Command"
+        return INVALID_COMMAND
 
     # -- commands ----------------------------------------------------------------------------
 
     def _read_encoders(self) -> str:
-        left, right = self.encoder_counts()
-        return f"{left} {right}"
+        return format_counts(*self.encoder_counts())
 
     def _reset_encoders(self) -> str:
         self._offsets = self._raw_counts()
         if self.mode == "pid":  # resetPID() zeroes the target; raw PWM is left alone
             self.ticks_per_frame = (0, 0)
             self.motors.set_targets(0.0, 0.0)
-        return "OK"
+        return OK
 
     def _motor_speeds(self, left_ticks: int, right_ticks: int) -> str:
         self.last_motor_command = self.clock()
@@ -159,28 +177,28 @@ class Firmware:
         self.mode = "stopped" if left_ticks == 0 and right_ticks == 0 else "pid"
         self.motors.set_targets(self.ticks_to_rad_s(left_ticks, self.motors.left.counts_per_rev),
                                 self.ticks_to_rad_s(right_ticks, self.motors.right.counts_per_rev))
-        return "OK"
+        return OK
 
     def _raw_pwm(self, left: int, right: int) -> str:
         self.last_motor_command = self.clock()
         self.pwm = (_clamp_pwm(left), _clamp_pwm(right))
         self.mode = "pwm"
         self.motors.set_duties(self.pwm[0] / MAX_PWM, self.pwm[1] / MAX_PWM)
-        return "OK"
+        return OK
 
     def _update_pid(self, argv1: str) -> str:
         values = [_atoi(part) for part in argv1.split(":") if part][:4]
         values += [0] * (4 - len(values))
         self.gains = (values[0], values[1], values[2], values[3])
-        return "OK"
+        return OK
 
     def ticks_to_rad_s(self, ticks_per_frame: int, counts_per_rev: int) -> float:
-        return ticks_per_frame * self.pid_rate * 2 * math.pi / counts_per_rev
+        return ticks_to_rad_s(ticks_per_frame, counts_per_rev, self.pid_rate)
 
     def _garble(self, reply: str) -> bytes:
         """What a host sees from a board with a baud mismatch or a noisy cable."""
         noise = bytes(self._rng.randrange(0x80, 0x100) for _ in range(self._rng.randint(2, 9)))
-        return noise + reply[::-1].encode() + b"\r\n"
+        return noise + encode_reply(reply[::-1])
 
 
 def _atoi(text: str) -> int:
@@ -198,11 +216,6 @@ def _atoi(text: str) -> int:
 
 def _clamp_pwm(value: int) -> int:
     return max(-MAX_PWM, min(MAX_PWM, value))
-
-
-def _to_long(value: int) -> int:
-    """Wrap to the firmware's signed 32-bit ``long``."""
-    return (value + 2**31) % 2**32 - 2**31
 
 
 class ArduinoEmulator:

@@ -5,7 +5,6 @@ import argparse
 import contextlib
 import math
 import signal
-import struct
 import sys
 import threading
 import time
@@ -16,31 +15,36 @@ from typing import Any
 
 import can
 
+from drivers.cansimple import (
+    AXIS_STATE_CLOSED_LOOP_CONTROL,
+    AXIS_STATE_FULL_CALIBRATION_SEQUENCE,
+    AXIS_STATE_IDLE,
+    CMD_CLEAR_ERRORS,
+    CMD_ESTOP,
+    CMD_GET_ENCODER_ESTIMATES,
+    CMD_GET_ERROR,
+    CMD_HEARTBEAT,
+    CMD_REBOOT,
+    CMD_SET_AXIS_STATE,
+    CMD_SET_CONTROLLER_MODE,
+    CMD_SET_INPUT_VEL,
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    ERROR_ESTOP_REQUESTED,
+    ERROR_MOTOR_FAILED,
+    ERROR_WATCHDOG_TIMER_EXPIRED,
+    INPUT_MODE_PASSTHROUGH,
+    FrameError,
+    arbitration_id,
+    decode_set_axis_state,
+    decode_set_controller_mode,
+    decode_set_input_vel,
+    encode_encoder_estimates,
+    encode_error,
+    encode_heartbeat,
+    split_arbitration_id,
+)
 from sim.motor_model import MotorPair
-
-# CANSimple command ids (firmware 0.5 / 0.6 numbering); written out here on purpose, apart
-# from the driver's codec, so a wrong constant on either side shows up in the tests.
-HEARTBEAT = 0x01
-ESTOP = 0x02
-GET_ERROR = 0x03
-SET_AXIS_STATE = 0x07
-GET_ENCODER_ESTIMATES = 0x09
-SET_CONTROLLER_MODE = 0x0B
-SET_INPUT_VEL = 0x0D
-REBOOT = 0x16
-CLEAR_ERRORS = 0x18
-
-STATE_IDLE = 1
-STATE_FULL_CALIBRATION_SEQUENCE = 3
-STATE_CLOSED_LOOP_CONTROL = 8
-CONTROL_MODE_VELOCITY = 2
-CONTROL_MODE_POSITION = 3
-INPUT_MODE_PASSTHROUGH = 1
-
-# axis error bits of firmware 0.5
-ERROR_MOTOR_FAILED = 0x40
-ERROR_WATCHDOG_TIMER_EXPIRED = 0x800
-ERROR_ESTOP_REQUESTED = 0x4000
 
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
 
@@ -54,7 +58,7 @@ class EmulatedAxis:
     node_id: int
     wheel: int
     direction: int
-    axis_state: int = STATE_IDLE
+    axis_state: int = AXIS_STATE_IDLE
     axis_error: int = 0
     error_condition: int = 0
     control_mode: int = CONTROL_MODE_POSITION
@@ -68,10 +72,10 @@ class EmulatedAxis:
     def fail(self, code: int) -> None:
         """Latch an axis error; like the firmware, the axis disarms to IDLE."""
         self.axis_error |= code
-        self.axis_state = STATE_IDLE
+        self.axis_state = AXIS_STATE_IDLE
 
     def drives_velocity(self) -> bool:
-        return (self.axis_state == STATE_CLOSED_LOOP_CONTROL
+        return (self.axis_state == AXIS_STATE_CLOSED_LOOP_CONTROL
                 and self.control_mode == CONTROL_MODE_VELOCITY)
 
 
@@ -156,7 +160,7 @@ class ODriveEmulator:
             for axis in self._select(node):
                 axis.online = online
                 if not online:
-                    axis.axis_state = STATE_IDLE
+                    axis.axis_state = AXIS_STATE_IDLE
             self._update_targets()
 
     def inject_axis_error(self, code: int = ERROR_MOTOR_FAILED, node: int | None = None, *,
@@ -182,7 +186,7 @@ class ODriveEmulator:
         with self._changed:
             for axis in self._select(node):
                 if axis.axis_error == 0:
-                    axis.axis_state = STATE_CLOSED_LOOP_CONTROL
+                    axis.axis_state = AXIS_STATE_CLOSED_LOOP_CONTROL
                     axis.control_mode = CONTROL_MODE_VELOCITY
                     axis.input_vel_rev_s = vel_rev_s
                     axis.last_input_vel_mono = time.monotonic()
@@ -218,10 +222,10 @@ class ODriveEmulator:
         while not self._stopping.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:
-                self._send_cyclic(HEARTBEAT)
+                self._send_cyclic(CMD_HEARTBEAT)
                 next_heartbeat = max(next_heartbeat + self.heartbeat_period_s, now)
             if self.encoder_period_s > 0 and now >= next_estimates:
-                self._send_cyclic(GET_ENCODER_ESTIMATES)
+                self._send_cyclic(CMD_GET_ENCODER_ESTIMATES)
                 next_estimates = max(next_estimates + self.encoder_period_s, now)
             self._check_watchdog(now)
             due = next_heartbeat
@@ -242,28 +246,28 @@ class ODriveEmulator:
 
     def _send(self, node: int, cmd: int, data: bytes) -> None:
         assert self._bus is not None
-        msg = can.Message(arbitration_id=node << 5 | cmd, data=data, is_extended_id=False)
+        msg = can.Message(arbitration_id=arbitration_id(node, cmd), data=data,
+                          is_extended_id=False)
         with contextlib.suppress(can.CanError, OSError):
             self._bus.send(msg, timeout=0.05)
 
     def _send_cyclic(self, cmd: int) -> None:
         with self._changed:
             for axis in self.axes.values():
-                if not axis.online or (cmd == HEARTBEAT and not axis.heartbeat_enabled):
+                if not axis.online or (cmd == CMD_HEARTBEAT and not axis.heartbeat_enabled):
                     continue
                 self._send(axis.node_id, cmd, self._payload(axis, cmd))
             self._changed.notify_all()
 
     def _payload(self, axis: EmulatedAxis, cmd: int) -> bytes:
-        if cmd == HEARTBEAT:
-            # axis error, axis state, procedure result, trajectory done, reserved
-            return struct.pack("<IBBBx", axis.axis_error, axis.axis_state, 0, 1)
-        if cmd == GET_ERROR:
-            return struct.pack("<II", axis.axis_error, 0)
+        if cmd == CMD_HEARTBEAT:
+            return encode_heartbeat(axis.axis_error, axis.axis_state)
+        if cmd == CMD_GET_ERROR:
+            return encode_error(axis.axis_error)
         position = self.motors.positions()[axis.wheel]
         speed = self.motors.speeds()[axis.wheel]
         scale = axis.direction * self.gear_ratio / (2 * math.pi)
-        return struct.pack("<ff", position * scale, speed * scale)
+        return encode_encoder_estimates(position * scale, speed * scale)
 
     def _check_watchdog(self, now: float) -> None:
         if self.watchdog_timeout_s <= 0:
@@ -271,7 +275,7 @@ class ODriveEmulator:
         with self._changed:
             for axis in self.axes.values():
                 expired = now - axis.last_input_vel_mono > self.watchdog_timeout_s
-                if axis.axis_state == STATE_CLOSED_LOOP_CONTROL and expired:
+                if axis.axis_state == AXIS_STATE_CLOSED_LOOP_CONTROL and expired:
                     axis.fail(ERROR_WATCHDOG_TIMER_EXPIRED)
                     self._update_targets()
 
@@ -280,7 +284,7 @@ class ODriveEmulator:
     def _handle(self, msg: can.Message) -> None:
         if msg.is_extended_id or msg.is_error_frame:
             return
-        node, cmd = msg.arbitration_id >> 5, msg.arbitration_id & 0x1F
+        node, cmd = split_arbitration_id(msg.arbitration_id)
         axis = self.axes.get(node)
         if axis is None or not axis.online:
             return
@@ -298,58 +302,55 @@ class ODriveEmulator:
             hook(node, cmd, data, now)
 
     def _answer_request(self, axis: EmulatedAxis, cmd: int) -> None:
-        if cmd in (GET_ENCODER_ESTIMATES, GET_ERROR, HEARTBEAT):
+        if cmd in (CMD_GET_ENCODER_ESTIMATES, CMD_GET_ERROR, CMD_HEARTBEAT):
             self._send(axis.node_id, cmd, self._payload(axis, cmd))
 
     def _apply_command(self, axis: EmulatedAxis, cmd: int, data: bytes, now: float) -> bool:
         """Act on one data frame; ``False`` for frames that are not commands to an ODrive
         (including this node's own cyclic frames echoed back) or malformed ones."""
         handler = {
-            SET_INPUT_VEL: self._on_set_input_vel,
-            SET_AXIS_STATE: self._on_set_axis_state,
-            SET_CONTROLLER_MODE: self._on_set_controller_mode,
-            CLEAR_ERRORS: self._on_clear_errors,
-            ESTOP: self._on_estop,
-            REBOOT: self._on_reboot,
+            CMD_SET_INPUT_VEL: self._on_set_input_vel,
+            CMD_SET_AXIS_STATE: self._on_set_axis_state,
+            CMD_SET_CONTROLLER_MODE: self._on_set_controller_mode,
+            CMD_CLEAR_ERRORS: self._on_clear_errors,
+            CMD_ESTOP: self._on_estop,
+            CMD_REBOOT: self._on_reboot,
         }.get(cmd)
         if handler is None:
             return False
         try:
             handler(axis, data, now)
-        except struct.error:
+        except FrameError:
             self.bad_frames += 1
             return False
         return True
 
     def _on_set_input_vel(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
-        vel, _torque_ff = struct.unpack_from("<ff", data)
-        if not math.isfinite(vel):
-            raise struct.error(f"non-finite velocity {vel}")
-        axis.input_vel_rev_s = vel
+        axis.input_vel_rev_s, _torque_ff = decode_set_input_vel(data)
         axis.last_input_vel_mono = now
 
     def _on_set_axis_state(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
-        (requested,) = struct.unpack_from("<I", data)
-        if requested == STATE_CLOSED_LOOP_CONTROL:
+        requested = decode_set_axis_state(data)
+        if requested == AXIS_STATE_CLOSED_LOOP_CONTROL:
             if axis.axis_error == 0:  # the firmware refuses to arm with an error latched
-                axis.axis_state = STATE_CLOSED_LOOP_CONTROL
+                axis.axis_state = AXIS_STATE_CLOSED_LOOP_CONTROL
                 axis.last_input_vel_mono = now
-        elif requested in (STATE_IDLE, STATE_FULL_CALIBRATION_SEQUENCE):
-            axis.axis_state = STATE_IDLE  # calibration is instant here and ends in IDLE
+        elif requested in (AXIS_STATE_IDLE, AXIS_STATE_FULL_CALIBRATION_SEQUENCE):
+            axis.axis_state = AXIS_STATE_IDLE  # calibration is instant here and ends in IDLE
 
     def _on_set_controller_mode(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
-        axis.control_mode, axis.input_mode = struct.unpack_from("<II", data)
+        axis.control_mode, axis.input_mode = decode_set_controller_mode(data)
 
     def _on_clear_errors(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
         axis.axis_error = axis.error_condition
         if axis.error_condition:
-            axis.axis_state = STATE_IDLE
+            axis.axis_state = AXIS_STATE_IDLE
 
     def _on_estop(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
         axis.fail(ERROR_ESTOP_REQUESTED)
 
     def _on_reboot(self, axis: EmulatedAxis, data: bytes, now: float) -> None:
-        axis.axis_state, axis.axis_error = STATE_IDLE, axis.error_condition
+        axis.axis_state, axis.axis_error = AXIS_STATE_IDLE, axis.error_condition
         axis.control_mode, axis.input_mode = CONTROL_MODE_POSITION, INPUT_MODE_PASSTHROUGH
         axis.input_vel_rev_s = 0.0
 
@@ -360,14 +361,6 @@ class ODriveEmulator:
                 turns_s = axis.direction * axis.input_vel_rev_s / self.gear_ratio
                 targets[axis.wheel] = turns_s * 2 * math.pi
         self.motors.set_targets(targets[0], targets[1])
-
-
-def start_odrive_emulator(interface: str = "virtual", channel: str = "odrive",
-                          node_ids: Sequence[int] = (0, 1), motors: MotorPair | None = None,
-                          **options: Any) -> ODriveEmulator:
-    """Start an emulated ODrive in this process (a thread) and return its handle."""
-    return ODriveEmulator(interface, channel, node_ids=node_ids, motors=motors,
-                          **options).start()
 
 
 # -- standalone ----------------------------------------------------------------------------

@@ -8,10 +8,20 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.pigpio_protocol import (
+    HARDWARE_DUTY_FULL,
+    HARDWARE_PWM_CHANNEL,
+    MODE_INPUT,
+    MODE_OUTPUT,
+    PI4B_REVISION,
+    PUD_OFF,
+    PUD_UP,
+)
+from drivers.quadrature import quadrature_levels
 from sim.motor_model import MotorPair, WheelMotor
 
 # -- wire format (pure: no I/O) -------------------------------------------------------------------
@@ -32,12 +42,8 @@ PI_BAD_PULSEWIDTH, PI_BAD_DUTYCYCLE, PI_BAD_WDOG_TIMEOUT, PI_BAD_DUTYRANGE = -7,
 PI_NO_HANDLE, PI_BAD_HANDLE, PI_UNKNOWN_COMMAND = -24, -25, -88
 PI_NOT_HPWM_GPIO, PI_BAD_HPWM_FREQ, PI_BAD_HPWM_DUTY, PI_BAD_FILTER = -95, -96, -97, -125
 
-MODE_INPUT, MODE_OUTPUT = 0, 1
-PUD_OFF, PUD_DOWN, PUD_UP = 0, 1, 2
-PI4B_REVISION = 0xC03111
 PIGPIO_VERSION = 79
 MAX_NOTIFY_HANDLES = 32
-HARDWARE_PWM_CHANNEL = {12: 0, 18: 0, 13: 1, 19: 1}
 # set_PWM_frequency rounds to these at the default 5 us sample rate.
 PWM_FREQUENCIES = (8000, 4000, 2000, 1600, 1000, 800, 500, 400, 320, 250, 200, 160, 100, 80, 50,
                    40, 20, 10)
@@ -74,14 +80,6 @@ def encode_report(seqno: int, flags: int, tick: int, level: int) -> bytes:
 def nearest_pwm_frequency(hz: int) -> int:
     """The frequency pigpiod actually sets for a DMA PWM request of ``hz``."""
     return min(PWM_FREQUENCIES, key=lambda f: (abs(f - hz), -f))
-
-
-def quadrature_levels(count: int) -> tuple[int, int]:
-    """Pin levels (A, B) of a pulled-up quadrature encoder at edge count ``count``.
-
-    Rest is both high; counting up, A falls first (gpiozero's clockwise).
-    """
-    return ((1, 1), (0, 1), (0, 0), (1, 0))[count % 4]
 
 
 # -- the hardware behind the pins -----------------------------------------------------------------
@@ -124,30 +122,28 @@ class Wiring:
         return [(side, pins) for side, pins in pairs if pins is not None]
 
 
-def pigpio_driver_wiring(options: dict[str, Any], reverse: tuple[bool, bool] = (False, False),
-                         ) -> Wiring:
-    """The hardware a complete ``[driver.pigpio]`` section describes: EN = PWM, IN1/IN2."""
-    def bridge(side: str, reversed_: bool) -> HBridge:
+def pigpio_driver_wiring(options: Mapping[str, Any]) -> Wiring:
+    """The hardware a complete ``[driver.pigpio]`` section describes: EN = PWM, IN1/IN2; a
+    side the section inverts has its motor wired reversed."""
+    def bridge(side: str) -> HBridge:
         return HBridge(options[f"{side}_in1"], options[f"{side}_in2"], options[f"{side}_pwm"],
-                       reversed_)
+                       options[f"{side}_invert"])
 
-    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
-                  *_encoders(options))
+    return Wiring(bridge("left"), bridge("right"), *_encoders(options))
 
 
-def l298n_driver_wiring(options: dict[str, Any], reverse: tuple[bool, bool] = (False, False),
-                        ) -> Wiring:
-    """The hardware a complete ``[driver.l298n]`` section describes: IN1/IN2 PWM, EN if wired."""
-    def bridge(side: str, reversed_: bool) -> HBridge:
+def l298n_driver_wiring(options: Mapping[str, Any]) -> Wiring:
+    """The hardware a complete ``[driver.l298n]`` section describes: IN1/IN2 PWM, EN if wired;
+    a side the section inverts has its motor wired reversed."""
+    def bridge(side: str) -> HBridge:
         enable = options[f"{side}_enable"]
         return HBridge(options[f"{side}_forward"], options[f"{side}_backward"],
-                       enable if enable >= 0 else None, reversed_)
+                       enable if enable >= 0 else None, options[f"{side}_invert"])
 
-    return Wiring(bridge("left", reverse[0]), bridge("right", reverse[1]),
-                  *_encoders(options))
+    return Wiring(bridge("left"), bridge("right"), *_encoders(options))
 
 
-def _encoders(options: dict[str, Any]) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
+def _encoders(options: Mapping[str, Any]) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
     if not options.get("encoders"):
         return None, None
     return ((options["left_encoder_a"], options["left_encoder_b"]),
@@ -209,7 +205,7 @@ class GpioBank:
         with self.lock:
             pin = self.pins[gpio]
             if pin.hw_frequency and gpio in HARDWARE_PWM_CHANNEL:
-                return pin.hw_duty / 1_000_000
+                return pin.hw_duty / HARDWARE_DUTY_FULL
             if pin.pwm_active:
                 return pin.pwm_duty / pin.pwm_range
             if pin.mode != MODE_OUTPUT:
@@ -280,7 +276,7 @@ class GpioBank:
     def _pud(self, req: Request, ext: bytes, conn: Connection) -> int:
         if (err := self._gpio(req.p1)) is not None:
             return err
-        if req.p2 > 2:
+        if req.p2 > PUD_UP:
             return PI_BAD_PUD
         self.pins[req.p1].pud = req.p2
         return 0
@@ -397,7 +393,7 @@ class GpioBank:
         (duty,) = struct.unpack("<I", ext)
         if req.p2 > 187_500_000:
             return PI_BAD_HPWM_FREQ
-        if duty > 1_000_000:
+        if duty > HARDWARE_DUTY_FULL:
             return PI_BAD_HPWM_DUTY
         channel = HARDWARE_PWM_CHANNEL[req.p1]
         for gpio, other in HARDWARE_PWM_CHANNEL.items():  # a channel's pins share its settings
