@@ -13,14 +13,13 @@ from aiohttp import web
 from daemon import __version__, console, lidar
 from daemon.bus import Bus
 from daemon.component import Component, DaemonContext, worst
-from daemon.config import Config, ConfigError
+from daemon.config import Config, ConfigError, build_driver
 from daemon.control.api import ControlApi
 from daemon.control.loop import ControlLoop
 from daemon.http_api import Access, HttpServer, json_response
 from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
-from daemon.probe import build_driver
 from daemon.rosbridge import server as rosbridge_server
 from daemon.security import Security
 from drivers import DriverError

@@ -11,7 +11,7 @@ from typing import Any
 
 from base.options import Options, defaults
 from daemon import settings
-from drivers import DRIVERS, driver_class
+from drivers import DRIVERS, MotorDriver, create_driver, driver_class
 from sensors.rplidar.settings import LIDAR_OPTIONS
 from sim.settings import SIM_OPTIONS
 
@@ -61,6 +61,31 @@ class Config:
 
     def as_dict(self) -> dict[str, Any]:
         return {name: dict(values) for name, values in self.sections.items()}
+
+
+def wheel_speed_clamp(config: Config) -> float:
+    """The effective ``[robot] max_wheel_speed``, rad/s: as set, or (0) the fastest wheel speed
+    the velocity limits can ask for."""
+    robot, limits = config["robot"], config["limits"]
+    if robot["max_wheel_speed"]:
+        return float(robot["max_wheel_speed"])
+    half_track = robot["wheel_separation"] * robot["wheel_separation_multiplier"] / 2.0
+    radius = robot["wheel_radius"] * min(robot["left_wheel_radius_multiplier"],
+                                         robot["right_wheel_radius_multiplier"])
+    fastest = limits["linear.x.max_velocity"] + limits["angular.z.max_velocity"] * half_track
+    return float(fastest / radius)
+
+
+def build_driver(config: Config, name: str | None = None) -> MotorDriver:
+    """The configured driver (or ``name``) from the registry, built (not opened) with the
+    wheel-speed clamp; keys that are valid alone but clash are a :class:`ConfigError`."""
+    name = name or config["driver"]["type"]
+    try:
+        return create_driver(name, config.driver_options(name),
+                             max_wheel_speed=wheel_speed_clamp(config))
+    except ValueError as exc:  # e.g. a pin used twice
+        text = str(exc) if str(exc).startswith("[") else f"[driver.{name}] {exc}"
+        raise ConfigError([f"{config.source}: {text}"]) from exc
 
 
 def section_options(section: str) -> Options:

@@ -5,27 +5,12 @@ import asyncio
 import sys
 from collections.abc import Awaitable, Callable
 
-from daemon.config import Config, ConfigError
-from daemon.control.kinematics import DiffDrive
-from drivers import DriverError, MotorDriver, create_driver
+from daemon.config import Config, build_driver
+from drivers import DriverError
 from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
 
 # config section => a probe of that part's hardware; returns problems.
 PROBES: dict[str, Callable[[Config], Awaitable[list[str]]]] = {}
-
-
-def build_driver(config: Config, name: str | None = None) -> MotorDriver:
-    """The configured driver (or ``name``), built with the wheel-speed clamp from the limits."""
-    limits = config["limits"]
-    geometry = DiffDrive.from_config(config["robot"])
-    max_wheel = config["robot"]["max_wheel_speed"] or geometry.max_wheel_speed(
-        limits["linear.x.max_velocity"], limits["angular.z.max_velocity"])
-    name = name or config["driver"]["type"]
-    try:
-        return create_driver(name, config.driver_options(name), max_wheel_speed=max_wheel)
-    except ValueError as exc:  # keys that are valid alone but clash (a pin used twice)
-        text = str(exc) if str(exc).startswith("[") else f"[driver.{name}] {exc}"
-        raise ConfigError([f"{config.source}: {text}"]) from exc
 
 
 async def probe_hardware(config: Config) -> list[str]:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from base.options import Option, Options
+from drivers.registry import DRIVERS
 
 ROBOT_OPTIONS: Options = {
     "name": Option(str, "arbiter", "robot name shown in /robot_info and the logs"),
@@ -70,10 +71,8 @@ LIMITS_OPTIONS: Options = {
     **_axis_options("angular.z", "rad/s", 2.0, 4.0, 6.0, 12.0),
 }
 
-DRIVER_NAMES = ("mock", "l298n", "pigpio", "serial", "odrive_can")
-
 DRIVER_OPTIONS: Options = {
-    "type": Option(str, "mock", "motor driver", choices=DRIVER_NAMES),
+    "type": Option(str, "mock", "motor driver", choices=tuple(DRIVERS)),
 }
 
 HTTP_OPTIONS: Options = {

@@ -15,20 +15,13 @@ from aiohttp import web
 from daemon.config import Config
 from daemon.http_api import ApiError, HttpServer, json_response, read_json_object
 from daemon.telemetry import OdomSample
-from sim.motor_model import MotorPair, WheelMotor
+from sim.motor_model import MotorPair
 from sim.settings import SimConfig
 from sim.stepper import SimWorld
+from sim.wiring import EMULATORS
 from sim.world import Pose
 
 log = logging.getLogger("arbiterd.sim")
-
-Stop = Callable[[], None]
-# what an emulator starter returns: how to stop it, and [driver.<name>] options reaching it
-Started = tuple[Stop, dict[str, Any]]
-
-#: Encoder resolution of the emulated wheels per driver (edges are generated one by one for
-#: pigpio, so it stays modest there).
-COUNTS_PER_REV = {"mock": 1440, "serial": 1440, "pigpio": 200, "l298n": 200, "odrive_can": 8192}
 
 
 class SimRuntime:
@@ -47,20 +40,15 @@ class SimRuntime:
         self.motors = self._make_motors()
         self.world = SimWorld(self.sim, wheel_radius=robot["wheel_radius"],
                               wheel_separation=robot["wheel_separation"], motors=self.motors)
-        self._stops: list[Stop] = []
+        self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
         self.driver_options: dict[str, Any] = {}
         self.lidar_options: dict[str, Any] = {}
 
     def _make_motors(self) -> MotorPair:
-        counts = COUNTS_PER_REV[self.driver_name]
-
-        def wheel() -> WheelMotor:
-            return WheelMotor(max_speed_rad_s=self.sim.motor_max_speed,
-                              time_constant_s=self.sim.motor_time_constant,
-                              counts_per_rev=counts)
-
-        return MotorPair(wheel(), wheel(), clock=None)
+        return EMULATORS[self.driver_name].motors(max_speed_rad_s=self.sim.motor_max_speed,
+                                                  time_constant_s=self.sim.motor_time_constant,
+                                                  clock=None)
 
     # -- wiring (before the daemon builds its driver) -------------------------------------
 
@@ -68,8 +56,10 @@ class SimRuntime:
         """Start the world in real time and the emulators; fills the option overrides."""
         self.world.start()
         self._stops.append(self.world.close)
-        stop, self.driver_options = EMULATORS[self.driver_name](self)
-        self._stops.append(stop)
+        emulated = EMULATORS[self.driver_name].start(
+            self.motors, self.workdir, self.config.driver_options(self.driver_name))
+        self._stops.append(emulated.stop)
+        self.driver_options = emulated.options
         if self.config["sim"]["lidar"]:
             self._start_lidar()
         log.info("simulated robot: %s emulator on %s", self.driver_name,
@@ -158,63 +148,3 @@ def _parse_pose(body: dict[str, Any]) -> Pose | None:
         values.append(float(value))
     return Pose(*values)
 
-
-# -- one starter per [sim] driver ---------------------------------------------------------
-
-
-def _start_mock(runtime: SimRuntime) -> Started:
-    return (lambda: None), {}
-
-
-def _start_serial(runtime: SimRuntime) -> Started:
-    from sim.arduino_emulator import ArduinoEmulator
-
-    board = ArduinoEmulator(runtime.workdir / "arduino", runtime.motors).start()
-    return board.stop, {"port": str(board.link), "reset_wait_s": 0.05,
-                        "counts_per_rev": COUNTS_PER_REV["serial"], "poll_rate": 50.0}
-
-
-def _start_pigpio(runtime: SimRuntime) -> Started:
-    from sim.pigpiod_emulator import PigpiodEmulator, pigpio_driver_wiring
-
-    options = dict(runtime.config.driver_options("pigpio"))
-    options.update(host="127.0.0.1", encoders=True, max_wheel_speed=runtime.sim.motor_max_speed,
-                   encoder_counts_per_rev=COUNTS_PER_REV["pigpio"])
-    pigpiod = PigpiodEmulator(pigpio_driver_wiring(options), runtime.motors, port=0).start()
-    return pigpiod.close, {**{k: options[k] for k in ("host", "encoders", "max_wheel_speed",
-                                                      "encoder_counts_per_rev")},
-                           "port": pigpiod.port}
-
-
-def _start_l298n(runtime: SimRuntime) -> Started:
-    """gpiozero's PiGPIOFactory against the emulated pigpiod, L298N bridges on its pins."""
-    from sim.pigpiod_emulator import PigpiodEmulator, l298n_driver_wiring
-
-    options = dict(runtime.config.driver_options("l298n"))
-    overrides = {"pin_factory": "pigpio", "pigpio_host": "127.0.0.1", "encoders": True,
-                 "max_wheel_speed": runtime.sim.motor_max_speed,
-                 "encoder_counts_per_rev": COUNTS_PER_REV["l298n"] // 4}  # quadrature cycles
-    options.update(overrides)
-    pigpiod = PigpiodEmulator(l298n_driver_wiring(options), runtime.motors, port=0).start()
-    return pigpiod.close, {**overrides, "pigpio_port": pigpiod.port}
-
-
-def _start_odrive(runtime: SimRuntime) -> Started:
-    from sim.odrive_emulator import start_odrive_emulator
-
-    options = runtime.config.driver_options("odrive_can")
-    nodes = (options["left_node_id"], options["right_node_id"])
-    channel = f"arbiterd-sim-{runtime.workdir.name}"
-    directions = (-1 if options["left_inverted"] else 1, -1 if options["right_inverted"] else 1)
-    odrive = start_odrive_emulator("virtual", channel, nodes, runtime.motors,
-                                   directions=directions)
-    return odrive.stop, {"interface": "virtual", "channel": channel}
-
-
-EMULATORS: dict[str, Callable[[SimRuntime], Started]] = {
-    "mock": _start_mock,
-    "serial": _start_serial,
-    "pigpio": _start_pigpio,
-    "l298n": _start_l298n,
-    "odrive_can": _start_odrive,
-}

@@ -6,14 +6,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from base.options import Option, Options, defaults
+from drivers.registry import DRIVERS
 from sim.noise import NoiseConfig
 from sim.world import Pose
 
-SIM_DRIVERS = ("mock", "l298n", "pigpio", "serial", "odrive_can")
-
 SIM_OPTIONS: Options = {
     "driver": Option(str, "serial", "which emulator --sim wires to the real driver",
-                     choices=SIM_DRIVERS),
+                     choices=tuple(DRIVERS)),
     "seed": Option(int, 1, "seed of the obstacle placement and of every noise stream",
                    minval=0),
     "world_file": Option(str, "", "world file (.toml or .json) to load; '' = generated arena"),

@@ -6,11 +6,10 @@ import time
 
 from daemon.bench import BenchResult
 from daemon.bus import Bus
-from daemon.config import load_config
+from daemon.config import build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker, summarize
-from daemon.probe import build_driver
 
 SUITE = "control"
 
