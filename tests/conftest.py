@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import inspect
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from contextlib import asynccontextmanager
@@ -13,9 +14,10 @@ import pytest
 from daemon.app import Daemon
 from daemon.config import load_config
 from tests.daemon_proc import DaemonProcess, free_port
+from tests.rigs import RIGS, Rig
 
-__all__ = ["DaemonProcess", "Robot", "close_to", "eventually", "free_port", "running_robot",
-           "wait_for"]
+__all__ = ["DaemonProcess", "Rig", "Robot", "close_to", "eventually", "free_port",
+           "running_robot", "wait_for"]
 
 DEFAULT_WITHIN_S = 10.0
 
@@ -34,13 +36,18 @@ def wait_for(condition: Callable[[], Any], what: str = "condition",
 
 async def eventually(condition: Callable[[], Any], what: str = "condition",
                      within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.005) -> Any:
-    """``wait_for`` for async tests: the event loop keeps running between polls."""
+    """``wait_for`` for async tests: the event loop keeps running between polls.
+    ``condition`` may be a coroutine function (it is awaited each time)."""
     deadline = time.monotonic() + within_s
-    while not (value := condition()):
+    while not (value := await _result(condition())):
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {within_s} s waiting for {what}")
         await asyncio.sleep(interval_s)
     return value
+
+
+async def _result(value: Any) -> Any:
+    return await value if inspect.isawaitable(value) else value
 
 
 def close_to(actual: float | Sequence[float], expected: float | Sequence[float],
@@ -125,3 +132,9 @@ def daemon_process(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
         process.__exit__(None, None, None)
 
 
+@pytest.fixture(params=sorted(RIGS))
+async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
+    """Each registered driver against its running emulator (``tests/rigs``), plus the
+    ``l298n@pigpio`` variant: the test runs once per rig."""
+    async with RIGS[request.param](tmp_path) as running:
+        yield running

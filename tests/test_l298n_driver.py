@@ -1,64 +1,51 @@
 # The l298n driver through gpiozero: MockFactory pins and PiGPIOFactory on the pigpiod emulator.
 from __future__ import annotations
 
-import asyncio
 import math
-import time
-from collections.abc import AsyncIterator, Callable
-from contextlib import AbstractAsyncContextManager
+from collections.abc import AsyncIterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from drivers.base import DriverFault
 from drivers.l298n import L298NDriver, mock_pin_factory
-from tests.rigs.l298n import STEPS_PER_REV, mock_rig, pigpio_rig
+from tests.conftest import close_to, eventually
+from tests.rigs import RIGS, Rig, restart_pigpiod_and_reopen
 
 pytestmark = pytest.mark.timeout(60)
 
 MAX_WHEEL_SPEED = 15.0
-RIGS: dict[str, Callable[..., AbstractAsyncContextManager[Any]]] = {
-    "mock-pins": mock_rig, "pigpio-factory": pigpio_rig}
+TOLERANCE = 0.02
+#: the l298n driver on gpiozero's mock pins, and through PiGPIOFactory on the emulated pigpiod
+mock_rig, pigpio_rig = RIGS["l298n"], RIGS["l298n@pigpio"]
 
 
-async def eventually(check: Callable[[], bool], what: str, within: float = 3.0) -> None:
-    """Poll ``check`` until it holds; fail naming ``what`` at the deadline."""
-    deadline = time.monotonic() + within
-    while not check():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.005)
-
-
-def close_to(pair: tuple[float, float], expected: tuple[float, float], tol: float = 0.02) -> bool:
-    return all(abs(a - b) <= tol for a, b in zip(pair, expected, strict=True))
-
-
-async def opened(the_rig: Any, **overrides: Any) -> L298NDriver:
+async def opened(the_rig: Rig, **overrides: Any) -> L298NDriver:
     driver = L298NDriver(the_rig.options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
     await driver.open()
     return driver
 
 
-@pytest.fixture(params=sorted(RIGS))
-async def any_rig(request: pytest.FixtureRequest) -> AsyncIterator[Any]:
-    async with RIGS[request.param]() as the_rig:
+@pytest.fixture(params=["l298n", "l298n@pigpio"], ids=["mock-pins", "pigpio-factory"])
+async def any_rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
+    async with RIGS[request.param](tmp_path) as the_rig:
         yield the_rig
 
 
-async def test_forward_reverse_turn_stop_reach_the_bridges(any_rig: Any) -> None:
+async def test_forward_reverse_turn_stop_reach_the_bridges(any_rig: Rig) -> None:
     driver = await opened(any_rig)
     try:
         for left, right in [(6.0, 6.0), (-4.0, -4.0), (-3.0, 3.0), (0.0, 0.0)]:
             await driver.set_wheel_speeds(left, right)
-            assert close_to(any_rig.observed_targets(), (left, right))
+            assert close_to(any_rig.observed_targets(), (left, right), TOLERANCE)
         await driver.set_wheel_speeds(7.0, 7.0)
     finally:
         await driver.close()
     assert any_rig.observed_targets() == (0.0, 0.0)  # close() stopped the wheels
 
 
-async def test_encoders_follow_the_wheels(any_rig: Any) -> None:
+async def test_encoders_follow_the_wheels(any_rig: Rig) -> None:
     driver = await opened(any_rig)
     try:
         await driver.set_wheel_speeds(8.0, -8.0)
@@ -66,7 +53,7 @@ async def test_encoders_follow_the_wheels(any_rig: Any) -> None:
         await driver.stop()
         await eventually(lambda: all(abs(v) < 1e-3 for v in any_rig.motors.speeds()),
                          "the wheels to stop")
-        step = 2 * math.pi / STEPS_PER_REV
+        step = 2 * math.pi / any_rig.options["encoder_counts_per_rev"]
 
         async def agrees() -> bool:
             reading = await driver.read_encoders()
@@ -75,16 +62,13 @@ async def test_encoders_follow_the_wheels(any_rig: Any) -> None:
             return abs(reading.left_rad - truth[0]) <= step and \
                 abs(reading.right_rad - truth[1]) <= step
 
-        deadline = time.monotonic() + 3.0
-        while not await agrees():
-            assert time.monotonic() < deadline, "encoders never caught up with the wheels"
-            await asyncio.sleep(0.01)
+        await eventually(agrees, "the encoders to catch up with the wheels")
     finally:
         await driver.close()
 
 
-async def test_mock_pins_carry_pwm_frequency_enable_and_duty() -> None:
-    async with mock_rig(left_enable=25, right_enable=26, min_duty=0.2, deadband=0.5,
+async def test_mock_pins_carry_pwm_frequency_enable_and_duty(tmp_path: Path) -> None:
+    async with mock_rig(tmp_path, left_enable=25, right_enable=26, min_duty=0.2, deadband=0.5,
                         pwm_frequency=1000) as the_rig:
         driver = await opened(the_rig)
         factory = mock_pin_factory()
@@ -101,12 +85,12 @@ async def test_mock_pins_carry_pwm_frequency_enable_and_duty() -> None:
             await driver.close()
 
 
-async def test_per_side_inversion_matches_a_mirrored_motor() -> None:
-    async with mock_rig(reverse=(False, True), right_invert=True) as the_rig:
+async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
+    async with mock_rig(tmp_path, right_invert=True) as the_rig:  # a mirrored right motor
         driver = await opened(the_rig)
         try:
             await driver.set_wheel_speeds(5.0, 5.0)
-            assert close_to(the_rig.observed_targets(), (5.0, 5.0))
+            assert close_to(the_rig.observed_targets(), (5.0, 5.0), TOLERANCE)
         finally:
             await driver.close()
 
@@ -125,16 +109,16 @@ async def test_a_pin_factory_this_machine_lacks_is_a_fault(
         await driver.open()
 
 
-async def test_pigpiod_unreachable_is_a_fault() -> None:
-    async with pigpio_rig() as the_rig:
+async def test_pigpiod_unreachable_is_a_fault(tmp_path: Path) -> None:
+    async with pigpio_rig(tmp_path) as the_rig:
         the_rig.emulator.stop()
         driver = L298NDriver(the_rig.options, max_wheel_speed=MAX_WHEEL_SPEED)
         with pytest.raises(DriverFault, match=r"pigpiod unreachable at 127\.0\.0\.1"):
             await driver.open()
 
 
-async def test_pigpiod_stops_and_restarts_under_pigpio_factory() -> None:
-    async with pigpio_rig() as the_rig:
+async def test_pigpiod_stops_and_restarts_under_pigpio_factory(tmp_path: Path) -> None:
+    async with pigpio_rig(tmp_path) as the_rig:
         emulator = the_rig.emulator
         driver = await opened(the_rig)
         try:
@@ -147,28 +131,22 @@ async def test_pigpiod_stops_and_restarts_under_pigpio_factory() -> None:
             assert the_rig.observed_targets() == (0.0, 0.0)
             before = await driver.read_encoders()
             await driver.close()
-            await eventually(lambda: all(abs(v) < 1e-3 for v in the_rig.motors.speeds()),
-                             "the wheels to coast to a stop while pigpiod is down")
-            emulator.start()
-            await driver.open()
-            assert driver.health()["status"] == "ok" and driver.connects == 2
-            await asyncio.sleep(0.1)
-            assert the_rig.observed_targets() == (0.0, 0.0)  # still until a fresh command
+            await restart_pigpiod_and_reopen(the_rig, driver)
             after = await driver.read_encoders()
             assert before is not None and after is not None
             assert (after.left_rad, after.right_rad) == (before.left_rad, before.right_rad)
             await driver.set_wheel_speeds(5.0, 5.0)
-            assert close_to(the_rig.observed_targets(), (5.0, 5.0))
+            assert close_to(the_rig.observed_targets(), (5.0, 5.0), TOLERANCE)
         finally:
             await driver.close()
 
 
-async def test_safe_stop_zeroes_pins_a_dead_process_left_driving() -> None:
-    async with mock_rig() as the_rig:
+async def test_safe_stop_zeroes_pins_a_dead_process_left_driving(tmp_path: Path) -> None:
+    async with mock_rig(tmp_path) as the_rig:
         factory = mock_pin_factory()
         for gpio in (17, 22):  # forward PWM on both sides, as a crashed daemon left them
             pin = factory.pin(gpio)
             pin.function, pin.frequency, pin.state = "output", 500, 0.6
-        assert close_to(the_rig.observed_targets(), (12.0, 12.0))
+        assert close_to(the_rig.observed_targets(), (12.0, 12.0), TOLERANCE)
         await L298NDriver(the_rig.options, max_wheel_speed=MAX_WHEEL_SPEED).safe_stop()
         assert the_rig.observed_targets() == (0.0, 0.0)

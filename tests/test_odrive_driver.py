@@ -11,6 +11,7 @@ import sys
 import time
 import uuid
 from collections.abc import AsyncIterator, Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,61 +19,33 @@ import can
 import pytest
 
 from base.options import Option
+from drivers import cansimple
 from drivers.base import DriverFault
-from drivers.odrive_can import (
-    CMD_CLEAR_ERRORS,
-    CMD_SET_AXIS_STATE,
-    CMD_SET_CONTROLLER_MODE,
-    CMD_SET_INPUT_VEL,
-    FrameError,
-    ODriveCanDriver,
-    arbitration_id,
-    decode_encoder_estimates,
-    decode_heartbeat,
-    encode_set_axis_state,
-    encode_set_controller_mode,
-    encode_set_input_vel,
-    split_arbitration_id,
-)
+from drivers.odrive_can import ODriveCanDriver
 from sim.motor_model import MotorPair
-from sim.odrive_emulator import (
-    ERROR_MOTOR_FAILED,
-    STATE_CLOSED_LOOP_CONTROL,
-    STATE_IDLE,
-    ODriveEmulator,
-)
-from tests.rigs.odrive_can import LEFT_NODE, RIGHT_NODE, ODriveRig, rig
+from sim.odrive_emulator import ODriveEmulator
+from tests.conftest import close_to, eventually, wait_for
+from tests.daemon_proc import REPO
+from tests.rigs import RIG_OPTIONS, Rig, wired_rig
 
-REPO = Path(__file__).resolve().parent.parent
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30
 MAX_WHEEL_SPEED = 30.0
 MULTICAST_GROUP = "239.74.163.2"
-
-
-async def eventually(condition: Callable[[], Any], within_s: float = 3.0,
-                     what: str = "condition") -> Any:
-    """Poll ``condition`` on the event loop until it is truthy; fail after ``within_s``."""
-    deadline = time.monotonic() + within_s
-    while not (value := condition()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
-        await asyncio.sleep(0.005)
-    return value
-
-
-def close_to(pair: tuple[float, float], expected: tuple[float, float], tol: float = 1e-4) -> bool:
-    return all(abs(a - b) <= tol for a, b in zip(pair, expected, strict=True))
+EXACT = 1e-4
+LEFT_NODE = RIG_OPTIONS["odrive_can"]["left_node_id"]
+RIGHT_NODE = RIG_OPTIONS["odrive_can"]["right_node_id"]
+odrive_rig = partial(wired_rig, "odrive_can")
 
 
 @pytest.fixture
-async def odrive(tmp_path: Path) -> AsyncIterator[ODriveRig]:
-    async with rig(tmp_path) as odrive_rig:
-        yield odrive_rig
+async def odrive(tmp_path: Path) -> AsyncIterator[Rig]:
+    async with odrive_rig(tmp_path) as the_rig:
+        yield the_rig
 
 
 @pytest.fixture
-async def make_driver(odrive: ODriveRig) -> AsyncIterator[Callable[..., ODriveCanDriver]]:
+async def make_driver(odrive: Rig) -> AsyncIterator[Callable[..., ODriveCanDriver]]:
     made: list[ODriveCanDriver] = []
 
     def make(**overrides: Any) -> ODriveCanDriver:
@@ -89,33 +62,47 @@ async def make_driver(odrive: ODriveRig) -> AsyncIterator[Callable[..., ODriveCa
 
 
 def test_frame_ids_and_payloads_match_cansimple() -> None:
-    assert arbitration_id(3, CMD_SET_INPUT_VEL) == 0x6D
-    assert arbitration_id(1, 0x0C) == 0x2C
-    assert split_arbitration_id(0x6D) == (3, CMD_SET_INPUT_VEL)
-    assert encode_set_input_vel(1.5) == struct.pack("<ff", 1.5, 0.0)
-    assert encode_set_input_vel(1.5) == bytes.fromhex("0000c03f00000000")
-    assert encode_set_axis_state(8) == bytes.fromhex("08000000")
-    assert encode_set_controller_mode(2, 1) == bytes.fromhex("0200000001000000")
+    assert cansimple.arbitration_id(3, cansimple.CMD_SET_INPUT_VEL) == 0x6D
+    assert cansimple.arbitration_id(1, 0x0C) == 0x2C
+    assert cansimple.split_arbitration_id(0x6D) == (3, cansimple.CMD_SET_INPUT_VEL)
+    assert cansimple.encode_set_input_vel(1.5) == struct.pack("<ff", 1.5, 0.0)
+    assert cansimple.encode_set_input_vel(1.5) == bytes.fromhex("0000c03f00000000")
+    assert cansimple.encode_set_axis_state(8) == bytes.fromhex("08000000")
+    assert cansimple.encode_set_controller_mode(2, 1) == bytes.fromhex("0200000001000000")
 
 
 def test_decoders_read_heartbeat_and_estimates() -> None:
-    heartbeat = decode_heartbeat(bytes.fromhex("4000000008000100"))
+    heartbeat = cansimple.decode_heartbeat(bytes.fromhex("4000000008000100"))
     assert (heartbeat.axis_error, heartbeat.axis_state) == (0x40, 8)
-    estimate = decode_encoder_estimates(struct.pack("<ff", -2.25, 0.5))
+    estimate = cansimple.decode_encoder_estimates(struct.pack("<ff", -2.25, 0.5))
     assert (estimate.pos_rev, estimate.vel_rev_s) == (-2.25, 0.5)
 
 
+def test_the_odrive_side_of_the_frames_matches_cansimple() -> None:
+    assert (cansimple.CMD_HEARTBEAT, cansimple.CMD_GET_ENCODER_ESTIMATES) == (0x01, 0x09)
+    assert cansimple.encode_heartbeat(0x40, 8) == bytes.fromhex("4000000008000100")
+    assert cansimple.encode_encoder_estimates(-2.25, 0.5) == struct.pack("<ff", -2.25, 0.5)
+    assert cansimple.encode_error(0x800) == bytes.fromhex("0008000000000000")
+    assert cansimple.decode_set_input_vel(bytes.fromhex("0000c03f00000000")) == (1.5, 0.0)
+    assert cansimple.decode_set_axis_state(bytes.fromhex("08000000")) == 8
+    assert cansimple.decode_set_controller_mode(bytes.fromhex("0200000001000000")) == (2, 1)
+    with pytest.raises(cansimple.FrameError, match="Set_Input_Vel needs 8 data bytes, got 4"):
+        cansimple.decode_set_input_vel(b"\x00" * 4)
+    with pytest.raises(cansimple.FrameError, match=r"velocity \(bytes 0-3\) is not finite"):
+        cansimple.decode_set_input_vel(struct.pack("<ff", math.nan, 0.0))
+
+
 def test_bad_frames_are_refused_with_the_reason() -> None:
-    with pytest.raises(FrameError, match="at least 5 data bytes, got 3"):
-        decode_heartbeat(b"\x00\x00\x00")
-    with pytest.raises(FrameError, match="8 data bytes, got 4"):
-        decode_encoder_estimates(b"\x00" * 4)
-    with pytest.raises(FrameError, match=r"position \(bytes 0-3\) is not finite"):
-        decode_encoder_estimates(struct.pack("<ff", math.nan, 0.0))
-    with pytest.raises(FrameError, match=r"node id must be 0\.\.63, got 64"):
-        arbitration_id(64, 1)
-    with pytest.raises(FrameError, match="finite"):
-        encode_set_input_vel(math.inf)
+    with pytest.raises(cansimple.FrameError, match="at least 5 data bytes, got 3"):
+        cansimple.decode_heartbeat(b"\x00\x00\x00")
+    with pytest.raises(cansimple.FrameError, match="8 data bytes, got 4"):
+        cansimple.decode_encoder_estimates(b"\x00" * 4)
+    with pytest.raises(cansimple.FrameError, match=r"position \(bytes 0-3\) is not finite"):
+        cansimple.decode_encoder_estimates(struct.pack("<ff", math.nan, 0.0))
+    with pytest.raises(cansimple.FrameError, match=r"node id must be 0\.\.63, got 64"):
+        cansimple.arbitration_id(64, 1)
+    with pytest.raises(cansimple.FrameError, match="finite"):
+        cansimple.encode_set_input_vel(math.inf)
 
 
 def test_config_errors_name_the_problem() -> None:
@@ -132,7 +119,7 @@ def test_config_errors_name_the_problem() -> None:
 
 
 async def test_open_zeroes_input_then_enters_velocity_closed_loop(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     # a set-point left over from an earlier run must not move the wheels on arming
     for axis in emulator.axes.values():
@@ -143,18 +130,18 @@ async def test_open_zeroes_input_then_enters_velocity_closed_loop(
     await driver.open()
     for node in (LEFT_NODE, RIGHT_NODE):
         axis = emulator.axes[node]
-        assert axis.axis_state == STATE_CLOSED_LOOP_CONTROL
+        assert axis.axis_state == cansimple.AXIS_STATE_CLOSED_LOOP_CONTROL
         assert (axis.control_mode, axis.input_mode) == (2, 2)
         assert axis.input_vel_rev_s == 0.0
         commands = [cmd for n, cmd in seen if n == node]
-        assert commands[:4] == [CMD_CLEAR_ERRORS, CMD_SET_INPUT_VEL, CMD_SET_CONTROLLER_MODE,
-                                CMD_SET_AXIS_STATE]
+        assert commands[:4] == [cansimple.CMD_CLEAR_ERRORS, cansimple.CMD_SET_INPUT_VEL,
+                                cansimple.CMD_SET_CONTROLLER_MODE, cansimple.CMD_SET_AXIS_STATE]
     assert emulator.wheel_targets() == (0.0, 0.0)
     assert driver.health()["status"] == "ok"
 
 
 async def test_set_input_vel_is_in_turns_per_second_with_inversion_and_gearing(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     emulator.gear_ratio = 2.0
     driver = make_driver(gear_ratio=2.0)
@@ -180,55 +167,57 @@ TWISTS = {
 
 @pytest.mark.parametrize("name", list(TWISTS))
 async def test_wheels_follow_the_commanded_twist(
-        name: str, odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        name: str, odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     linear, angular = TWISTS[name]
     left = (linear - angular * WHEEL_SEPARATION / 2) / WHEEL_RADIUS
     right = (linear + angular * WHEEL_SEPARATION / 2) / WHEEL_RADIUS
     driver = make_driver()
     await driver.open()
     await driver.set_wheel_speeds(1.0, 1.0)  # so "stop" has something to stop
-    await eventually(lambda: close_to(odrive.observed_targets(), (1.0, 1.0)), what="warm-up")
+    await eventually(lambda: close_to(odrive.observed_targets(), (1.0, 1.0), EXACT), "warm-up")
     await driver.set_wheel_speeds(left, right)
-    await eventually(lambda: close_to(odrive.observed_targets(), (left, right)),
+    await eventually(lambda: close_to(odrive.observed_targets(), (left, right), EXACT),
                      what=f"wheel targets {left:.3f}, {right:.3f}")
     await eventually(lambda: close_to(odrive.motors.speeds(), (left, right), 1e-3),
                      what="the motors to reach the set-points")
 
 
 async def test_speeds_beyond_the_limit_are_clamped(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     driver = make_driver()
     await driver.open()
     assert await driver.set_wheel_speeds(100.0, -100.0) == (MAX_WHEEL_SPEED, -MAX_WHEEL_SPEED)
     await eventually(lambda: close_to(odrive.observed_targets(),
-                                      (MAX_WHEEL_SPEED, -MAX_WHEEL_SPEED)))
+                                      (MAX_WHEEL_SPEED, -MAX_WHEEL_SPEED), EXACT))
 
 
 async def test_close_zeroes_and_idles_both_axes(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     driver = make_driver()
     await driver.open()
     await driver.set_wheel_speeds(5.0, 5.0)
     await eventually(lambda: odrive.observed_targets() == pytest.approx((5.0, 5.0)))
     await driver.close()
     axes = odrive.emulator.axes.values()
-    await eventually(lambda: all(a.axis_state == STATE_IDLE for a in axes), what="IDLE")
+    await eventually(lambda: all(a.axis_state == cansimple.AXIS_STATE_IDLE for a in axes),
+                     what="IDLE")
     assert all(a.input_vel_rev_s == 0.0 for a in axes)
     assert odrive.observed_targets() == (0.0, 0.0)
 
 
 async def test_keepalive_feeds_the_odrive_watchdog(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     emulator.watchdog_timeout_s = 0.5
     fed = make_driver(keepalive_period_s=0.05)
     await fed.open()
     await fed.set_wheel_speeds(2.0, 2.0)
-    frames_before = emulator.axis("left").frames[CMD_SET_INPUT_VEL]
-    await eventually(lambda: emulator.axis("left").frames[CMD_SET_INPUT_VEL] >= frames_before + 25,
-                     what="keep-alive frames over more than two watchdog periods")
+    frames_before = emulator.axis("left").frames[cansimple.CMD_SET_INPUT_VEL]
+    await eventually(
+        lambda: emulator.axis("left").frames[cansimple.CMD_SET_INPUT_VEL] >= frames_before + 25,
+        what="keep-alive frames over more than two watchdog periods")
     assert fed.fault is None
-    assert emulator.axis("left").axis_state == STATE_CLOSED_LOOP_CONTROL
+    assert emulator.axis("left").axis_state == cansimple.AXIS_STATE_CLOSED_LOOP_CONTROL
     await fed.close()
 
     starved = make_driver(keepalive_period_s=0.0)
@@ -268,7 +257,7 @@ async def test_odometry_of_1m_straight_and_90_degree_turn_matches_ground_truth(
         tmp_path: Path) -> None:
     motors = MotorPair(clock=ScaledClock(5.0))
     tau = motors.left.time_constant_s  # after a stop command a wheel still turns speed * tau
-    async with rig(tmp_path, motors) as odrive:
+    async with odrive_rig(tmp_path, motors) as odrive:
         driver = ODriveCanDriver(odrive.options, max_wheel_speed=MAX_WHEEL_SPEED)
         await driver.open()
         try:
@@ -331,7 +320,7 @@ def _reading_matches(driver: ODriveCanDriver, motors: MotorPair) -> bool:
 
 
 async def test_heartbeat_loss_faults_zeroes_and_recovers(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     driver = make_driver(startup_timeout_s=0.5)
     await driver.open()
@@ -365,14 +354,14 @@ async def test_heartbeat_loss_faults_zeroes_and_recovers(
 
 
 async def test_axis_error_faults_and_reopen_clears_it_once_the_cause_is_gone(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     driver = make_driver(startup_timeout_s=0.5)
     await driver.open()
     await driver.set_wheel_speeds(4.0, -4.0)
     await eventually(lambda: odrive.observed_targets() == pytest.approx((4.0, -4.0)))
 
-    emulator.inject_axis_error(ERROR_MOTOR_FAILED, RIGHT_NODE, persistent=True)
+    emulator.inject_axis_error(cansimple.ERROR_MOTOR_FAILED, RIGHT_NODE, persistent=True)
     reason = await eventually(lambda: driver.fault, what="the axis error to be noticed")
     assert reason == (f"ODrive node {RIGHT_NODE} (right) reports axis error 0x00000040 "
                       "in state IDLE")
@@ -392,7 +381,7 @@ async def test_axis_error_faults_and_reopen_clears_it_once_the_cause_is_gone(
 
 
 async def test_node_off_the_bus_faults_and_reconnects_when_back(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
     driver = make_driver(startup_timeout_s=0.5)
     await driver.open()
@@ -409,7 +398,7 @@ async def test_node_off_the_bus_faults_and_reconnects_when_back(
 
 
 async def test_a_vanished_can_interface_faults_and_reopens(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     driver = make_driver()
     await driver.open()
     assert driver._bus is not None
@@ -426,14 +415,14 @@ async def test_a_vanished_can_interface_faults_and_reopens(
 
 
 async def test_garbled_frames_are_counted_not_trusted(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     driver = make_driver()
     await driver.open()
     with can.Bus(interface="virtual", channel=odrive.emulator.channel) as bus:
-        bus.send(can.Message(arbitration_id=arbitration_id(LEFT_NODE, 0x09),
+        bus.send(can.Message(arbitration_id=cansimple.arbitration_id(LEFT_NODE, 0x09),
                              data=struct.pack("<ff", math.nan, 0.0), is_extended_id=False))
-        bus.send(can.Message(arbitration_id=arbitration_id(RIGHT_NODE, 0x01), data=b"\x01",
-                             is_extended_id=False))
+        bus.send(can.Message(arbitration_id=cansimple.arbitration_id(RIGHT_NODE, 0x01),
+                             data=b"\x01", is_extended_id=False))
         await eventually(lambda: driver.bad_frames == 2, what="two bad frames")
     assert "not finite" in driver.health()["last_bad_frame"] or "5 data bytes" in \
         driver.health()["last_bad_frame"]
@@ -461,7 +450,7 @@ async def test_open_on_a_missing_can_device_is_a_driver_fault() -> None:
 
 
 async def test_safe_stop_idles_axes_left_running_by_a_dead_daemon(
-        odrive: ODriveRig, make_driver: Callable[..., ODriveCanDriver]) -> None:
+        odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     abandoned = make_driver(keepalive_period_s=0.0)
     await abandoned.open()
     await abandoned.set_wheel_speeds(5.0, 5.0)
@@ -469,7 +458,7 @@ async def test_safe_stop_idles_axes_left_running_by_a_dead_daemon(
 
     await make_driver().safe_stop()
     assert odrive.observed_targets() == (0.0, 0.0)
-    assert all(a.axis_state == STATE_IDLE for a in odrive.emulator.axes.values())
+    assert all(a.axis_state == cansimple.AXIS_STATE_IDLE for a in odrive.emulator.axes.values())
 
 
 async def test_safe_stop_without_an_answer_says_so() -> None:
@@ -558,7 +547,7 @@ def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
 
 
 def test_daemon_survives_odrive_heartbeat_loss(tmp_path: Path) -> None:
-    from tests.daemon_proc import DaemonProcess, wait_for
+    from tests.daemon_proc import DaemonProcess
 
     port = _free_udp_port()
     try:
@@ -582,36 +571,38 @@ reconnect_max_s = 0.5
     drive = {"linear": {"x": 0.2}}  # 4 rad/s on both 0.05 m wheels
     try:
         with DaemonProcess(tmp_path, config, use_mock_log=False) as daemon:
-            wait_for(lambda: daemon.get("/api/health")[0] == 200, 10, "a healthy daemon")
+            wait_for(lambda: daemon.get("/api/health")[0] == 200, "a healthy daemon", within_s=10)
 
             def driving() -> bool:
                 assert daemon.post("/api/cmd_vel", drive)[0] == 200
                 return close_to(emulator.wheel_targets(), (4.0, 4.0), 0.05)
 
-            wait_for(driving, 5, "the emulated wheels to turn at 4 rad/s")
+            wait_for(driving, "the emulated wheels to turn at 4 rad/s", within_s=5)
 
             emulator.set_heartbeat(False)
-            status, health = wait_for(lambda: _health_if(daemon, 503), 5, "health error")
+            status, health = wait_for(lambda: _health_if(daemon, 503), "health error", within_s=5)
             assert health["status"] == "error"
             assert "no heartbeat from ODrive node 7" in json.dumps(health)
-            wait_for(lambda: emulator.wheel_targets() == (0.0, 0.0), 2, "wheels zeroed")
+            wait_for(lambda: emulator.wheel_targets() == (0.0, 0.0), "wheels zeroed", within_s=2)
             status, body = daemon.post("/api/cmd_vel", drive)
             assert status == 409 and "fault" in body["error"]
 
             emulator.set_heartbeat(True)
-            wait_for(lambda: _health_if(daemon, 200), 10, "recovery after the heartbeat returns")
+            wait_for(lambda: _health_if(daemon, 200), "recovery after the heartbeat returns",
+                     within_s=10)
             left = emulator.axis("left")
-            frames = left.frames[CMD_SET_INPUT_VEL]
-            assert left.axis_state == STATE_CLOSED_LOOP_CONTROL
-            wait_for(lambda: left.frames[CMD_SET_INPUT_VEL] >= frames + 5, 5,
-                     "keep-alive frames after the reconnect")
+            frames = left.frames[cansimple.CMD_SET_INPUT_VEL]
+            assert left.axis_state == cansimple.AXIS_STATE_CLOSED_LOOP_CONTROL
+            wait_for(lambda: left.frames[cansimple.CMD_SET_INPUT_VEL] >= frames + 5,
+                     "keep-alive frames after the reconnect", within_s=5)
             assert emulator.wheel_targets() == (0.0, 0.0)  # still until a fresh command
-            wait_for(driving, 5, "motion after a fresh command")
+            wait_for(driving, "motion after a fresh command", within_s=5)
 
             assert daemon.proc is not None and daemon.proc.poll() is None
             assert daemon.stop() == 0
-        wait_for(lambda: all(a.axis_state == STATE_IDLE for a in emulator.axes.values()), 2,
-                 "both axes IDLE after the daemon's shutdown")
+        axes = emulator.axes.values()
+        wait_for(lambda: all(a.axis_state == cansimple.AXIS_STATE_IDLE for a in axes),
+                 "both axes IDLE after the daemon's shutdown", within_s=2)
     finally:
         emulator.stop()
 
@@ -641,6 +632,6 @@ def test_arbiterd_safe_stop_idles_a_running_odrive(tmp_path: Path) -> None:
         assert done.returncode == 0, done.stderr
         assert "motors zeroed through the odrive_can driver" in done.stdout
         assert emulator.wheel_targets() == (0.0, 0.0)
-        assert all(a.axis_state == STATE_IDLE for a in emulator.axes.values())
+        assert all(a.axis_state == cansimple.AXIS_STATE_IDLE for a in emulator.axes.values())
     finally:
         emulator.stop()

@@ -8,7 +8,8 @@ import re
 import signal
 import sys
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
+from functools import partial
 from pathlib import Path
 
 import pigpio
@@ -17,34 +18,26 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from drivers.base import DriverFault
-from drivers.pigpio_pwm import PigpioDriver, QuadratureDecoder, speed_to_duty
-from sim.motor_model import MotorPair, WheelMotor
-from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE, quadrature_levels
+from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
+from drivers.quadrature import QuadratureDecoder, quadrature_levels
+from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
+from sim.wiring import EMULATORS
 from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
+from tests.conftest import close_to, eventually
 from tests.daemon_proc import REPO, free_port
-from tests.rigs.pigpio import COUNTS_PER_REV, FULL_DUTY_SPEED, PigpioRig, running_rig
+from tests.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
 
 pytestmark = pytest.mark.timeout(60)
 
 WHEEL_RADIUS, WHEEL_SEPARATION = 0.05, 0.30
 MAX_WHEEL_SPEED = 15.0
+COUNTS_PER_REV = EMULATORS["pigpio"].counts_per_rev
+EXACT = 1e-3
+running_rig = partial(wired_rig, "pigpio")
 
 
-async def eventually(check: Callable[[], bool], what: str, within: float = 3.0) -> None:
-    """Poll ``check`` until it holds; fail naming ``what`` at the deadline."""
-    deadline = time.monotonic() + within
-    while not check():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.005)
-
-
-def make_driver(the_rig: PigpioRig, **overrides: object) -> PigpioDriver:
+def make_driver(the_rig: Rig, **overrides: object) -> PigpioDriver:
     return PigpioDriver(the_rig.options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
-
-
-def close_to(pair: tuple[float, float], expected: tuple[float, float], tol: float = 1e-3) -> bool:
-    return all(abs(a - b) <= tol for a, b in zip(pair, expected, strict=True))
 
 
 # -- pure parts ------------------------------------------------------------------------------------
@@ -87,16 +80,17 @@ def test_pins_sharing_a_hardware_pwm_channel_are_refused() -> None:
 
 
 @pytest.mark.parametrize("hardware_pwm", [True, False], ids=["hardware-pwm", "dma-pwm"])
-async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool) -> None:
-    async with running_rig(hardware_pwm=hardware_pwm) as the_rig:
+async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool,
+                                                           tmp_path: Path) -> None:
+    async with running_rig(tmp_path, hardware_pwm=hardware_pwm) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
             for left, right in [(6.0, 6.0), (-4.0, -4.0), (-3.0, 3.0), (0.0, 0.0)]:
                 await driver.set_wheel_speeds(left, right)
-                assert close_to(the_rig.observed_targets(), (left, right), tol=0.02)
+                assert close_to(the_rig.observed_targets(), (left, right), 0.02)
             assert (await driver.set_wheel_speeds(40.0, -40.0)) == (15.0, -15.0)  # clamped
-            assert close_to(the_rig.observed_targets(), (15.0, -15.0), tol=0.02)
+            assert close_to(the_rig.observed_targets(), (15.0, -15.0), 0.02)
         finally:
             await driver.close()
         assert the_rig.observed_targets() == (0.0, 0.0)  # close() stopped the wheels
@@ -105,19 +99,19 @@ async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool) -
         assert (CMD_PWM in pwm_cmds) is not hardware_pwm
 
 
-async def test_per_side_inversion_matches_a_mirrored_motor() -> None:
-    async with running_rig(reverse=(True, False), left_invert=True) as the_rig:
+async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
+    async with running_rig(tmp_path, left_invert=True) as the_rig:  # a mirrored left motor
         driver = make_driver(the_rig)
         await driver.open()
         try:
             await driver.set_wheel_speeds(5.0, 5.0)
-            assert close_to(the_rig.observed_targets(), (5.0, 5.0), tol=0.02)
+            assert close_to(the_rig.observed_targets(), (5.0, 5.0), 0.02)
         finally:
             await driver.close()
 
 
-async def test_unchanged_pins_are_not_rewritten() -> None:
-    async with running_rig() as the_rig:
+async def test_unchanged_pins_are_not_rewritten(tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig, watch_interval=0.0)
         await driver.open()
         try:
@@ -130,8 +124,8 @@ async def test_unchanged_pins_are_not_rewritten() -> None:
         assert [(cmd, gpio) for cmd, gpio, _ in sent] == [(CMD_HP, 12)]
 
 
-async def test_encoders_track_the_motors_in_both_directions() -> None:
-    async with running_rig() as the_rig:
+async def test_encoders_track_the_motors_in_both_directions(tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -151,7 +145,7 @@ async def test_encoders_track_the_motors_in_both_directions() -> None:
             await driver.close()
 
 
-async def settled(the_rig: PigpioRig, driver: PigpioDriver,
+async def settled(the_rig: Rig, driver: PigpioDriver,
                   lost: tuple[int, int] = (0, 0)) -> None:
     """Wait until the wheels stopped and every emitted edge reached the driver.
 
@@ -180,11 +174,11 @@ def integrate(pose: tuple[float, float, float], d_left: float, d_right: float) -
     return x + ds * math.cos(mid), y + ds * math.sin(mid), theta + d_theta
 
 
-async def test_odometry_1m_straight_and_90_degree_turn_match_ground_truth() -> None:
-    fast = MotorPair(WheelMotor(max_speed_rad_s=FULL_DUTY_SPEED, counts_per_rev=COUNTS_PER_REV),
-                     WheelMotor(max_speed_rad_s=FULL_DUTY_SPEED, counts_per_rev=COUNTS_PER_REV),
-                     clock=lambda: 2.0 * time.monotonic())  # the motors run at twice real time
-    async with running_rig(fast) as the_rig:
+async def test_odometry_1m_straight_and_90_degree_turn_match_ground_truth(
+        tmp_path: Path) -> None:
+    fast = EMULATORS["pigpio"].motors(max_speed_rad_s=FULL_DUTY_SPEED,
+                                      clock=lambda: 2.0 * time.monotonic())  # 2x real time
+    async with running_rig(tmp_path, fast) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -213,14 +207,14 @@ async def wheel_positions(driver: PigpioDriver) -> tuple[float, float]:
     return reading.left_rad, reading.right_rad
 
 
-async def drive(the_rig: PigpioRig, driver: PigpioDriver, left: float, right: float,
+async def drive(the_rig: Rig, driver: PigpioDriver, left: float, right: float,
                 wheel_rad: float, lost: tuple[int, int] = (0, 0)) -> None:
     """Drive until the right wheel turned about ``wheel_rad`` more, then stop and settle."""
     start = the_rig.motors.positions()[1]
     coast = abs(right) * the_rig.motors.right.time_constant_s
     await driver.set_wheel_speeds(left, right)
     await eventually(lambda: abs(the_rig.motors.positions()[1] - start) >= wheel_rad - coast,
-                     "the base to cover the distance", within=10.0)
+                     "the base to cover the distance", within_s=10.0)
     await driver.stop()
     await settled(the_rig, driver, lost)
 
@@ -228,8 +222,8 @@ async def drive(the_rig: PigpioRig, driver: PigpioDriver, left: float, right: fl
 # -- faults ----------------------------------------------------------------------------------------
 
 
-async def test_pigpiod_unreachable_is_a_fault_naming_the_address() -> None:
-    async with running_rig() as the_rig:
+async def test_pigpiod_unreachable_is_a_fault_naming_the_address(tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         port = the_rig.options["port"]
         the_rig.emulator.stop()
         driver = make_driver(the_rig)
@@ -238,8 +232,8 @@ async def test_pigpiod_unreachable_is_a_fault_naming_the_address() -> None:
         assert not driver.is_open
 
 
-async def test_pigpiod_stops_and_restarts() -> None:
-    async with running_rig() as the_rig:
+async def test_pigpiod_stops_and_restarts(tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         emulator = the_rig.emulator
         driver = make_driver(the_rig)
         await driver.open()
@@ -259,13 +253,7 @@ async def test_pigpiod_stops_and_restarts() -> None:
             await driver.close()  # the supervisor's reconnect: close, then open with back-off
             with pytest.raises(DriverFault, match="unreachable"):
                 await driver.open()
-            await eventually(lambda: all(abs(v) < 1e-3 for v in the_rig.motors.speeds()),
-                             "the wheels to coast to a stop while pigpiod is down")
-            emulator.start()
-            await driver.open()
-            assert driver.health()["status"] == "ok" and driver.connects == 2
-            await asyncio.sleep(0.1)
-            assert the_rig.observed_targets() == (0.0, 0.0)  # still until a fresh command
+            await restart_pigpiod_and_reopen(the_rig, driver)
             after = await wheel_positions(driver)
             assert after == before_outage  # totals kept across the reconnect, no jump
 
@@ -285,8 +273,8 @@ async def settled_counts_nonzero(driver: PigpioDriver) -> None:
     await eventually(lambda: driver.decoders[0].count > 0, "encoder edges")
 
 
-async def test_a_hung_pigpiod_times_out_into_a_fault() -> None:
-    async with running_rig(timeout=0.2, watch_interval=0.0) as the_rig:
+async def test_a_hung_pigpiod_times_out_into_a_fault(tmp_path: Path) -> None:
+    async with running_rig(tmp_path, timeout=0.2, watch_interval=0.0) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -299,20 +287,20 @@ async def test_a_hung_pigpiod_times_out_into_a_fault() -> None:
             await driver.close()
             await driver.open()
             await driver.set_wheel_speeds(3.0, 3.0)
-            assert close_to(the_rig.observed_targets(), (3.0, 3.0), tol=0.02)
+            assert close_to(the_rig.observed_targets(), (3.0, 3.0), 0.02)
         finally:
             await driver.close()
 
 
-async def test_safe_stop_from_a_fresh_process_zeroes_running_motors() -> None:
-    async with running_rig() as the_rig:
+async def test_safe_stop_from_a_fresh_process_zeroes_running_motors(tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         crashed = pigpio.pi("127.0.0.1", the_rig.options["port"], show_errors=False)
         crashed.write(23, 1)
         crashed.write(27, 1)
         crashed.hardware_PWM(12, 1000, 600_000)
         crashed.hardware_PWM(13, 1000, 600_000)
         crashed.stop()
-        assert close_to(the_rig.observed_targets(), (12.0, 12.0))
+        assert close_to(the_rig.observed_targets(), (12.0, 12.0), EXACT)
         await make_driver(the_rig).safe_stop()
         assert the_rig.observed_targets() == (0.0, 0.0)
         log = the_rig.emulator.command_log()
@@ -335,8 +323,9 @@ def test_bench_reports_command_latency_percentiles() -> None:
     assert results["l298n (MockFactory) command->return p50"].value > 0
 
 
-async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed() -> None:
-    async with running_rig() as the_rig:
+async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed(
+        tmp_path: Path) -> None:
+    async with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig, pwm_range=100, hardware_pwm=False)
         await driver.open()
         try:
@@ -355,8 +344,8 @@ async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed() -
 
 
 @pytest.fixture
-async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, PigpioRig]]:
-    async with running_rig() as the_rig:
+async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, Rig]]:
+    async with running_rig(tmp_path) as the_rig:
         port = free_port()
         config = driver_daemon_config(tmp_path, "pigpio", the_rig.options, port)
         async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
@@ -365,7 +354,7 @@ async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, PigpioRig]
 
 
 async def test_daemon_survives_pigpiod_stopping_and_restarting(
-        daemon: tuple[DaemonClient, PigpioRig]) -> None:
+        daemon: tuple[DaemonClient, Rig]) -> None:
     client, the_rig = daemon
     emulator = the_rig.emulator
     assert await client.cmd_vel(0.2) == 200
@@ -413,12 +402,14 @@ async def test_standalone_emulator_process_with_signal_switches() -> None:
         await eventually(lambda: driver.fault is not None, "the lost pigpiod to be noticed")
         await driver.close()
         process.send_signal(signal.SIGUSR2)  # pigpiod restarts
-        deadline = time.monotonic() + 5.0
-        while not driver.is_open:
+
+        async def reopened() -> bool:
             with contextlib.suppress(DriverFault):
                 await driver.open()
-            assert time.monotonic() < deadline, "never reconnected after the restart"
-            await asyncio.sleep(0.05)
+            return driver.is_open
+
+        await eventually(reopened, "a reconnect after the restart", within_s=5.0,
+                         interval_s=0.05)
         await driver.close()
         process.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(process.wait(), 10) == 0

@@ -3,53 +3,33 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from drivers.arduino_serial import (
-    LineSplitter,
-    ProtocolError,
-    SerialBridgeDriver,
-    count_delta,
-    decode_line,
-    encode_command,
-    encode_pid,
-    parse_baud,
-    parse_counts,
-    parse_ok,
-    rad_s_to_pwm,
-    rad_s_to_ticks,
-)
+from drivers import rosarduino
+from drivers.arduino_serial import SerialBridgeDriver
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
 from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
-from tests.rigs.serial import COUNTS_PER_REV, SerialRig, make_motors, rig
+from tests.conftest import eventually
+from tests.daemon_proc import REPO, free_port
+from tests.rigs import Rig, wired_rig
 
 MAX_WHEEL_SPEED = 20.0
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30
+serial_rig_at = partial(wired_rig, "serial")
 
 
-async def wait_until(condition: Callable[[], bool], within_s: float = 5.0,
-                     what: str = "condition") -> None:
-    deadline = time.monotonic() + within_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.005)
-
-
-def make_driver(emulator: ArduinoEmulator, **overrides: Any) -> SerialBridgeDriver:
-    options: dict[str, Any] = {"port": str(emulator.link), "reset_wait_s": 0.05,
-                               "timeout_s": 1.0, "counts_per_rev": COUNTS_PER_REV}
-    return SerialBridgeDriver(options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
+def make_driver(rig: Rig, **overrides: Any) -> SerialBridgeDriver:
+    return SerialBridgeDriver(rig.options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
 
 
 def motion_commands(emulator: ArduinoEmulator, since: float) -> list[str]:
@@ -59,14 +39,14 @@ def motion_commands(emulator: ArduinoEmulator, since: float) -> list[str]:
 
 
 @pytest.fixture
-async def serial_rig(tmp_path: Path) -> AsyncIterator[SerialRig]:
-    async with rig(tmp_path) as the_rig:
+async def serial_rig(tmp_path: Path) -> AsyncIterator[Rig]:
+    async with serial_rig_at(tmp_path) as the_rig:
         yield the_rig
 
 
 @pytest.fixture
-async def driver(serial_rig: SerialRig) -> AsyncIterator[SerialBridgeDriver]:
-    drv = SerialBridgeDriver(serial_rig.options, max_wheel_speed=MAX_WHEEL_SPEED)
+async def driver(serial_rig: Rig) -> AsyncIterator[SerialBridgeDriver]:
+    drv = make_driver(serial_rig)
     await drv.open()
     yield drv
     await drv.close()
@@ -75,45 +55,47 @@ async def driver(serial_rig: SerialRig) -> AsyncIterator[SerialBridgeDriver]:
 # -- the wire protocol, driver side (pure) ------------------------------------------------------
 
 def test_commands_are_cr_terminated_lines() -> None:
-    assert encode_command("e") == b"e\r"
-    assert encode_command("m", 10, -10) == b"m 10 -10\r"
-    assert encode_pid(20, 12, 0, 50) == b"u 20:12:0:50\r"
+    assert rosarduino.encode_command("e") == b"e\r"
+    assert rosarduino.encode_command("m", 10, -10) == b"m 10 -10\r"
+    assert rosarduino.encode_pid(20, 12, 0, 50) == b"u 20:12:0:50\r"
 
 
 def test_speed_conversions() -> None:
     # one revolution per second at 1440 counts/rev and 30 Hz is 48 ticks per frame
-    assert rad_s_to_ticks(2 * math.pi, 1440, 30.0) == 48
-    assert rad_s_to_ticks(-2 * math.pi, 1440, 30.0) == -48
-    assert rad_s_to_pwm(5.0, 10.0, 255) == 128
-    assert rad_s_to_pwm(-50.0, 10.0, 255) == -255
+    assert rosarduino.rad_s_to_ticks(2 * math.pi, 1440, 30.0) == 48
+    assert rosarduino.rad_s_to_ticks(-2 * math.pi, 1440, 30.0) == -48
+    assert rosarduino.ticks_to_rad_s(48, 1440, 30.0) == pytest.approx(2 * math.pi)
+    assert rosarduino.rad_s_to_pwm(5.0, 10.0, 255) == 128
+    assert rosarduino.rad_s_to_pwm(-50.0, 10.0, 255) == -255
 
 
 def test_replies_are_parsed_strictly() -> None:
-    assert parse_counts("120 -34") == (120, -34)
-    assert parse_baud(" 57600") == 57600
-    parse_ok("m", "OK")
+    assert rosarduino.parse_counts("120 -34") == (120, -34)
+    assert rosarduino.parse_baud(" 57600") == 57600
+    rosarduino.parse_ok("m", "OK")
     for bad in ("120", "1 2 3", "12 x", "Invalid Command", ""):
-        with pytest.raises(ProtocolError, match="expected two integers"):
-            parse_counts(bad)
-    with pytest.raises(ProtocolError, match="'Invalid Command', expected 'OK'"):
-        parse_ok("m", "Invalid Command")
-    with pytest.raises(ProtocolError, match="non-printable"):
-        decode_line(b"\x90\xfeKO\r")
-    assert decode_line(b"OK\r") == "OK"
+        with pytest.raises(rosarduino.ProtocolError, match="expected two integers"):
+            rosarduino.parse_counts(bad)
+    with pytest.raises(rosarduino.ProtocolError, match="'Invalid Command', expected 'OK'"):
+        rosarduino.parse_ok("m", "Invalid Command")
+    with pytest.raises(rosarduino.ProtocolError, match="non-printable"):
+        rosarduino.decode_line(b"\x90\xfeKO\r")
+    assert rosarduino.decode_line(b"OK\r") == "OK"
 
 
 def test_line_splitter_reassembles_and_refuses_endless_lines() -> None:
-    splitter = LineSplitter()
+    splitter = rosarduino.LineSplitter()
     assert splitter.feed(b"12 ") == []
     assert splitter.feed(b"34\r\nOK\r\nO") == [b"12 34\r", b"OK\r"]
     assert splitter.feed(b"K\r\n") == [b"OK\r"]
-    with pytest.raises(ProtocolError, match="without a line end"):
+    with pytest.raises(rosarduino.ProtocolError, match="without a line end"):
         splitter.feed(b"x" * 100)
 
 
 def test_counter_wrap_is_a_small_step() -> None:
-    assert count_delta(-(2**31) + 5, 2**31 - 5) == 10
-    assert count_delta(100, 150) == -50
+    assert rosarduino.count_delta(-(2**31) + 5, 2**31 - 5) == 10
+    assert rosarduino.count_delta(100, 150) == -50
+    assert rosarduino.wrap_long(2**31) == -(2**31) and rosarduino.wrap_long(-5) == -5
 
 
 def test_bad_options_name_the_key() -> None:
@@ -160,7 +142,7 @@ def test_firmware_speed_units_and_raw_pwm() -> None:
     left, right = fw.motors.targets()
     assert left == pytest.approx(2 * math.pi) and right == pytest.approx(-math.pi)
     clock.now += 1.0
-    counts = parse_counts(fw.feed(b"e\r").decode().strip())
+    counts = rosarduino.parse_counts(fw.feed(b"e\r").decode().strip())
     assert counts[0] == pytest.approx(1440, abs=80) and counts[1] == pytest.approx(-720, abs=40)
     fw.feed(b"o 255 -128\r")
     assert fw.mode == "pwm"
@@ -196,15 +178,15 @@ def test_firmware_garbage_switch() -> None:
     fw.garbage = True
     reply = fw.feed(b"m 1 1\r")
     assert reply.endswith(b"\r\n") and reply != b"OK\r\n"
-    with pytest.raises(ProtocolError):
-        parse_ok("m", decode_line(reply[:-1]))
+    with pytest.raises(rosarduino.ProtocolError):
+        rosarduino.parse_ok("m", rosarduino.decode_line(reply[:-1]))
 
 
 # -- driver against the emulator on a pty -------------------------------------------------------
 
-async def test_open_sends_gains_and_leaves_motors_stopped(serial_rig: SerialRig) -> None:
+async def test_open_sends_gains_and_leaves_motors_stopped(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
-    drv = make_driver(emulator, pid_p=7, pid_d=3, pid_i=1, pid_o=40)
+    drv = make_driver(serial_rig, pid_p=7, pid_d=3, pid_i=1, pid_o=40)
     await drv.open()
     try:
         assert emulator.opens == 1 and emulator.firmware.gains == (7, 3, 1, 40)
@@ -217,7 +199,7 @@ async def test_open_sends_gains_and_leaves_motors_stopped(serial_rig: SerialRig)
 
 @pytest.mark.parametrize(("left", "right"), [(6.0, 6.0), (-4.0, -4.0), (3.0, -3.0), (0.0, 0.0)],
                          ids=["forward", "reverse", "turn", "stop"])
-async def test_wheel_speeds_reach_the_firmware(serial_rig: SerialRig, driver: SerialBridgeDriver,
+async def test_wheel_speeds_reach_the_firmware(serial_rig: Rig, driver: SerialBridgeDriver,
                                                left: float, right: float) -> None:
     await driver.set_wheel_speeds(1.0, 1.0)
     await driver.set_wheel_speeds(left, right)
@@ -227,9 +209,9 @@ async def test_wheel_speeds_reach_the_firmware(serial_rig: SerialRig, driver: Se
     assert observed[1] == pytest.approx(right, abs=quantum / 2 + 1e-9)
 
 
-async def test_open_loop_mode_writes_raw_pwm(serial_rig: SerialRig) -> None:
+async def test_open_loop_mode_writes_raw_pwm(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
-    drv = make_driver(emulator, mode="open_loop", full_pwm_speed=10.0)
+    drv = make_driver(serial_rig, mode="open_loop", full_pwm_speed=10.0)
     await drv.open()
     try:
         await drv.set_wheel_speeds(5.0, -10.0)
@@ -240,15 +222,15 @@ async def test_open_loop_mode_writes_raw_pwm(serial_rig: SerialRig) -> None:
         await drv.close()
 
 
-async def test_inverted_side_flips_command_and_encoder(serial_rig: SerialRig) -> None:
+async def test_inverted_side_flips_command_and_encoder(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
-    drv = make_driver(emulator, invert_left=True, poll_rate=100.0)
+    drv = make_driver(serial_rig, invert_left=True, poll_rate=100.0)
     await drv.open()
     try:
         await drv.set_wheel_speeds(5.0, 5.0)
         target_left, target_right = emulator.motors.targets()
         assert target_left < 0 < target_right
-        await wait_until(lambda: emulator.motors.positions()[1] > 1.0, what="wheels to turn")
+        await eventually(lambda: emulator.motors.positions()[1] > 1.0, "wheels to turn")
         await drv.stop()
         reading = await fresh_reading(drv)
         assert reading.left_rad > 0.9 and reading.right_rad > 0.9
@@ -256,34 +238,36 @@ async def test_inverted_side_flips_command_and_encoder(serial_rig: SerialRig) ->
         await drv.close()
 
 
-async def test_held_speed_outlives_the_firmware_auto_stop(tmp_path: Path) -> None:
-    with ArduinoEmulator(tmp_path / "arduino", make_motors(), auto_stop_s=0.3) as emulator:
-        drv = make_driver(emulator, keepalive_s=0.1)
-        await drv.open()
-        try:
-            await drv.set_wheel_speeds(2.0, 2.0)
-            start = time.monotonic()
-            await wait_until(lambda: drv.keepalives >= 8, what="keep-alives")
-            assert time.monotonic() - start > 0.3 * 2
-            assert emulator.firmware.auto_stops == 0 and emulator.motors.targets()[0] > 0
-        finally:
-            await drv.close()
-        # with no host sending anything, the firmware's own auto-stop takes over
-        emulator.firmware.feed(b"m 20 20\r")
-        await wait_until(lambda: emulator.firmware.auto_stops == 1, what="auto-stop")
-        assert emulator.motors.targets() == (0.0, 0.0)
+async def test_held_speed_outlives_the_firmware_auto_stop(serial_rig: Rig) -> None:
+    emulator = serial_rig.emulator
+    emulator.firmware.auto_stop_s = 0.3
+    drv = make_driver(serial_rig, keepalive_s=0.1)
+    await drv.open()
+    try:
+        await drv.set_wheel_speeds(2.0, 2.0)
+        start = time.monotonic()
+        await eventually(lambda: drv.keepalives >= 8, "keep-alives")
+        assert time.monotonic() - start > 0.3 * 2
+        assert emulator.firmware.auto_stops == 0 and emulator.motors.targets()[0] > 0
+    finally:
+        await drv.close()
+    # with no host sending anything, the firmware's own auto-stop takes over
+    emulator.firmware.feed(b"m 20 20\r")
+    await eventually(lambda: emulator.firmware.auto_stops == 1, "auto-stop")
+    assert emulator.motors.targets() == (0.0, 0.0)
 
 
-async def test_open_waits_for_the_board_reset(tmp_path: Path) -> None:
-    with ArduinoEmulator(tmp_path / "arduino", make_motors(), boot_s=0.3) as emulator:
-        impatient = make_driver(emulator, reset_wait_s=0.0, timeout_s=0.1)
-        with pytest.raises(DriverFault, match="no reply to 'e'"):
-            await impatient.open()
-        assert emulator.bytes_dropped > 0
-        patient = make_driver(emulator, reset_wait_s=0.6)
-        await patient.open()
-        assert patient.health()["status"] == "ok"
-        await patient.close()
+async def test_open_waits_for_the_board_reset(serial_rig: Rig) -> None:
+    emulator = serial_rig.emulator
+    emulator.boot_s = 0.3
+    impatient = make_driver(serial_rig, reset_wait_s=0.0, timeout_s=0.1)
+    with pytest.raises(DriverFault, match="no reply to 'e'"):
+        await impatient.open()
+    assert emulator.bytes_dropped > 0
+    patient = make_driver(serial_rig, reset_wait_s=0.6)
+    await patient.open()
+    assert patient.health()["status"] == "ok"
+    await patient.close()
 
 
 async def test_missing_port_is_a_fault_naming_it(tmp_path: Path) -> None:
@@ -294,7 +278,7 @@ async def test_missing_port_is_a_fault_naming_it(tmp_path: Path) -> None:
 
 
 async def test_close_then_open_reconnects_and_closed_driver_refuses(
-        serial_rig: SerialRig, driver: SerialBridgeDriver) -> None:
+        serial_rig: Rig, driver: SerialBridgeDriver) -> None:
     await driver.set_wheel_speeds(3.0, 3.0)
     await driver.close()
     assert serial_rig.motors.targets() == (0.0, 0.0)
@@ -306,14 +290,15 @@ async def test_close_then_open_reconnects_and_closed_driver_refuses(
     assert serial_rig.emulator.opens == 2
 
 
-async def test_safe_stop_zeroes_motors_from_a_fresh_driver(tmp_path: Path) -> None:
+async def test_safe_stop_zeroes_motors_from_a_fresh_driver(serial_rig: Rig) -> None:
     # a board that does not reset on open (e.g. a Leonardo): the stop must come from the driver
-    with ArduinoEmulator(tmp_path / "arduino", make_motors(), reset_on_open=False) as emulator:
-        emulator.firmware.feed(b"m 40 40\r")
-        assert emulator.motors.targets()[0] > 0
-        await make_driver(emulator).safe_stop()
-        assert emulator.motors.targets() == (0.0, 0.0)
-        assert emulator.firmware.history[-1].text == "m 0 0"
+    emulator = serial_rig.emulator
+    emulator.reset_on_open = False
+    emulator.firmware.feed(b"m 40 40\r")
+    assert emulator.motors.targets()[0] > 0
+    await make_driver(serial_rig).safe_stop()
+    assert emulator.motors.targets() == (0.0, 0.0)
+    assert emulator.firmware.history[-1].text == "m 0 0"
 
 
 # -- closed-loop odometry -------------------------------------------------------------------------
@@ -340,7 +325,7 @@ class PoseIntegrator:
 async def fresh_reading(drv: SerialBridgeDriver) -> EncoderReading:
     """An encoder reading taken after the wheels settled (two polls later)."""
     polls = drv.polls
-    await wait_until(lambda: drv.polls >= polls + 2, what="encoder polls")
+    await eventually(lambda: drv.polls >= polls + 2, "encoder polls")
     reading = await drv.read_encoders()
     assert reading is not None
     return reading
@@ -352,14 +337,17 @@ async def drive_until(drv: SerialBridgeDriver, motors: MotorPair, speeds: tuple[
     """Drive at ``speeds`` until ``done(true positions)``, stop, and let the wheels settle."""
     await drv.set_wheel_speeds(*speeds)
     odometry, truth = tracks
-    while not done(motors.positions()):
+
+    async def sampled_until_done() -> bool:
         reading = await drv.read_encoders()
         assert reading is not None
         odometry.add(reading.left_rad, reading.right_rad)
         truth.add(*motors.positions())
-        await asyncio.sleep(0.01)
+        return done(motors.positions())
+
+    await eventually(sampled_until_done, "the wheels to cover the distance", interval_s=0.01)
     await drv.stop()
-    await wait_until(lambda: max(map(abs, motors.speeds())) < 1e-3, what="wheels to stop")
+    await eventually(lambda: max(map(abs, motors.speeds())) < 1e-3, "wheels to stop")
     reading = await fresh_reading(drv)
     odometry.add(reading.left_rad, reading.right_rad)
     truth.add(*motors.positions())
@@ -369,8 +357,9 @@ async def test_odometry_of_one_metre_and_a_quarter_turn(tmp_path: Path) -> None:
     # the motors run 8x faster than real time: 1 m at 0.2 m/s takes 0.6 s
     motors = MotorPair(WheelMotor(counts_per_rev=1440), WheelMotor(counts_per_rev=1440),
                        clock=lambda: time.monotonic() * 8)
-    with ArduinoEmulator(tmp_path / "arduino", motors) as emulator:
-        drv = make_driver(emulator, counts_per_rev=1440, poll_rate=50.0)
+    async with serial_rig_at(tmp_path, motors) as the_rig:
+        drv = make_driver(the_rig, poll_rate=50.0)
+        assert drv.settings.counts_per_rev == 1440  # the rig reads the resolution off the motors
         await drv.open()
         try:
             start = motors.positions()
@@ -395,52 +384,53 @@ async def test_odometry_of_one_metre_and_a_quarter_turn(tmp_path: Path) -> None:
 
 # -- faults ---------------------------------------------------------------------------------------
 
-async def test_port_vanishes_mid_drive_and_comes_back(tmp_path: Path) -> None:
-    with ArduinoEmulator(tmp_path / "arduino", make_motors(), auto_stop_s=0.3) as emulator:
-        drv = make_driver(emulator)
+async def test_port_vanishes_mid_drive_and_comes_back(serial_rig: Rig) -> None:
+    emulator = serial_rig.emulator
+    emulator.firmware.auto_stop_s = 0.3
+    drv = make_driver(serial_rig)
+    await drv.open()
+    await drv.set_wheel_speeds(5.0, 5.0)
+    await eventually(lambda: drv.polls > 3, "polls")
+    before = await drv.read_encoders()
+    assert before is not None
+    emulator.unplug()
+    await eventually(lambda: drv.fault is not None, "fault")
+    assert "vanished" in str(drv.fault) and drv.health()["status"] == "error"
+    with pytest.raises(DriverFault):
+        await drv.stop()
+    # the port is gone, so the board's own auto-stop is what zeroes the motors
+    await eventually(lambda: emulator.motors.targets() == (0.0, 0.0), "auto-stop")
+    await drv.close()
+    with pytest.raises(DriverFault, match="cannot open serial port"):
         await drv.open()
-        await drv.set_wheel_speeds(5.0, 5.0)
-        await wait_until(lambda: drv.polls > 3, what="polls")
-        before = await drv.read_encoders()
-        assert before is not None
-        emulator.unplug()
-        await wait_until(lambda: drv.fault is not None, what="fault")
-        assert "vanished" in str(drv.fault) and drv.health()["status"] == "error"
-        with pytest.raises(DriverFault):
-            await drv.stop()
-        # the port is gone, so the board's own auto-stop is what zeroes the motors
-        await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), what="auto-stop")
-        await drv.close()
-        with pytest.raises(DriverFault, match="cannot open serial port"):
-            await drv.open()
-        emulator.replug()
-        reopened_at = time.monotonic()
-        await drv.open()
-        assert drv.health()["status"] == "ok" and drv.fault is None
-        after = await fresh_reading(drv)
-        # positions continue from before the fault instead of jumping to the reset counter
-        assert after.left_rad >= before.left_rad and after.left_rad - before.left_rad < 2.0
-        await asyncio.sleep(drv.options["keepalive_s"] * 2)
-        assert motion_commands(emulator, reopened_at) == []
-        assert emulator.motors.targets() == (0.0, 0.0)
-        await drv.set_wheel_speeds(2.0, 2.0)
-        assert emulator.motors.targets()[0] > 0
-        await drv.close()
+    emulator.replug()
+    reopened_at = time.monotonic()
+    await drv.open()
+    assert drv.health()["status"] == "ok" and drv.fault is None
+    after = await fresh_reading(drv)
+    # positions continue from before the fault instead of jumping to the reset counter
+    assert after.left_rad >= before.left_rad and after.left_rad - before.left_rad < 2.0
+    await asyncio.sleep(drv.settings.keepalive_s * 2)
+    assert motion_commands(emulator, reopened_at) == []
+    assert emulator.motors.targets() == (0.0, 0.0)
+    await drv.set_wheel_speeds(2.0, 2.0)
+    assert emulator.motors.targets()[0] > 0
+    await drv.close()
 
 
-async def test_garbage_from_the_board_faults_and_recovers(serial_rig: SerialRig,
+async def test_garbage_from_the_board_faults_and_recovers(serial_rig: Rig,
                                                           driver: SerialBridgeDriver) -> None:
     emulator = serial_rig.emulator
     await driver.set_wheel_speeds(5.0, 5.0)
     emulator.garbage = True
-    await wait_until(lambda: driver.fault is not None, what="fault")
+    await eventually(lambda: driver.fault is not None, "fault")
     assert "garbled" in str(driver.fault) and driver.health()["status"] == "error"
     with pytest.raises(DriverFault, match="faulted"):
         await driver.set_wheel_speeds(5.0, 5.0)
     with pytest.raises(DriverFault, match="faulted"):
         await driver.stop()
     # the stop still reached the firmware: only its replies are garbled
-    await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), what="motors zeroed")
+    await eventually(lambda: emulator.motors.targets() == (0.0, 0.0), "motors zeroed")
     await driver.close()
     emulator.garbage = False
     reopened_at = time.monotonic()
@@ -452,12 +442,12 @@ async def test_garbage_from_the_board_faults_and_recovers(serial_rig: SerialRig,
     assert emulator.motors.targets()[0] > 0
 
 
-async def test_silent_board_is_a_read_timeout(serial_rig: SerialRig) -> None:
+async def test_silent_board_is_a_read_timeout(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
-    drv = make_driver(emulator, timeout_s=0.2)
+    drv = make_driver(serial_rig, timeout_s=0.2)
     await drv.open()
     emulator.mute = True
-    await wait_until(lambda: drv.fault is not None, what="fault")
+    await eventually(lambda: drv.fault is not None, "fault")
     assert "no reply" in str(drv.fault)
     with pytest.raises(DriverFault):
         await drv.read_encoders()
@@ -470,38 +460,21 @@ async def test_silent_board_is_a_read_timeout(serial_rig: SerialRig) -> None:
 
 # -- end to end: the real daemon as a subprocess, the emulated Arduino in this process ------------
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def free_tcp_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def daemon_config(tmp_path: Path, emulator: ArduinoEmulator, http_port: int) -> Path:
-    options = {"port": str(emulator.link), "counts_per_rev": COUNTS_PER_REV,
-               "reset_wait_s": 0.05, "timeout_s": 1.0}
-    return driver_daemon_config(tmp_path, "serial", options, http_port)
-
-
 @pytest.fixture
-async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, ArduinoEmulator]]:
-    emulator = ArduinoEmulator(tmp_path / "arduino", make_motors(), auto_stop_s=1.0).start()
-    port = free_tcp_port()
-    config = daemon_config(tmp_path, emulator, port)
-    try:
-        async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
-            yield client, emulator
-        assert emulator.motors.targets() == (0.0, 0.0)
-    finally:
-        emulator.stop()
+async def daemon(serial_rig: Rig,
+                 tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, ArduinoEmulator]]:
+    emulator = serial_rig.emulator
+    emulator.firmware.auto_stop_s = 1.0
+    port = free_port()
+    config = driver_daemon_config(tmp_path, "serial", serial_rig.options, port)
+    async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
+        yield client, emulator
+    assert emulator.motors.targets() == (0.0, 0.0)
 
 
 async def drive_and_expect_motion(client: DaemonClient, emulator: ArduinoEmulator) -> None:
     assert await client.cmd_vel(0.2) == 200
-    await wait_until(lambda: min(emulator.motors.targets()) > 0, what="wheels to turn")
+    await eventually(lambda: min(emulator.motors.targets()) > 0, "wheels to turn")
 
 
 async def recover_and_stay_still(client: DaemonClient, emulator: ArduinoEmulator,
@@ -521,7 +494,7 @@ async def test_daemon_survives_the_port_vanishing(
     emulator.unplug()
     body = await client.wait_health("error")
     assert "vanished" in str(body["components"]["control"]["fault"])
-    await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), what="board auto-stop")
+    await eventually(lambda: emulator.motors.targets() == (0.0, 0.0), "board auto-stop")
     assert await client.cmd_vel(0.2) == 409  # refused while faulted, not queued
     await asyncio.sleep(0.5)  # several failed reconnects with back-off
     assert client.process.returncode is None
@@ -538,24 +511,25 @@ async def test_daemon_survives_garbage_from_the_board(
     body = await client.wait_health("error")
     assert "garbled" in str(body["components"]["control"]["fault"])
     # the port still works, so the daemon's stop reached the motors
-    await wait_until(lambda: emulator.motors.targets() == (0.0, 0.0), within_s=0.8,
-                     what="motors zeroed by the daemon (before the board's auto-stop)")
+    await eventually(lambda: emulator.motors.targets() == (0.0, 0.0),
+                     "motors zeroed by the daemon (before the board's auto-stop)", within_s=0.8)
     cleared = time.monotonic()
     emulator.garbage = False
     await recover_and_stay_still(client, emulator, cleared)
 
 
-async def test_safe_stop_command_zeroes_the_motors(tmp_path: Path) -> None:
-    with ArduinoEmulator(tmp_path / "arduino", make_motors(), reset_on_open=False) as emulator:
-        emulator.firmware.feed(b"m 40 40\r")
-        config = daemon_config(tmp_path, emulator, free_tcp_port())
-        process = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "daemon.cli", "safe-stop", "--config", str(config), cwd=REPO,
-            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
-        _, stderr = await asyncio.wait_for(process.communicate(), 30)
-        assert process.returncode == 0, stderr.decode()
-        assert emulator.motors.targets() == (0.0, 0.0)
-        assert emulator.firmware.history[-1].text == "m 0 0"
+async def test_safe_stop_command_zeroes_the_motors(serial_rig: Rig, tmp_path: Path) -> None:
+    emulator = serial_rig.emulator
+    emulator.reset_on_open = False
+    emulator.firmware.feed(b"m 40 40\r")
+    config = driver_daemon_config(tmp_path, "serial", serial_rig.options, free_port())
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "daemon.cli", "safe-stop", "--config", str(config), cwd=REPO,
+        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+    _, stderr = await asyncio.wait_for(process.communicate(), 30)
+    assert process.returncode == 0, stderr.decode()
+    assert emulator.motors.targets() == (0.0, 0.0)
+    assert emulator.firmware.history[-1].text == "m 0 0"
 
 
 def test_bench_reports_command_latency_percentiles() -> None:

@@ -1,4 +1,4 @@
-# The simulated robot end to end, once per [sim] driver: `arbiterd run --sim` as a subprocess,
+# The simulated robot end to end, once per registered driver: `arbiterd run --sim` as a subprocess,
 # driven over HTTP like a user's script: 1 m forward at 0.5 m/s, 90° in place, stop.
 from __future__ import annotations
 
@@ -11,12 +11,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from drivers import DRIVERS
 from sim.raycast import RayCaster
 from sim.settings import SimConfig
 from sim.stepper import build_world
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.conftest import wait_for
+from tests.daemon_proc import DaemonProcess
 
-SIM_DRIVERS = ["mock", "serial", "pigpio", "l298n", "odrive_can"]
 LINEAR, ANGULAR = 0.5, 0.6
 
 
@@ -52,7 +53,7 @@ def heading_error(a: float, b: float) -> float:
     return abs(math.atan2(math.sin(a - b), math.cos(a - b)))
 
 
-@pytest.fixture(params=SIM_DRIVERS)
+@pytest.fixture(params=sorted(DRIVERS))
 def sim_daemon(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[DaemonProcess]:
     toml = f'[sim]\ndriver = "{request.param}"\n'
     with DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
@@ -69,13 +70,13 @@ def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonProcess) -> None:
         return {"linear": {"x": approach(1.0 - (s["pose"]["x"] - x0), LINEAR, 1.5, 0.04)}}
 
     drive_until(daemon, forward, lambda s: s["pose"]["x"] - x0 >= 1.0 - 0.004)
-    wait_for(lambda: at_rest(daemon), 5, "the robot to stop after 1 m")
+    wait_for(lambda: at_rest(daemon), "the robot to stop after 1 m", within_s=5)
 
     def turn(s: dict[str, Any]) -> dict[str, Any]:
         return {"angular": {"z": approach(math.pi / 2 - s["pose"]["theta"], ANGULAR, 2.0, 0.08)}}
 
     drive_until(daemon, turn, lambda s: s["pose"]["theta"] >= math.pi / 2 - 0.005)
-    wait_for(lambda: at_rest(daemon), 5, "the robot to stop after the turn")
+    wait_for(lambda: at_rest(daemon), "the robot to stop after the turn", within_s=5)
 
     final = status(daemon)
     truth, odom = final["ground_truth"], final["pose"]
@@ -95,7 +96,7 @@ def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:
         code, scan = daemon.get("/api/scan")
         return scan if code == 200 and scan["stamp"] > stamp else None
 
-    result: dict[str, Any] = wait_for(fresh, 5, "a revolution taken at rest")
+    result: dict[str, Any] = wait_for(fresh, "a revolution taken at rest", within_s=5)
     return result
 
 

@@ -1,4 +1,4 @@
-# Rigs for the l298n driver: gpiozero's MockFactory pins, and PiGPIOFactory on the pigpiod emulator.
+# The l298n driver on gpiozero's MockFactory pins: a rig of its own (no pigpiod in between).
 from __future__ import annotations
 
 import threading
@@ -7,38 +7,12 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from drivers.l298n import L298NDriver, mock_pin_factory
+from drivers.l298n import mock_pin_factory
+from drivers.quadrature import quadrature_levels
 from sim.motor_model import MotorPair
-from sim.pigpiod_emulator import (
-    PigpiodEmulator,
-    Wiring,
-    default_motors,
-    l298n_driver_wiring,
-    quadrature_levels,
-)
-
-#: Wheel speed at full duty in the emulated motors and the driver's map (rad/s).
-FULL_DUTY_SPEED = 20.0
-#: Encoder edges per wheel revolution in the emulated hardware (modest: sane edge rates).
-EDGES_PER_REV = 200
-#: What gpiozero's RotaryEncoder counts for that: one step per 4-edge quadrature cycle.
-STEPS_PER_REV = EDGES_PER_REV // 4
-
-
-def base_options(**overrides: Any) -> dict[str, Any]:
-    return {
-        "max_wheel_speed": FULL_DUTY_SPEED,
-        "encoders": True,
-        "encoder_counts_per_rev": STEPS_PER_REV,
-        "watch_interval": 0.05,
-        "timeout": 0.5,
-    } | overrides
-
-
-def wiring_for(options: dict[str, Any], *, reverse: tuple[bool, bool] = (False, False)) -> Wiring:
-    """The hardware that matches a ``[driver.l298n]`` section: IN1/IN2 PWM, EN if wired."""
-    opts = {k: o.default for k, o in L298NDriver.OPTIONS.items()} | options
-    return l298n_driver_wiring(opts, reverse)
+from sim.pigpiod_emulator import Wiring, l298n_driver_wiring
+from sim.wiring import EMULATORS, Emulated
+from tests.rigs import FULL_DUTY_SPEED, Cleanup, Rig, nothing_to_clean, rig_motors, section
 
 
 class MockPinBridge:
@@ -92,75 +66,42 @@ class MockPinBridge:
                         pin.drive_high() if level else pin.drive_low()
 
 
-class L298NMockRig:
-    """gpiozero's mock pins: what the driver drives is read off the pins themselves."""
-
-    driver_name = "l298n"
+class MockPinRig(Rig):
+    """What the driver drives is read off gpiozero's mock pins themselves."""
 
     def __init__(self, options: dict[str, Any], bridge: MockPinBridge) -> None:
-        self.options = options
+        super().__init__("l298n", options, bridge.motors,
+                         Emulated(bridge, {}, bridge.stop, in_process_only=True))
         self.bridge = bridge
-        self.motors = bridge.motors
-        self.wheel_sign = 1.0
 
     def observed_targets(self) -> tuple[float, float]:
         left, right = self.bridge.duties()
         return left * FULL_DUTY_SPEED, right * FULL_DUTY_SPEED
 
-
-class L298NPigpioRig:
-    """PiGPIOFactory on the pigpiod emulator: what the driver drives arrives as socket bytes."""
-
-    driver_name = "l298n"
-
-    def __init__(self, options: dict[str, Any], emulator: PigpiodEmulator) -> None:
-        self.options = options
-        self.emulator = emulator
-        self.motors = emulator.motors
-        self.wheel_sign = 1.0
-
-    def observed_targets(self) -> tuple[float, float]:
-        return self.motors.targets()
+    async def strand(self, speed_rad_s: float = 10.0) -> Cleanup:
+        """Forward PWM on both sides, as a dead daemon left the pins (a second driver could
+        not claim pins the first still holds)."""
+        for gpio in (self.options["left_forward"], self.options["right_forward"]):
+            pin = self.bridge.factory.pin(gpio)
+            pin.function, pin.frequency = "output", 500
+            pin.state = min(1.0, speed_rad_s / FULL_DUTY_SPEED)
+        return nothing_to_clean
 
 
 @asynccontextmanager
-async def mock_rig(motors: MotorPair | None = None, *, reverse: tuple[bool, bool] = (False, False),
-                   **overrides: Any) -> AsyncIterator[L298NMockRig]:
-    options = base_options(pin_factory="mock", **overrides)
+async def mock_pin_rig(workdir: Path | None = None, motors: MotorPair | None = None,
+                       **overrides: Any) -> AsyncIterator[MockPinRig]:
+    """The l298n driver through ``pin_factory = "mock"``, encoders on, at the agreed
+    resolution (RotaryEncoder steps are 4-edge quadrature cycles)."""
+    steps = EMULATORS["l298n"].counts_per_rev // 4
+    options = section("l298n", {"pin_factory": "mock", "max_wheel_speed": FULL_DUTY_SPEED,
+                                "encoders": True, "encoder_counts_per_rev": steps} | overrides)
     factory = mock_pin_factory()
     factory.reset()
-    bridge = MockPinBridge(factory, wiring_for(options, reverse=reverse),
-                           motors or default_motors(EDGES_PER_REV, FULL_DUTY_SPEED)).start()
+    bridge = MockPinBridge(factory, l298n_driver_wiring(options),
+                           motors or rig_motors("l298n")).start()
     try:
-        yield L298NMockRig(options, bridge)
+        yield MockPinRig(options, bridge)
     finally:
         bridge.stop()
         factory.reset()
-
-
-@asynccontextmanager
-async def pigpio_rig(motors: MotorPair | None = None, *,
-                     reverse: tuple[bool, bool] = (False, False),
-                     **overrides: Any) -> AsyncIterator[L298NPigpioRig]:
-    options = base_options(pin_factory="pigpio", pigpio_host="127.0.0.1", **overrides)
-    emulator = PigpiodEmulator(wiring_for(options, reverse=reverse),
-                               motors or default_motors(EDGES_PER_REV, FULL_DUTY_SPEED)).start()
-    options["pigpio_port"] = emulator.port
-    try:
-        yield L298NPigpioRig(options, emulator)
-    finally:
-        emulator.close()
-
-
-@asynccontextmanager
-async def rig(tmp_path: Path) -> AsyncIterator[L298NMockRig]:
-    """The l298n driver through gpiozero's MockFactory."""
-    async with mock_rig() as the_rig:
-        yield the_rig
-
-
-@asynccontextmanager
-async def rig_pigpio(tmp_path: Path) -> AsyncIterator[L298NPigpioRig]:
-    """The l298n driver through gpiozero's PiGPIOFactory on the pigpiod emulator."""
-    async with pigpio_rig() as the_rig:
-        yield the_rig
