@@ -2,91 +2,88 @@
 from __future__ import annotations
 
 import asyncio
+import math
 import socket
-import struct
+import tempfile
 import time
-import uuid
 from collections import deque
-from typing import Any
+from collections.abc import AsyncIterator
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
+from pathlib import Path
 
 from daemon.bench import BenchResult
-from daemon.latency import summarize
+from daemon.bench.driver_emulated import SUITE, on_emulator, stage_results, time_commands
+from drivers import MotorDriver
 from drivers.base import DriverError
-from drivers.odrive_can import CMD_SET_INPUT_VEL, ODriveCanDriver
-from sim.odrive_emulator import ODriveEmulator
+from drivers.cansimple import CMD_SET_INPUT_VEL, encode_set_input_vel
+from drivers.odrive_can import ODriveCanDriver
+from sim.odrive_emulator import DEFAULT_MULTICAST_GROUP, ODriveEmulator
 
-SUITE = "drivers"
-LEFT_NODE, RIGHT_NODE = 0, 1
-MULTICAST_GROUP = "239.74.163.2"
+SPEEDS_RAD_S = [1.0 + 0.01 * step for step in range(500)]  # distinct values: each frame matches
+Frames = deque[tuple[bytes, float]]
+Connection = AbstractAsyncContextManager[tuple[MotorDriver, ODriveEmulator]]
 
 
 def run(quick: bool) -> list[BenchResult]:
     count = 300 if quick else 3000
-    results = asyncio.run(_measure("virtual", f"bench-{uuid.uuid4().hex[:8]}", {}, count))
-    port = _free_udp_port()
+    with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
+        results = asyncio.run(_measure("virtual", _on_virtual_bus(Path(tmp)), count))
     try:
-        results += asyncio.run(_measure("udp_multicast", MULTICAST_GROUP, {"port": port},
-                                        count))
+        results += asyncio.run(_measure("udp_multicast", _on_multicast(), count))
     except (DriverError, OSError, ImportError) as exc:
         results.append(BenchResult(SUITE, "odrive_can udp_multicast", 0.0, "ms",
                                    note=f"not measured: udp_multicast unusable here ({exc})"))
     return results
 
 
-async def _measure(interface: str, channel: str, bus_kwargs: dict[str, Any],
-                   count: int) -> list[BenchResult]:
-    seen: deque[tuple[bytes, float]] = deque(maxlen=64)
+@asynccontextmanager
+async def _on_virtual_bus(workdir: Path) -> AsyncIterator[tuple[MotorDriver, ODriveEmulator]]:
+    """As ``arbiterd run --sim`` wires it: a python-can virtual channel of its own."""
+    async with on_emulator("odrive_can", workdir, max_wheel_speed=40.0,
+                           keepalive_period_s=0.0) as (driver, emulated):
+        yield driver, emulated.emulator
 
-    def record(node: int, cmd: int, data: bytes, t_mono: float) -> None:
-        if node == RIGHT_NODE and cmd == CMD_SET_INPUT_VEL:
-            seen.append((data[:4], t_mono))
 
-    emulator = ODriveEmulator(interface, channel, node_ids=(LEFT_NODE, RIGHT_NODE),
-                              bus_kwargs=bus_kwargs)
-    emulator.frame_hooks.append(record)
-    options: dict[str, Any] = {"interface": interface, "channel": channel,
-                               "keepalive_period_s": 0.0}
-    if "port" in bus_kwargs:
-        options["multicast_port"] = bus_kwargs["port"]
-    with emulator:
-        driver = ODriveCanDriver(options, max_wheel_speed=40.0)
+@asynccontextmanager
+async def _on_multicast() -> AsyncIterator[tuple[MotorDriver, ODriveEmulator]]:
+    """Across sockets: python-can's udp_multicast interface, as two processes would talk."""
+    port = _free_udp_port()
+    with ODriveEmulator("udp_multicast", DEFAULT_MULTICAST_GROUP,
+                        bus_kwargs={"port": port}) as emulator:
+        driver = ODriveCanDriver({"interface": "udp_multicast",
+                                  "channel": DEFAULT_MULTICAST_GROUP, "multicast_port": port,
+                                  "keepalive_period_s": 0.0}, max_wheel_speed=40.0)
         await driver.open()
         try:
-            to_return, to_odrive = await _time_commands(driver, seen, count)
+            yield driver, emulator
         finally:
             await driver.close()
-    call, wire = summarize(to_return), summarize(to_odrive)
+
+
+async def _measure(interface: str, connect: Connection, count: int) -> list[BenchResult]:
+    async with connect as (driver, emulator):
+        seen: Frames = deque(maxlen=64)
+        right = emulator.axis("right")
+
+        def record(node: int, cmd: int, data: bytes, t_mono: float) -> None:
+            if node == right.node_id and cmd == CMD_SET_INPUT_VEL:
+                seen.append((data[:4], t_mono))
+
+        async def arrival(speed: float, since: float) -> float | None:
+            # the right motor is mirrored: its frame carries the negated turns per second
+            payload = encode_set_input_vel(right.direction * speed / (2 * math.pi))[:4]
+            return await _arrival(seen, payload, since)
+
+        emulator.frame_hooks.append(record)
+        to_return, to_odrive = await time_commands(driver, SPEEDS_RAD_S, count, arrival)
     note = (f"{count} set_wheel_speeds calls; emulator thread in this process on python-can "
             f"{interface}; on a real CAN bus each 8-byte frame adds ~0.25 ms at 500 kbit/s")
-    name = f"odrive_can {interface}"
-    return [
-        BenchResult(SUITE, f"{name} command->sent p50", call["p50"], "ms", note=note),
-        BenchResult(SUITE, f"{name} command->sent p99", call["p99"], "ms"),
-        BenchResult(SUITE, f"{name} command->ODrive p50", wire["p50"], "ms",
-                    note=f"until the emulated ODrive handled the right wheel's Set_Input_Vel "
-                         f"({wire['count']} matched)"),
-        BenchResult(SUITE, f"{name} command->ODrive p99", wire["p99"], "ms"),
-    ]
+    return stage_results(f"odrive_can {interface}", ("sent", "ODrive"), to_return, to_odrive,
+                         (note, f"until the emulated ODrive handled the right wheel's "
+                                f"Set_Input_Vel ({len(to_odrive)} matched)"))
 
 
-async def _time_commands(driver: ODriveCanDriver, seen: deque[tuple[bytes, float]],
-                         count: int) -> tuple[list[float], list[float]]:
-    to_return: list[float] = []
-    to_odrive: list[float] = []
-    for i in range(count):
-        speed = 1.0 + 0.01 * (i % 500)  # distinct values, so each frame can be matched
-        start = time.monotonic()
-        await driver.set_wheel_speeds(speed, speed)
-        to_return.append((time.monotonic() - start) * 1e3)
-        # the right motor is mirrored: its frame carries the negated turns per second
-        expected = struct.pack("<f", -speed / (2 * 3.141592653589793))
-        arrival = await _arrival(seen, expected, start)
-        if arrival is not None:
-            to_odrive.append((arrival - start) * 1e3)
-    return to_return, to_odrive
-
-
-async def _arrival(seen: deque[tuple[bytes, float]], payload: bytes, since: float,
+async def _arrival(seen: Frames, payload: bytes, since: float,
                    limit_s: float = 1.0) -> float | None:
     deadline = since + limit_s
     while time.monotonic() < deadline:

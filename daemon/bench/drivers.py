@@ -1,4 +1,4 @@
-# Driver benchmarks: command -> write latency of each driver against its emulator.
+# Driver benchmarks: command -> write latency of each driver against its emulator (sim/wiring.py).
 from __future__ import annotations
 
 from daemon.bench import BenchResult, driver_odrive, driver_pigpio, driver_serial
