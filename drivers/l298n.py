@@ -332,7 +332,7 @@ class L298NDriver(MotorDriver):
         lock keeps these from interleaving with the event loop's or the worker thread's; with
         the pigpio pin factory each pin write waits at most ``timeout`` for pigpiod.
         """
-        if not self._write_lock.acquire(timeout=self.options["timeout"]):
+        if not self._write_lock.acquire(timeout=self.settings.timeout):
             return False
         try:
             motors = list(self._motors)

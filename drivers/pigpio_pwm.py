@@ -501,7 +501,7 @@ class PigpioDriver(MotorDriver):
         writes from interleaving with the worker thread's; each command waits at most
         ``timeout`` for pigpiod's reply.
         """
-        if not self._write_lock.acquire(timeout=self.options["timeout"]):
+        if not self._write_lock.acquire(timeout=self.settings.timeout):
             return False
         try:
             pi = self._pi
@@ -510,7 +510,7 @@ class PigpioDriver(MotorDriver):
             self._written = {}  # whatever happens next, the next write sends every pin
             for side in self.sides:
                 if side.pwm in self.hw_pins:
-                    pi.hardware_PWM(side.pwm, self.options["pwm_frequency"], 0)
+                    pi.hardware_PWM(side.pwm, self.settings.pwm_frequency, 0)
                 else:
                     pi.set_PWM_dutycycle(side.pwm, 0)
             for side in self.sides:
