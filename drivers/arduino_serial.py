@@ -73,7 +73,10 @@ class BridgeLink:
             self._pending.append((command, future))
             self.send(line)
         try:
-            return await asyncio.wait_for(asyncio.shield(future), reply_within_s)
+            # asyncio.timeout, not wait_for: Python 3.11's wait_for swallows a cancellation
+            # that arrives with the reply, and the cancelled poll task would run on forever
+            async with asyncio.timeout(reply_within_s):
+                return await asyncio.shield(future)
         except TimeoutError:
             self._poison(f"no reply to {command!r} within {reply_within_s:g} s")
             raise DriverFault(self.error or "timeout") from None

@@ -263,8 +263,9 @@ class ODriveCanDriver(MotorDriver):
                 raise DriverFault(f"waited {self.settings.startup_timeout_s} s for {what} on "
                                   f"{self._where()}: {self._axes_summary()}")
             self._frame_event.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._frame_event.wait(), min(remaining, 0.1))
+            with contextlib.suppress(TimeoutError):  # not wait_for: it may swallow a cancel
+                async with asyncio.timeout(min(remaining, 0.1)):
+                    await self._frame_event.wait()
             if poke is not None:
                 poke()
 
