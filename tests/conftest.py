@@ -133,8 +133,8 @@ def daemon_process(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
 
 
 @pytest.fixture(params=sorted(RIGS))
-async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
+def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
     """Each registered driver against its running emulator (``tests/rigs``), plus the
     ``l298n@pigpio`` variant: the test runs once per rig."""
-    async with RIGS[request.param](tmp_path) as running:
+    with RIGS[request.param](tmp_path) as running:
         yield running

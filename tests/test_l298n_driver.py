@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import AsyncIterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -28,8 +28,8 @@ async def opened(the_rig: Rig, **overrides: Any) -> L298NDriver:
 
 
 @pytest.fixture(params=["l298n", "l298n@pigpio"], ids=["mock-pins", "pigpio-factory"])
-async def any_rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
-    async with RIGS[request.param](tmp_path) as the_rig:
+def any_rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
+    with RIGS[request.param](tmp_path) as the_rig:
         yield the_rig
 
 
@@ -68,7 +68,7 @@ async def test_encoders_follow_the_wheels(any_rig: Rig) -> None:
 
 
 async def test_mock_pins_carry_pwm_frequency_enable_and_duty(tmp_path: Path) -> None:
-    async with mock_rig(tmp_path, left_enable=25, right_enable=26, min_duty=0.2, deadband=0.5,
+    with mock_rig(tmp_path, left_enable=25, right_enable=26, min_duty=0.2, deadband=0.5,
                         pwm_frequency=1000) as the_rig:
         driver = await opened(the_rig)
         factory = mock_pin_factory()
@@ -86,7 +86,7 @@ async def test_mock_pins_carry_pwm_frequency_enable_and_duty(tmp_path: Path) -> 
 
 
 async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
-    async with mock_rig(tmp_path, right_invert=True) as the_rig:  # a mirrored right motor
+    with mock_rig(tmp_path, right_invert=True) as the_rig:  # a mirrored right motor
         driver = await opened(the_rig)
         try:
             await driver.set_wheel_speeds(5.0, 5.0)
@@ -110,7 +110,7 @@ async def test_a_pin_factory_this_machine_lacks_is_a_fault(
 
 
 async def test_pigpiod_unreachable_is_a_fault(tmp_path: Path) -> None:
-    async with pigpio_rig(tmp_path) as the_rig:
+    with pigpio_rig(tmp_path) as the_rig:
         the_rig.emulator.stop()
         driver = L298NDriver(the_rig.options, max_wheel_speed=MAX_WHEEL_SPEED)
         with pytest.raises(DriverFault, match=r"pigpiod unreachable at 127\.0\.0\.1"):
@@ -118,7 +118,7 @@ async def test_pigpiod_unreachable_is_a_fault(tmp_path: Path) -> None:
 
 
 async def test_pigpiod_stops_and_restarts_under_pigpio_factory(tmp_path: Path) -> None:
-    async with pigpio_rig(tmp_path) as the_rig:
+    with pigpio_rig(tmp_path) as the_rig:
         emulator = the_rig.emulator
         driver = await opened(the_rig)
         try:
@@ -142,7 +142,7 @@ async def test_pigpiod_stops_and_restarts_under_pigpio_factory(tmp_path: Path) -
 
 
 async def test_safe_stop_zeroes_pins_a_dead_process_left_driving(tmp_path: Path) -> None:
-    async with mock_rig(tmp_path) as the_rig:
+    with mock_rig(tmp_path) as the_rig:
         factory = mock_pin_factory()
         for gpio in (17, 22):  # forward PWM on both sides, as a crashed daemon left them
             pin = factory.pin(gpio)

@@ -39,8 +39,8 @@ odrive_rig = partial(wired_rig, "odrive_can")
 
 
 @pytest.fixture
-async def odrive(tmp_path: Path) -> AsyncIterator[Rig]:
-    async with odrive_rig(tmp_path) as the_rig:
+def odrive(tmp_path: Path) -> Iterator[Rig]:
+    with odrive_rig(tmp_path) as the_rig:
         yield the_rig
 
 
@@ -257,7 +257,7 @@ async def test_odometry_of_1m_straight_and_90_degree_turn_matches_ground_truth(
         tmp_path: Path) -> None:
     motors = MotorPair(clock=ScaledClock(5.0))
     tau = motors.left.time_constant_s  # after a stop command a wheel still turns speed * tau
-    async with odrive_rig(tmp_path, motors) as odrive:
+    with odrive_rig(tmp_path, motors) as odrive:
         driver = ODriveCanDriver(odrive.options, max_wheel_speed=MAX_WHEEL_SPEED)
         await driver.open()
         try:

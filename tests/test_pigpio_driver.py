@@ -82,7 +82,7 @@ def test_pins_sharing_a_hardware_pwm_channel_are_refused() -> None:
 @pytest.mark.parametrize("hardware_pwm", [True, False], ids=["hardware-pwm", "dma-pwm"])
 async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool,
                                                            tmp_path: Path) -> None:
-    async with running_rig(tmp_path, hardware_pwm=hardware_pwm) as the_rig:
+    with running_rig(tmp_path, hardware_pwm=hardware_pwm) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -100,7 +100,7 @@ async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool,
 
 
 async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
-    async with running_rig(tmp_path, left_invert=True) as the_rig:  # a mirrored left motor
+    with running_rig(tmp_path, left_invert=True) as the_rig:  # a mirrored left motor
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -111,7 +111,7 @@ async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> No
 
 
 async def test_unchanged_pins_are_not_rewritten(tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig, watch_interval=0.0)
         await driver.open()
         try:
@@ -125,7 +125,7 @@ async def test_unchanged_pins_are_not_rewritten(tmp_path: Path) -> None:
 
 
 async def test_encoders_track_the_motors_in_both_directions(tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -178,7 +178,7 @@ async def test_odometry_1m_straight_and_90_degree_turn_match_ground_truth(
         tmp_path: Path) -> None:
     fast = EMULATORS["pigpio"].motors(max_speed_rad_s=FULL_DUTY_SPEED,
                                       clock=lambda: 2.0 * time.monotonic())  # 2x real time
-    async with running_rig(tmp_path, fast) as the_rig:
+    with running_rig(tmp_path, fast) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -223,7 +223,7 @@ async def drive(the_rig: Rig, driver: PigpioDriver, left: float, right: float,
 
 
 async def test_pigpiod_unreachable_is_a_fault_naming_the_address(tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         port = the_rig.options["port"]
         the_rig.emulator.stop()
         driver = make_driver(the_rig)
@@ -233,7 +233,7 @@ async def test_pigpiod_unreachable_is_a_fault_naming_the_address(tmp_path: Path)
 
 
 async def test_pigpiod_stops_and_restarts(tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         emulator = the_rig.emulator
         driver = make_driver(the_rig)
         await driver.open()
@@ -274,7 +274,7 @@ async def settled_counts_nonzero(driver: PigpioDriver) -> None:
 
 
 async def test_a_hung_pigpiod_times_out_into_a_fault(tmp_path: Path) -> None:
-    async with running_rig(tmp_path, timeout=0.2, watch_interval=0.0) as the_rig:
+    with running_rig(tmp_path, timeout=0.2, watch_interval=0.0) as the_rig:
         driver = make_driver(the_rig)
         await driver.open()
         try:
@@ -293,7 +293,7 @@ async def test_a_hung_pigpiod_times_out_into_a_fault(tmp_path: Path) -> None:
 
 
 async def test_safe_stop_from_a_fresh_process_zeroes_running_motors(tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         crashed = pigpio.pi("127.0.0.1", the_rig.options["port"], show_errors=False)
         crashed.write(23, 1)
         crashed.write(27, 1)
@@ -325,7 +325,7 @@ def test_bench_reports_command_latency_percentiles() -> None:
 
 async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed(
         tmp_path: Path) -> None:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         driver = make_driver(the_rig, pwm_range=100, hardware_pwm=False)
         await driver.open()
         try:
@@ -345,7 +345,7 @@ async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed(
 
 @pytest.fixture
 async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, Rig]]:
-    async with running_rig(tmp_path) as the_rig:
+    with running_rig(tmp_path) as the_rig:
         port = free_port()
         config = driver_daemon_config(tmp_path, "pigpio", the_rig.options, port)
         async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:

@@ -5,7 +5,7 @@ import asyncio
 import math
 import sys
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -39,8 +39,8 @@ def motion_commands(emulator: ArduinoEmulator, since: float) -> list[str]:
 
 
 @pytest.fixture
-async def serial_rig(tmp_path: Path) -> AsyncIterator[Rig]:
-    async with serial_rig_at(tmp_path) as the_rig:
+def serial_rig(tmp_path: Path) -> Iterator[Rig]:
+    with serial_rig_at(tmp_path) as the_rig:
         yield the_rig
 
 
@@ -357,7 +357,7 @@ async def test_odometry_of_one_metre_and_a_quarter_turn(tmp_path: Path) -> None:
     # the motors run 8x faster than real time: 1 m at 0.2 m/s takes 0.6 s
     motors = MotorPair(WheelMotor(counts_per_rev=1440), WheelMotor(counts_per_rev=1440),
                        clock=lambda: time.monotonic() * 8)
-    async with serial_rig_at(tmp_path, motors) as the_rig:
+    with serial_rig_at(tmp_path, motors) as the_rig:
         drv = make_driver(the_rig, poll_rate=50.0)
         assert drv.settings.counts_per_rev == 1440  # the rig reads the resolution off the motors
         await drv.open()

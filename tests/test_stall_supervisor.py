@@ -15,13 +15,10 @@ from daemon.cli import _toml_value
 from daemon.control.commands import Twist
 from drivers import DRIVERS, create_driver, driver_class
 from drivers.mock import MockDriver
-from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MotorPair, WheelMotor
-from sim.pigpiod_emulator import PigpiodEmulator
+from sim.wiring import EMULATORS
 from tests.conftest import DaemonProcess, close_to, eventually, running_robot, wait_for
-from tests.rigs import RIGS, rig_factory
-from tests.rigs import pigpio as pigpio_rig
-from tests.rigs import serial as serial_rig
+from tests.rigs import FULL_DUTY_SPEED, Rig, wired_rig
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -34,10 +31,10 @@ STILL = (0.0, 0.0)
 Record = list[tuple[float, tuple[float, float]]]
 
 #: drivers that re-send a held speed on their own: a counter that shows the keep-alive had its
-#: chance, and by how much it must grow (serial: 'e' polls at 30 Hz, the keep-alive checks
+#: chance, and by how much it must grow (serial: 'e' polls at 50 Hz, the keep-alive checks
 #: after each, 0.5 s hold; odrive_can: two Set_Input_Vel frames every 0.1 s)
 KEEPALIVES: dict[str, tuple[Callable[[Any], int], int]] = {
-    "serial": (lambda driver: driver.polls, 25),
+    "serial": (lambda driver: driver.polls, 40),
     "odrive_can": (lambda driver: driver.frames_tx, 12),
 }
 
@@ -54,52 +51,47 @@ def test_every_registered_driver_implements_the_emergency_path() -> None:
     assert missing == []
 
 
-@pytest.mark.parametrize("rig_name", sorted(RIGS))
-async def test_emergency_stop_reaches_the_device_while_the_loop_is_blocked(
-        rig_name: str, tmp_path: Path) -> None:
-    async with rig_factory(rig_name)(tmp_path) as rig:
-        driver = create_driver(rig.driver_name, rig.options, max_wheel_speed=MAX_WHEEL_SPEED)
-        if hasattr(rig, "driver"):
-            rig.driver = driver
-        assert driver.emergency_stop() is False  # not open yet: nothing to stop
-        await driver.open()
-        try:
-            await driver.set_wheel_speeds(4.0, 4.0)
-            await eventually(lambda: min(map(abs, rig.observed_targets())) > 1.0,
-                             "the device to turn both wheels")
-            loop_ran = threading.Event()
-            asyncio.get_running_loop().call_soon(loop_ran.set)
-            answer: list[bool] = []
-            stopper = threading.Thread(target=lambda: answer.append(driver.emergency_stop()))
-            stopper.start()
-            # wait_for sleeps in this thread: the event loop is blocked until the device is still
-            wait_for(lambda: still(rig.observed_targets()), "the device to see zero")
-            assert not loop_ran.is_set(), "the event loop ran during the emergency stop"
-            stopper.join()
-            assert answer == [True]
-            health = driver.health()
-            assert (health["emergency_stops"], health["emergency_failures"]) == (1, 0)
+async def test_emergency_stop_reaches_the_device_while_the_loop_is_blocked(rig: Rig) -> None:
+    driver = rig.make_driver(MAX_WHEEL_SPEED)
+    assert driver.emergency_stop() is False  # not open yet: nothing to stop
+    await driver.open()
+    try:
+        await driver.set_wheel_speeds(4.0, 4.0)
+        await eventually(lambda: min(map(abs, rig.observed_targets())) > 1.0,
+                         "the device to turn both wheels")
+        loop_ran = threading.Event()
+        asyncio.get_running_loop().call_soon(loop_ran.set)
+        answer: list[bool] = []
+        stopper = threading.Thread(target=lambda: answer.append(driver.emergency_stop()))
+        stopper.start()
+        # wait_for sleeps in this thread: the event loop is blocked until the device is still
+        wait_for(lambda: still(rig.observed_targets()), "the device to see zero")
+        assert not loop_ran.is_set(), "the event loop ran during the emergency stop"
+        stopper.join()
+        assert answer == [True]
+        health = driver.health()
+        assert (health["emergency_stops"], health["emergency_failures"]) == (1, 0)
 
-            # the loop runs again: no keep-alive brings the old speed back ...
-            if rig.driver_name in KEEPALIVES:
-                counter, grow = KEEPALIVES[rig.driver_name]
-                start = counter(driver)
-                await eventually(lambda: counter(driver) >= start + grow,
-                                 "the driver's keep-alive to have its chance")
-            assert still(rig.observed_targets()), "the driver re-sent an older speed"
-            # ... and the driver took no harm: it drives on request
-            await driver.set_wheel_speeds(3.0, 3.0)
-            await eventually(lambda: min(map(abs, rig.observed_targets())) > 1.0,
-                             "the device to turn again")
-            assert driver.fault is None, driver.fault
-        finally:
-            await driver.close()
-        assert driver.emergency_stop() is False  # closed: a no-op
-        assert driver.health()["emergency_stops"] == 1
+        # the loop runs again: no keep-alive brings the old speed back ...
+        if rig.driver_name in KEEPALIVES:
+            counter, grow = KEEPALIVES[rig.driver_name]
+            start = counter(driver)
+            await eventually(lambda: counter(driver) >= start + grow,
+                             "the driver's keep-alive to have its chance")
+        assert still(rig.observed_targets()), "the driver re-sent an older speed"
+        # ... and the driver took no harm: it drives on request
+        await driver.set_wheel_speeds(3.0, 3.0)
+        await eventually(lambda: min(map(abs, rig.observed_targets())) > 1.0,
+                         "the device to turn again")
+        assert driver.fault is None, driver.fault
+    finally:
+        await driver.close()
+    assert driver.emergency_stop() is False  # closed: a no-op
+    assert driver.health()["emergency_stops"] == 1
 
 
-async def test_emergency_stop_against_a_hung_pigpiod_gives_up_and_says_so() -> None:
-    async with pigpio_rig.running_rig(timeout=0.2, watch_interval=0.0) as rig:
+async def test_emergency_stop_against_a_hung_pigpiod_gives_up_and_says_so(tmp_path: Path) -> None:
+    with wired_rig("pigpio", tmp_path, timeout=0.2, watch_interval=0.0) as rig:
         driver = create_driver("pigpio", rig.options, max_wheel_speed=MAX_WHEEL_SPEED)
         await driver.open()
         try:
@@ -244,11 +236,11 @@ def stall_while_driving(daemon: DaemonProcess, record: Callable[[], Record],
 
 def test_injected_stall_serial_board_sees_m_0_0(
         tmp_path: Path, daemon_process: Callable[..., DaemonProcess]) -> None:
-    motors = RecordingMotors(serial_rig.COUNTS_PER_REV)
-    with ArduinoEmulator(tmp_path / "arduino", motors, auto_stop_s=30.0) as board:
-        options = {"port": str(board.link), "counts_per_rev": serial_rig.COUNTS_PER_REV,
-                   "reset_wait_s": 0.05}
-        daemon = daemon_process(driver_toml("serial", options), use_mock_log=False)
+    motors = RecordingMotors(EMULATORS["serial"].counts_per_rev)
+    with wired_rig("serial", tmp_path, motors) as rig:
+        board = rig.emulator
+        board.firmware.auto_stop_s = 30.0
+        daemon = daemon_process(driver_toml("serial", rig.options), use_mock_log=False)
         asked, zero_at = stall_while_driving(daemon, lambda: list(motors.record))
         lines = [c for c in board.firmware.history if asked <= c.t_mono <= zero_at
                  and c.text[:1] in "mo"]
@@ -258,12 +250,10 @@ def test_injected_stall_serial_board_sees_m_0_0(
 
 
 def test_injected_stall_pigpiod_sees_duty_zero(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    options = pigpio_rig.base_options(watch_interval=0.25)
-    motors = RecordingMotors(pigpio_rig.COUNTS_PER_REV, pigpio_rig.FULL_DUTY_SPEED)
-    with PigpiodEmulator(pigpio_rig.wiring_for(options), motors) as pigpiod:
-        options["port"] = pigpiod.port
-        daemon = daemon_process(driver_toml("pigpio", options), use_mock_log=False)
+        tmp_path: Path, daemon_process: Callable[..., DaemonProcess]) -> None:
+    motors = RecordingMotors(EMULATORS["pigpio"].counts_per_rev, FULL_DUTY_SPEED)
+    with wired_rig("pigpio", tmp_path, motors, watch_interval=0.25) as rig:
+        daemon = daemon_process(driver_toml("pigpio", rig.options), use_mock_log=False)
         asked, zero_at = stall_while_driving(daemon, lambda: list(motors.record))
         print(f"pigpio: duty 0 reached pigpiod {(zero_at - asked) * 1e3:.0f} ms after the "
               "stall request")

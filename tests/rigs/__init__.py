@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Awaitable, Callable
-from contextlib import AbstractAsyncContextManager, asynccontextmanager
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -119,9 +119,9 @@ def rig_motors(driver_name: str) -> MotorPair:
     return wiring.motors(max_speed_rad_s=MOTOR_MAX_SPEED.get(driver_name, 40.0))
 
 
-@asynccontextmanager
-async def wired_rig(driver_name: str, workdir: Path, motors: MotorPair | None = None,
-                    **overrides: Any) -> AsyncIterator[Rig]:
+@contextmanager
+def wired_rig(driver_name: str, workdir: Path, motors: MotorPair | None = None,
+              **overrides: Any) -> Iterator[Rig]:
     """The driver's emulator from ``sim.wiring.EMULATORS``, as the simulator starts it."""
     motors = motors or rig_motors(driver_name)
     kind = RIG_KINDS.get(driver_name, Rig)
@@ -149,7 +149,7 @@ async def restart_pigpiod_and_reopen(rig: Rig, driver: MotorDriver) -> None:
 
 
 RIG_KINDS: dict[str, type[Rig]] = {"mock": MockRig, "serial": SerialRig}
-RigFactory = Callable[..., AbstractAsyncContextManager[Rig]]
+RigFactory = Callable[..., AbstractContextManager[Rig]]
 
 
 def _rigs() -> dict[str, RigFactory]:
@@ -161,8 +161,8 @@ def _rigs() -> dict[str, RigFactory]:
     return table
 
 
-#: rig name => factory ``(workdir, motors=None, **overrides)`` of an async context manager
-#: yielding a :class:`Rig`: every registered driver, plus the ``l298n@pigpio`` variant.
+#: rig name => factory ``(workdir, motors=None, **overrides)`` of a context manager yielding
+#: a :class:`Rig`: every registered driver, plus the ``l298n@pigpio`` variant.
 RIGS: dict[str, RigFactory] = _rigs()
 
 __all__ = ["FULL_DUTY_SPEED", "RIGS", "Cleanup", "MockRig", "Rig", "RigFactory", "SerialRig",

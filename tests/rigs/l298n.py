@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import threading
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -88,9 +88,9 @@ class MockPinRig(Rig):
         return nothing_to_clean
 
 
-@asynccontextmanager
-async def mock_pin_rig(workdir: Path | None = None, motors: MotorPair | None = None,
-                       **overrides: Any) -> AsyncIterator[MockPinRig]:
+@contextmanager
+def mock_pin_rig(workdir: Path | None = None, motors: MotorPair | None = None,
+                 **overrides: Any) -> Iterator[MockPinRig]:
     """The l298n driver through ``pin_factory = "mock"``, encoders on, at the agreed
     resolution (RotaryEncoder steps are 4-edge quadrature cycles)."""
     steps = EMULATORS["l298n"].counts_per_rev // 4
