@@ -58,10 +58,16 @@ sha256_of() { cat -- "$@" | sha256sum | cut -c1-64; }
 # Developer set-up (dev / sim / test)
 ######################################################################
 
-# The Debian packages the tests and the runtime need, each with the check that proves it present.
-missing_dev_packages() {
+# The Debian packages running the daemon needs (./install.sh sim), with the check that proves
+# each present.
+missing_run_packages() {
+    "${PYTHON}" -c 'import ensurepip, venv' >/dev/null 2>&1 || echo python3-venv
+    return 0
+}
+
+# The Debian packages the tests add (./install.sh dev and test), each with its check.
+missing_test_packages() {
     local missing=()
-    "${PYTHON}" -c 'import ensurepip, venv' >/dev/null 2>&1 || missing+=(python3-venv)
     command -v node >/dev/null 2>&1 || missing+=(nodejs)
     command -v npm >/dev/null 2>&1 || missing+=(npm)
     [[ -x /usr/sbin/sshd ]] || command -v sshd >/dev/null 2>&1 || missing+=(openssh-server)
@@ -94,10 +100,25 @@ check_python() {
         || die "$("${PYTHON}" -V 2>&1) is too old: arbiterd needs Python >= 3.11"
 }
 
-# Step 1: system packages the tests and the runtime need.
+# venv_bootstrap PYTHON [PIP ARGS...]: bring pip, setuptools and wheel up to date in a new venv.
+# Debian 12's venvs (Raspberry Pi OS too) start with pip 23.0.1 and no `wheel`, which cannot
+# build the wheels of sdist-only dependencies (sdnotify: "invalid command 'bdist_wheel'").
+venv_bootstrap() {
+    local python="$1"
+    shift
+    report_status "updating pip, setuptools and wheel in $(dirname "$(dirname "${python}")")"
+    run "${python}" -m pip install -q --disable-pip-version-check --upgrade "$@" \
+        pip setuptools wheel && return 0
+    [[ " $* " == *" --no-index "* ]] \
+        || die "could not update pip in $(dirname "$(dirname "${python}")"); is the package index reachable?"
+    warn "the offline wheelhouse has no pip/setuptools/wheel: keeping the venv's own pip, which installs wheels but may not build sdists"
+}
+
+# Step 1: system packages: what running needs (sim), plus what the tests need (dev, test).
 dev_step_system_packages() {
-    local missing
-    mapfile -t missing < <(missing_dev_packages)
+    local purpose="$1" missing
+    mapfile -t missing < <(missing_run_packages
+                           [[ "${purpose}" == run ]] || missing_test_packages)
     if (( ${#missing[@]} )); then
         apt_install "${missing[@]}"
     else
@@ -105,22 +126,38 @@ dev_step_system_packages() {
     fi
 }
 
-# Step 2: the developer virtual environment with the package editable plus its extras.
+# Step 2: the developer virtual environment with the package editable plus EXTRAS. The stamp
+# holds the pyproject hash, the Python version and the extras installed; a venv with more
+# extras than asked for is up to date.
 dev_step_venv() {
-    local stamp="${DEV_VENV}/.arbiterd-dev-stamp" want
-    want="$(sha256_of "${SRCDIR}/pyproject.toml") ${DEV_EXTRAS} $("${PYTHON}" -V 2>&1)"
-    if [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" && "$(cat "${stamp}")" == "${want}" ]]; then
-        report_status "virtual environment ${DEV_VENV}: up to date"
-        return 0
+    local extras="$1" stamp="${DEV_VENV}/.arbiterd-dev-stamp" want have extra
+    want="$(sha256_of "${SRCDIR}/pyproject.toml") $("${PYTHON}" -V 2>&1)"
+    if [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" ]]; then
+        have="$(sed -n 1p "${stamp}")"
+        if [[ "${have}" == "${want}" ]] && venv_has_extras "$(sed -n 2p "${stamp}")" "${extras}"
+        then
+            report_status "virtual environment ${DEV_VENV}: up to date"
+            return 0
+        fi
     fi
     if [[ ! -x "${DEV_VENV}/bin/python" ]]; then
         report_status "creating virtual environment ${DEV_VENV}"
         run "${PYTHON}" -m venv "${DEV_VENV}"
     fi
-    report_status "installing arbiterd (editable) with extras [${DEV_EXTRAS}]"
+    venv_bootstrap "${DEV_VENV}/bin/python"
+    report_status "installing arbiterd (editable)${extras:+ with extras [${extras}]}"
     run "${DEV_VENV}/bin/python" -m pip install -q --disable-pip-version-check \
-        -e "${SRCDIR}[${DEV_EXTRAS}]"
-    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${want}" >"${stamp}"
+        -e "${SRCDIR}${extras:+[${extras}]}"
+    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n%s\n' "${want}" "${extras}" >"${stamp}"
+}
+
+# venv_has_extras HAVE WANT: every comma-separated extra of WANT is in HAVE.
+venv_has_extras() {
+    local extra
+    for extra in ${2//,/ }; do
+        [[ ",$1," == *",${extra},"* ]] || return 1
+    done
+    return 0
 }
 
 # Step 3: the Node packages of the tests that run real JavaScript clients (roslib, the
@@ -141,28 +178,41 @@ dev_step_node_packages() {
     done
 }
 
+# setup_dev run|test: the clone set up for running the daemon, or for developing and testing.
 setup_dev() {
     check_python
-    dev_step_system_packages
-    dev_step_venv
-    dev_step_node_packages
+    dev_step_system_packages "$1"
+    if [[ "$1" == run ]]; then
+        dev_step_venv ""
+    else
+        dev_step_venv "${DEV_EXTRAS}"
+        dev_step_node_packages
+    fi
 }
 
 cmd_dev() {
-    setup_dev
+    setup_dev test
     report_status "ready: ${DEV_VENV}/bin/arbiterd run --sim, then open http://localhost:8085/  |  ./install.sh test"
 }
 
 cmd_sim() {
-    setup_dev
+    setup_dev run
+    warn_if_service_runs
     report_status "starting the daemon on the simulated robot: open http://localhost:8085/ (Ctrl-C stops it)"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/arbiterd" run --sim "$@"; return 0; }
     exec "${DEV_VENV}/bin/arbiterd" run --sim "$@"
 }
 
+# On a robot with the service installed and running, its ports are taken.
+warn_if_service_runs() {
+    command -v systemctl >/dev/null 2>&1 || return 0
+    systemctl is-active --quiet arbiterd.service 2>/dev/null || return 0
+    warn "the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; stop it first (sudo systemctl stop robot.target) or pass --config FILE with other ports"
+}
+
 cmd_test() {
     WITH_BROWSER=1
-    setup_dev
+    setup_dev test
     report_status "running the test suite"
     cd "${SRCDIR}"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/python" -m pytest "$@"; return 0; }
@@ -182,6 +232,8 @@ SERVICE=arbiterd.service
 TARGET=robot.target
 SERVICE_USER=arbiterd
 STATE_DIR=/var/lib/arbiterd
+BIN_LINK=/usr/local/bin/arbiterd
+UDEV_RULES="99-rplidar.rules 99-arduino.rules"
 
 ROOT="${ARBITERD_ROOT:-}"                       # staging root ('' = this machine)
 SYSTEMCTL="${ARBITERD_SYSTEMCTL:-}"             # systemctl to run ('' = systemctl; staging: none)
@@ -194,9 +246,8 @@ PIP_ARGS="${ARBITERD_PIP_ARGS:-}"               # extra pip install arguments
 WHEEL="" RELEASE="" PURGE=0
 EXIT_UNHEALTHY=3                                # activated release failed its health check
 
-CHANGED=0          # something the running service depends on changed: restart it
-UNITS_CHANGED=0
-UDEV_CHANGED=0
+declare -A PENDING=()    # reload | udev | restart: to do in this run (see pending_load)
+START_FAILED=0
 declare -A MANIFEST=()   # staging only: path -> "owner:group mode"
 
 staging() { [[ -n "${ROOT}" ]]; }
@@ -300,7 +351,10 @@ py() { "${PYTHON}" -c "$@"; }
 config_path() { r "${CONFIG_DIR}/arbiterd.toml"; }
 
 # config_get SECTION KEY DEFAULT: a value of the installed config, or DEFAULT.
-config_get() {
+config_get() { config_get_file "$(config_path)" "$@"; }
+
+# config_get_file FILE SECTION KEY DEFAULT: a value of a config file, or DEFAULT.
+config_get_file() {
     py 'import sys, tomllib
 path, section, key, default = sys.argv[1:5]
 try:
@@ -308,7 +362,9 @@ try:
         data = tomllib.load(f)
 except (OSError, tomllib.TOMLDecodeError):
     data = {}
-print(data.get(section, {}).get(key, default))' "$(config_path)" "$1" "$2" "$3"
+for part in section.split("."):
+    data = data.get(part, {})
+print(data.get(key, default))' "$@"
 }
 
 # toml_set FILE SECTION KEY VALUE: set KEY (TOML literal VALUE) in [SECTION], replacing an
@@ -345,18 +401,28 @@ print(tomllib.load(open(sys.argv[1], "rb"))["project"]["version"])' "${SRCDIR}/p
 
 # A content hash of the package sources, so re-installing unchanged sources is a no-op.
 source_hash() {
-    (cd "${SRCDIR}" && find pyproject.toml daemon drivers sensors sim -type f \
+    local dirs
+    read -r -a dirs <<<"$(source_packages)"
+    (cd "${SRCDIR}" && find pyproject.toml "${dirs[@]}" -type f \
         \( -name '*.py' -o -name '*.toml' -o -name '*.json' -o -name 'py.typed' \
            -o -name '*.html' -o -name '*.css' -o -name '*.js' -o -name '*.svg' \) \
         -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum) \
         | sha256sum | cut -c1-12
 }
 
+# The top-level packages pyproject.toml ships ([tool.setuptools.packages.find] include).
+source_packages() {
+    py 'import sys, tomllib
+find = tomllib.load(open(sys.argv[1], "rb"))["tool"]["setuptools"]["packages"]["find"]
+print(" ".join(sorted({name.split(".")[0].rstrip("*") for name in find["include"]})))' \
+        "${SRCDIR}/pyproject.toml"
+}
+
 # A copy of the package sources to build from, so a root build leaves no files in the clone.
 source_snapshot() {
     local dest="${WORKDIR}/src" name
     mkdir -p "${dest}"
-    for name in pyproject.toml README.md LICENSE daemon drivers sensors sim; do
+    for name in pyproject.toml README.md LICENSE $(source_packages); do
         [[ -e "${SRCDIR}/${name}" ]] || continue
         tar -C "${SRCDIR}" --exclude=__pycache__ --exclude='*.pyc' -cf - "${name}" \
             | tar -C "${dest}" -xf -
@@ -381,18 +447,76 @@ svc_step_packages() {
     fi
     local missing=() pkg
     for pkg in "${wanted[@]}"; do
-        dpkg-query -W -f='${Status}' "${pkg}" 2>/dev/null | grep -q 'ok installed' \
-            || missing+=("${pkg}")
+        package_present "${pkg}" || missing+=("${pkg}")
     done
-    if (( ${#missing[@]} )); then apt_install "${missing[@]}"; else
-        report_status "system packages: all present"; fi
+    if (( ${#missing[@]} == 0 )); then
+        report_status "system packages: all present"
+        return 0
+    fi
+    for pkg in "${missing[@]}"; do
+        apt_offers "${pkg}" && continue
+        is_root && [[ "${DRY_RUN}" != 1 ]] && run apt-get update -q >/dev/null
+        apt_offers "${pkg}" || not_in_apt "${pkg}"
+    done
+    apt_install "${missing[@]}"
 }
 
-# Step 2: the system user, in the device groups that exist on this machine.
+# package_present PKG: installed as a Debian package, or (pigpiod, lgpio) built from source.
+package_present() {
+    dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q 'ok installed' && return 0
+    case "$1" in
+        pigpiod) command -v pigpiod >/dev/null 2>&1 ;;
+        python3-lgpio) "${PYTHON}" -c 'import importlib.util as u, sys
+sys.exit(u.find_spec("lgpio") is None)' 2>/dev/null ;;
+        *) return 1 ;;
+    esac
+}
+
+# apt_offers PKG: this machine's apt sources have a candidate version of PKG.
+apt_offers() {
+    local candidate
+    candidate="$(apt-cache policy "$1" 2>/dev/null | sed -n 's/^ *Candidate: *//p')"
+    [[ -n "${candidate}" && "${candidate}" != "(none)" ]]
+}
+
+this_system() {
+    local name arch
+    name="$(. /etc/os-release 2>/dev/null && echo "${PRETTY_NAME:-}")"
+    arch="$(dpkg --print-architecture 2>/dev/null || uname -m)"
+    printf '%s (%s)' "${name:-this system}" "${arch}"
+}
+
+# not_in_apt PKG: say where a package missing from apt comes from and what to do instead.
+not_in_apt() {
+    local others="or pick a driver that needs no GPIO package: --driver serial (an Arduino with ROSArduinoBridge) or --driver odrive_can"
+    case "$1" in
+        pigpiod) die "apt has no package pigpiod on $(this_system).
+  pigpiod, the GPIO daemon of the pigpio driver, is packaged by Raspberry Pi OS in its own
+  apt repository, not by Debian: this machine is not Raspberry Pi OS or lacks that repository.
+  What to do instead: install Raspberry Pi OS Bookworm (what the robot steps assume);
+  or build pigpio from source (github.com/joan2937/pigpio: make && sudo make install, then
+  install its util/pigpiod.service as /etc/systemd/system/pigpiod.service) and re-run this
+  command, which then finds /usr/local/bin/pigpiod;
+  ${others}. (pigpio does not run on a Pi 5.)" ;;
+        python3-lgpio) die "apt has no package python3-lgpio on $(this_system).
+  lgpio, the GPIO library of the l298n driver (gpiozero's lgpio pin factory), is packaged by
+  Raspberry Pi OS in its own apt repository, not by Debian 12: this machine is not Raspberry
+  Pi OS or lacks that repository.
+  What to do instead: install Raspberry Pi OS Bookworm (what the robot steps assume);
+  or build lg and its Python module from source (github.com/joan2937/lg) for ${PYTHON},
+  create a 'gpio' group owning /dev/gpiochip* (a udev rule), and re-run this command, which
+  then finds the module;
+  ${others}." ;;
+        *) die "apt has no package $1 on $(this_system); run 'sudo apt-get update' and retry" ;;
+    esac
+}
+
+# Step 2: the system user, in the device groups that exist on this machine; then verified.
 svc_step_user() {
     local groups=() group
     if staging; then
         record_action "ensure system user ${SERVICE_USER} (home ${STATE_DIR}) in groups gpio dialout (+ i2c spi if present)"
+        record_action "verify ${SERVICE_USER} is in groups: $(needed_groups)"
         return 0
     fi
     if ! id -u "${SERVICE_USER}" >/dev/null 2>&1; then
@@ -408,6 +532,32 @@ svc_step_user() {
     done
     (( ${#groups[@]} == 0 )) || run usermod --append --groups "$(IFS=,; echo "${groups[*]}")" \
         "${SERVICE_USER}"
+    verify_groups
+}
+
+# The groups the service user must be in: dialout (serial: Arduino, lidar, UARTs) always;
+# gpio (/dev/gpiochip*, /dev/gpiomem) for a GPIO driver on the hardware.
+needed_groups() {
+    local need=dialout
+    [[ "$(effective_mode)" == hardware && "$(effective_driver)" == l298n ]] && need+=" gpio"
+    echo "${need}"
+}
+
+verify_groups() {
+    local have missing=() group
+    if [[ "${DRY_RUN}" == 1 ]]; then
+        report_status "would verify ${SERVICE_USER} is in groups: $(needed_groups)"
+        return 0
+    fi
+    have=" $(id -nG "${SERVICE_USER}") "
+    for group in $(needed_groups); do
+        [[ "${have}" == *" ${group} "* ]] || missing+=("${group}")
+    done
+    (( ${#missing[@]} == 0 )) || die "the service user ${SERVICE_USER} is not in group(s) ${missing[*]}, so it cannot open the robot's devices.
+  On Raspberry Pi OS these groups own the serial ports (dialout) and the GPIO chips (gpio).
+  Create the missing group(s) and a udev rule giving them the devices (groupadd --system NAME),
+  then re-run this command; it adds ${SERVICE_USER} to them."
+    report_status "service user ${SERVICE_USER}: groups${have% }"
 }
 
 # Step 3: the release: a venv (with the system site packages, for apt's lgpio/pigpio) holding
@@ -436,15 +586,17 @@ svc_step_release() {
     copy_installer_into "${reldir}"
     run rm -rf -- "$(r "${reldir}")/venv"
     run "${PYTHON}" -m venv --system-site-packages "$(r "${reldir}")/venv"
-    local pip=("$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check)
+    local index=()
     if [[ -d "$(r "${reldir}")/wheels" ]]; then   # a shipped wheelhouse: install offline
-        pip+=(--no-index --find-links "$(r "${reldir}")/wheels")
+        index+=(--no-index --find-links "$(r "${reldir}")/wheels")
     fi
     # shellcheck disable=SC2206  # PIP_ARGS is a list of words on purpose
-    pip+=(${PIP_ARGS})
-    run "${pip[@]}" "${WHEEL:-$(source_snapshot)}"
+    index+=(${PIP_ARGS})
+    venv_bootstrap "$(r "${reldir}")/venv/bin/python" "${index[@]}"
+    run "$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check \
+        "${index[@]}" "${WHEEL:-$(source_snapshot)}"
     [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
-    CHANGED=1
+    pending_add restart
 }
 
 # The release keeps the installer and units it was installed with (used by rollback).
@@ -472,7 +624,7 @@ activate() {
         tmp="${link}.new.$$"
         run ln -sfn "releases/${name}" "${tmp}"
         run mv -Tf "${tmp}" "${link}"
-        CHANGED=1
+        pending_add restart
     fi
     own "${PREFIX}/current" root:root link
     if [[ "$(tail -n 1 "$(history_file)" 2>/dev/null)" != "${name}" ]]; then
@@ -520,9 +672,12 @@ write_config() {
             printf '# arbiterd configuration (written by install.sh)\n' >"${tmp}"
         fi
         [[ -z "${INSTALL_DRIVER}" ]] || toml_set "${tmp}" driver type "\"${INSTALL_DRIVER}\""
+        # the serial board at the udev rule's stable name (99-arduino.rules)
+        [[ "$(config_get_file "${tmp}" driver type mock)" != serial ]] \
+            || toml_set "${tmp}" driver.serial port '"/dev/arduino"'
         toml_set "${tmp}" security token_file "\"${CONFIG_DIR}/token\""
         put_file "${tmp}" "${dest}" "root:${SERVICE_USER}" 0640 || true
-        CHANGED=1
+        pending_add restart
     fi
 }
 
@@ -549,41 +704,96 @@ write_env_file() {
         printf '# Change it with: sudo ./install.sh systemd --hardware (or --sim)\n'
         printf 'ARBITERD_ARGS=%s\n' "${args}"
     } >"${tmp}"
-    if put_file "${tmp}" "${CONFIG_DIR}/arbiterd.env" root:root 0644; then CHANGED=1; fi
+    if put_file "${tmp}" "${CONFIG_DIR}/arbiterd.env" root:root 0644; then pending_add restart; fi
     report_status "service mode: ${mode}"
 }
 
-# Step 5: the units, the pigpiod drop-ins (pigpio driver on hardware only) and the udev rule.
+# Step 5: the units, the pigpiod drop-ins (pigpio driver on hardware only), the udev rules and
+# the `arbiterd` command on every user's PATH.
 svc_step_units() {
-    local unit dropin
+    local unit dropin rules
     for unit in "${SERVICE}" "${TARGET}"; do
         if put_file "${SRCDIR}/systemd/${unit}" "${UNIT_DIR}/${unit}" root:root 0644; then
-            UNITS_CHANGED=1 CHANGED=1
+            pending_add reload restart
         fi
     done
     for dropin in "${SERVICE}.d" "${TARGET}.d"; do
         if [[ "$(effective_mode)" == hardware && "$(effective_driver)" == pigpio ]]; then
             ensure_dir "${UNIT_DIR}/${dropin}" root:root 0755
             if put_file "${SRCDIR}/systemd/pigpiod.conf" "${UNIT_DIR}/${dropin}/pigpiod.conf" \
-                   root:root 0644; then UNITS_CHANGED=1 CHANGED=1; fi
+                   root:root 0644; then pending_add reload restart; fi
         elif [[ -e "$(r "${UNIT_DIR}/${dropin}/pigpiod.conf")" ]]; then
             remove "${UNIT_DIR}/${dropin}/pigpiod.conf"
             run rmdir --ignore-fail-on-non-empty "$(r "${UNIT_DIR}/${dropin}")"
-            UNITS_CHANGED=1 CHANGED=1
+            pending_add reload restart
         fi
     done
-    if put_file "${SRCDIR}/systemd/99-rplidar.rules" "${UDEV_DIR}/99-rplidar.rules" root:root 0644
-    then UDEV_CHANGED=1; fi
-    return 0
+    for rules in ${UDEV_RULES}; do
+        if put_file "${SRCDIR}/systemd/${rules}" "${UDEV_DIR}/${rules}" root:root 0644; then
+            pending_add udev
+        fi
+    done
+    command_link
 }
+
+# /usr/local/bin/arbiterd -> the current release's command (relative, so a staging root works).
+command_link() {
+    local link target="../../..${PREFIX}/current/venv/bin/arbiterd"
+    link="$(r "${BIN_LINK}")"
+    if [[ -e "${link}" && ! -L "${link}" ]]; then
+        warn "${BIN_LINK} exists and is not a link to arbiterd: left alone (use ${PREFIX}/current/venv/bin/arbiterd)"
+        return 0
+    fi
+    if [[ "$(readlink "${link}" 2>/dev/null)" != "${target}" ]]; then
+        report_status "linking ${BIN_LINK} -> ${PREFIX}/current/venv/bin/arbiterd"
+        run mkdir -p "$(dirname "${link}")"
+        run ln -sfn "${target}" "${link}"
+    fi
+    own "${BIN_LINK}" root:root link
+}
+
+# Work that must still happen although a later run sees nothing changed: a daemon-reload, a
+# udev reload or a restart that a failed run left undone. Kept in PENDING_FILE until done.
+pending_file() { r "${PREFIX}/.pending"; }
+
+pending_load() {
+    local what
+    [[ -f "$(pending_file)" ]] || return 0
+    for what in $(cat "$(pending_file)"); do PENDING[${what}]=1; done
+    report_status "finishing what an earlier run left undone: ${!PENDING[*]}"
+}
+
+pending_add() {
+    local what
+    for what in "$@"; do PENDING[${what}]=1; done
+    pending_save
+}
+
+pending_done() {
+    unset "PENDING[$1]"
+    pending_save
+}
+
+pending_save() {
+    [[ "${DRY_RUN}" != 1 && -d "$(r "${PREFIX}")" ]] || return 0
+    if (( ${#PENDING[@]} )); then echo "${!PENDING[*]}" >"$(pending_file)"
+    else rm -f -- "$(pending_file)"; fi
+}
+
+pending() { [[ -n "${PENDING[$1]:-}" ]]; }
 
 # Step 6: tell systemd and udev, enable at boot, (re)start when anything changed.
 svc_step_enable() {
-    (( UNITS_CHANGED )) && systemctl_do daemon-reload
-    if (( UDEV_CHANGED )); then
+    if pending reload; then
+        systemctl_do daemon-reload || die "systemctl daemon-reload failed; fix the cause and re-run this command (it will reload then)"
+        pending_done reload
+    fi
+    if pending udev; then
         if staging; then record_action "udevadm control --reload; udevadm trigger --subsystem-match=tty"
-        else run udevadm control --reload && run udevadm trigger --subsystem-match=tty --action=add
+        else run udevadm control --reload && run udevadm trigger --subsystem-match=tty --action=add \
+            || die "udevadm could not reload the rules; re-run this command once udev runs"
         fi
+        pending_done udev
     fi
     if [[ "$(effective_mode)" == hardware && "$(effective_driver)" == pigpio ]]; then
         systemctl_do enable --now pigpiod.service
@@ -591,24 +801,43 @@ svc_step_enable() {
     systemctl_do enable "${SERVICE}" "${TARGET}"
     if [[ "${NO_START}" == 1 ]]; then
         report_status "not starting the service (--no-start)"
-    elif (( CHANGED )); then
-        systemctl_do restart "${SERVICE}"
+        pending_done restart
+    elif pending restart; then
+        systemctl_do restart "${SERVICE}" || START_FAILED=1
+        pending_done restart
     else
-        systemctl_do start "${SERVICE}"
+        systemctl_do start "${SERVICE}" || START_FAILED=1
     fi
 }
 
 # Step 7: wait for /api/health; on failure say why (exit 3: the release is active but unhealthy).
 svc_step_health() {
-    if [[ "${NO_START}" == 1 ]] || ! can_start || [[ "${DRY_RUN}" == 1 ]]; then
+    if [[ "${NO_START}" == 1 ]]; then
+        print_next_steps
+        return 0
+    fi
+    if ! can_start || [[ "${DRY_RUN}" == 1 ]]; then
         staging && report_status "staging root: service not started, health not checked"
         return 0
+    fi
+    if (( START_FAILED )); then
+        report_status "${SERVICE} failed to start"
+        report_failure
+        exit "${EXIT_UNHEALTHY}"
     fi
     if ! wait_health; then
         report_failure
         exit "${EXIT_UNHEALTHY}"
     fi
     print_connect_info
+}
+
+# After --no-start: what the admin runs next, in order (README "On the robot").
+print_next_steps() {
+    report_status "installed, not started. Next:"
+    printf '    sudoedit %s/arbiterd.toml   # ports, pins, wheel geometry\n' "${CONFIG_DIR}"
+    printf '    sudo arbiterd check                    # verdict first; exit 0 = ready\n'
+    printf '    sudo systemctl enable --now %s   # start now and at every boot\n' "${TARGET}"
 }
 
 health_url() {
@@ -699,6 +928,7 @@ cmd_systemd() {
     require_root systemd
     check_python
     manifest_load
+    pending_load
     svc_step_packages
     svc_step_user
     svc_step_config
@@ -718,6 +948,7 @@ cmd_rollback() {
     require_root rollback
     check_python
     manifest_load
+    pending_load
     local hist current previous
     hist="$(history_file)"
     [[ -f "${hist}" ]] || die "no release history in ${PREFIX}: nothing to roll back to"
@@ -731,7 +962,7 @@ cmd_rollback() {
         mv -f "${hist}.new" "${hist}"
     fi
     activate "${previous}"
-    CHANGED=1
+    pending_add restart
     svc_step_enable
     manifest_save
     svc_step_health
@@ -742,8 +973,11 @@ cmd_uninstall() {
     require_root uninstall
     manifest_load
     systemctl_do disable --now "${SERVICE}" "${TARGET}" || warn "could not disable ${SERVICE}"
+    local rules
     remove "${UNIT_DIR}/${SERVICE}" "${UNIT_DIR}/${TARGET}" "${UNIT_DIR}/${SERVICE}.d" \
-        "${UNIT_DIR}/${TARGET}.d" "${UDEV_DIR}/99-rplidar.rules" "${PREFIX}"
+        "${UNIT_DIR}/${TARGET}.d" "${PREFIX}"
+    for rules in ${UDEV_RULES}; do remove "${UDEV_DIR}/${rules}"; done
+    [[ ! -L "$(r "${BIN_LINK}")" ]] || remove "${BIN_LINK}"
     systemctl_do daemon-reload || true
     if staging; then record_action "udevadm control --reload"
     else run udevadm control --reload || true; fi
@@ -782,16 +1016,19 @@ usage() {
 usage: ./install.sh COMMAND [OPTIONS]
 
 Developer commands (run from a clone, as a normal user; apt packages go through sudo):
-  dev                  set up .venv (package editable + test/dev/bench extras), npm ci for the
-                       JavaScript test clients (tests/interop, tests/console)
-  sim [ARGS...]        dev, then run 'arbiterd run --sim ARGS...' in the foreground
+  dev                  set up .venv (package editable + test/dev/bench extras) and the test
+                       tools (apt packages, npm ci for the JavaScript test clients in
+                       tests/interop and tests/console)
+  sim [ARGS...]        set up .venv with what running needs only, then run
+                       'arbiterd run --sim ARGS...' in the foreground
                        (the console is at http://localhost:8085/)
   test [ARGS...]       dev plus Debian's chromium (browser tests), then 'python -m pytest ARGS...'
 
 Robot commands (Raspberry Pi OS Bookworm / Debian 12, as root):
   systemd              install or update the service: apt packages, user 'arbiterd', a release
                        venv under /opt/arbiterd, /etc/arbiterd/{arbiterd.toml,token,arbiterd.env},
-                       units, udev rule; enable, (re)start, wait for /api/health
+                       units, udev rules (/dev/rplidar, /dev/arduino), /usr/local/bin/arbiterd;
+                       enable, (re)start, wait for /api/health
   uninstall            stop and remove it all; keeps /etc/arbiterd unless --purge
   rollback             switch back to the previously activated release and restart it
   status               service state, health and latency
@@ -801,6 +1038,7 @@ Robot commands (Raspberry Pi OS Bookworm / Debian 12, as root):
 Options:
   --hardware | --sim   run the real robot / the simulated one (default: keep; first install: sim)
   --driver NAME        [driver] type for a new config: ${DRIVERS}
+                       (serial: an Arduino with ROSArduinoBridge, at /dev/arduino)
   --wheel FILE         install this wheel instead of building the source tree
   --release NAME       name of the release directory (default: version + content hash)
   --keep N             releases to keep (default ${KEEP_RELEASES})
@@ -815,7 +1053,7 @@ Options:
 
 Environment (same as the flags): ARBITERD_ROOT, ARBITERD_DRY_RUN=1, ARBITERD_MODE=hardware|sim,
 ARBITERD_INSTALL_DRIVER, ARBITERD_NO_START=1, ARBITERD_KEEP_RELEASES, ARBITERD_HEALTH_TIMEOUT;
-also ARBITERD_PYTHON (python3), ARBITERD_PIP_ARGS (extra pip arguments), ARBITERD_SYSTEMCTL
+also ARBITERD_PYTHON (dev: python3; robot: /usr/bin/python3), ARBITERD_PIP_ARGS (extra pip arguments), ARBITERD_SYSTEMCTL
 (systemctl to call; with --root it is only recorded unless this is set), ARBITERD_DEV_VENV.
 Exit status: 0 ok, 1 error, 2 usage, 3 the new release is active but failed its health check.
 EOF
@@ -871,6 +1109,9 @@ validate_service_options() {
 
 # Per-run scratch space, and (staging) a fresh log of the system actions this run records.
 prepare_service_run() {
+    # The service's venv sees the system site packages (apt's lgpio, pigpio): it must be made by
+    # the system's own Python, whatever python3 a login shell finds first.
+    [[ -n "${ARBITERD_PYTHON:-}" || ! -x /usr/bin/python3 ]] || PYTHON=/usr/bin/python3
     WORKDIR="$(mktemp -d)"
     trap 'rm -rf -- "${WORKDIR}"' EXIT
     if staging && [[ "${DRY_RUN}" != 1 ]]; then

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import io
 import json
 import logging
 import os
@@ -14,9 +16,10 @@ from typing import Any
 
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
-from daemon.config import Config, ConfigError, load_config
+from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from sensors.rplidar import cli as lidar_cli
 
+EXIT_BROKEN_PIPE = 141  # what a shell reports for a command killed by SIGPIPE
 LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING,
           "error": logging.ERROR}
 # syslog priorities journald reads from a "<N>" line prefix
@@ -49,17 +52,35 @@ def setup_logging(level: str = "info", timestamps: bool = False) -> None:
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
 
 
+DEFAULT_URL = "http://127.0.0.1:8085"
+
+
 def _load(args: argparse.Namespace) -> Config:
     path = Path(args.config) if getattr(args, "config", None) else None
     return load_config(path, sim=getattr(args, "sim", False))
 
 
-def _report_config_error(exc: ConfigError) -> int:
-    print(f"arbiterd: configuration error ({len(exc.problems)} problem"
-          f"{'s' if len(exc.problems) != 1 else ''}):", file=sys.stderr)
+def _report_config_error(exc: ConfigError, args: argparse.Namespace, out: Any = None,
+                         lead: str = "arbiterd") -> int:
+    out = out or sys.stderr
+    count = len(exc.problems)
+    print(f"{lead}: configuration error ({count} problem{'s' if count != 1 else ''}):",
+          file=out)
     for problem in exc.problems:
-        print(f"  {problem}", file=sys.stderr)
+        print(f"  {problem}", file=out)
+    if isinstance(exc, ConfigUnreadable):
+        print(f"  {_unreadable_hint(args, exc)}", file=out)
     return EXIT_CONFIG
+
+
+def _unreadable_hint(args: argparse.Namespace, exc: ConfigUnreadable) -> str:
+    """What to run instead when the installed service's config is not readable by this user."""
+    config = f" --config {exc.path}" if getattr(args, "config", None) else ""
+    if args.command == "run":
+        return ("the installed service runs with it (sudo systemctl restart arbiterd); "
+                "`arbiterd run --sim` runs the simulated robot on the built-in defaults, "
+                "or pass --config FILE with a config of your own")
+    return f"run it as root: sudo arbiterd {args.command}{config}"
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -67,34 +88,61 @@ def cmd_run(args: argparse.Namespace) -> int:
         config = _load(args)
     except ConfigError as exc:
         setup_logging()
-        return _report_config_error(exc)
+        return _report_config_error(exc, args)
     setup_logging(config["logging"]["level"], config["logging"]["timestamps"])
     return asyncio.run(Daemon(config).run())
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    """The verdict on the first line; then the problems; then the details (probe findings,
+    warnings, and with --verbose the effective configuration). Everything on stdout."""
     try:
         config = _load(args)
     except ConfigError as exc:
-        return _report_config_error(exc)
-    print(f"# effective configuration ({config.source})")
-    print(render_toml(config.as_dict()))
-    for warning in config.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
+        return _report_config_error(exc, args, sys.stdout, "arbiterd check: FAILED")
     if args.no_probe:
+        print(f"arbiterd check: ok: {config.source}: configuration valid "
+              "(hardware not probed: --no-probe)")
+        _check_details(config, args, "")
         return EXIT_OK
     from daemon.probe import probe_hardware
 
+    details = io.StringIO()
     try:
-        problems = asyncio.run(probe_hardware(config))
+        with contextlib.redirect_stderr(details):  # the probes' findings follow the verdict
+            problems = asyncio.run(probe_hardware(config))
     except ConfigError as exc:
-        return _report_config_error(exc)
-    for problem in problems:
-        print(f"hardware: {problem}", file=sys.stderr)
+        return _report_config_error(exc, args, sys.stdout, "arbiterd check: FAILED")
     if problems:
-        return EXIT_HARDWARE
-    print("# hardware probe: ok", file=sys.stderr)
-    return EXIT_OK
+        count = len(problems)
+        print(f"arbiterd check: FAILED: {config.source}: configuration valid, but {count} "
+              f"hardware problem{'s' if count != 1 else ''}:")
+        for problem in problems:
+            print(f"  hardware: {problem}")
+    else:
+        print(f"arbiterd check: ok: {config.source}: configuration valid and the hardware "
+              f"answers ({_probed(config)})")
+    _check_details(config, args, details.getvalue())
+    return EXIT_HARDWARE if problems else EXIT_OK
+
+
+def _probed(config: Config) -> str:
+    what = f"driver {config['driver']['type']}"
+    if config["lidar"]["enabled"]:
+        what += f", lidar on {config['lidar']['port']}"
+    return what
+
+
+def _check_details(config: Config, args: argparse.Namespace, probe_output: str) -> None:
+    for warning in config.warnings:
+        print(f"warning: {warning}")
+    if probe_output:
+        print(probe_output, end="" if probe_output.endswith("\n") else "\n")
+    if args.verbose:
+        print(f"# effective configuration ({config.source})")
+        print(render_toml(config.as_dict()))
+    else:
+        print("(arbiterd check --verbose also prints the effective configuration)")
 
 
 def render_toml(sections: dict[str, dict[str, Any]]) -> str:
@@ -119,7 +167,10 @@ def _toml_value(value: Any) -> str:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    base = args.url.rstrip("/")
+    try:
+        base = _status_url(args)
+    except ConfigError as exc:
+        return _report_config_error(exc, args)
     try:
         health = _get_json(f"{base}/api/health")
         latency = _get_json(f"{base}/api/latency")
@@ -128,6 +179,26 @@ def cmd_status(args: argparse.Namespace) -> int:
         return EXIT_HARDWARE
     print(format_status(health, latency))
     return EXIT_OK if health.get("status") != "error" else 1
+
+
+def _status_url(args: argparse.Namespace) -> str:
+    """--url, else the [http] address of --config or the default config (env overrides too)."""
+    if args.url:
+        return str(args.url).rstrip("/")
+    try:
+        config = _load(args)
+    except ConfigUnreadable as exc:
+        if args.config:
+            raise
+        print(f"arbiterd status: {exc.problems[0]}; asking {DEFAULT_URL} "
+              "(sudo arbiterd status reads the configured port)", file=sys.stderr)
+        return DEFAULT_URL
+    host, port = config["http"]["host"], config["http"]["port"]
+    if host in ("", "0.0.0.0", "::", "[::]"):
+        host = "127.0.0.1"
+    elif ":" in host and not host.startswith("["):
+        host = f"[{host}]"
+    return f"http://{host}:{port}"
 
 
 def _get_json(url: str) -> dict[str, Any]:
@@ -156,16 +227,19 @@ def format_status(health: dict[str, Any], latency: dict[str, Any]) -> str:
 
 def cmd_safe_stop(args: argparse.Namespace) -> int:
     setup_logging()
+    if args.sim:  # the unit passes its ARBITERD_ARGS: the simulated motors died with the daemon
+        print("arbiterd safe-stop: simulated robot (--sim): no hardware to zero")
+        return EXIT_OK
     try:
         config = _load(args)
     except ConfigError as exc:
-        return _report_config_error(exc)
+        return _report_config_error(exc, args)
     from daemon.probe import safe_stop
 
     try:
         asyncio.run(safe_stop(config))
     except ConfigError as exc:
-        return _report_config_error(exc)
+        return _report_config_error(exc, args)
     except Exception as exc:
         print(f"arbiterd safe-stop: could not zero the motors: {exc}", file=sys.stderr)
         return EXIT_HARDWARE
@@ -193,16 +267,25 @@ def build_parser() -> argparse.ArgumentParser:
                      "if present, else built-in defaults on the simulated robot)")
     run.add_argument("--sim", action="store_true", help="force the simulated hardware")
     run.set_defaults(func=cmd_run)
-    check = sub.add_parser("check", help="validate the config and probe the hardware")
-    check.add_argument("--config")
+    check = sub.add_parser("check", help="validate the config and probe the hardware; the "
+                           "verdict comes first")
+    check.add_argument("--config", help="config file (default /etc/arbiterd/arbiterd.toml; "
+                       "the installed one is readable by root: sudo arbiterd check)")
     check.add_argument("--no-probe", action="store_true", help="validate only")
+    check.add_argument("-v", "--verbose", action="store_true",
+                       help="also print the effective configuration")
     check.set_defaults(func=cmd_check, sim=False)
     status = sub.add_parser("status", help="summary of a running daemon")
-    status.add_argument("--url", default="http://127.0.0.1:8085")
-    status.set_defaults(func=cmd_status)
+    status.add_argument("--url", help="the daemon's base URL (default: the [http] address of "
+                        f"the config, else {DEFAULT_URL})")
+    status.add_argument("--config", help="config file to read the [http] address from "
+                        "(default /etc/arbiterd/arbiterd.toml)")
+    status.set_defaults(func=cmd_status, sim=False)
     safe = sub.add_parser("safe-stop", help="zero the motors through the configured driver")
     safe.add_argument("--config")
-    safe.set_defaults(func=cmd_safe_stop, sim=False)
+    safe.add_argument("--sim", action="store_true",
+                      help="the simulated robot ran: nothing to zero (the unit passes it)")
+    safe.set_defaults(func=cmd_safe_stop)
     bench = sub.add_parser("bench", help="run the benchmark suite")
     bench.add_argument("--json", action="store_true", help="one JSON object per figure")
     bench.add_argument("--quick", action="store_true", help="shorter runs")
@@ -223,7 +306,13 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return EXIT_USAGE if exc.code else EXIT_OK
-    code: int = args.func(args)
+    try:
+        code: int = args.func(args)
+        sys.stdout.flush()
+    except BrokenPipeError:  # `arbiterd status | head`: the reader left; stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     return code
 
 

@@ -42,6 +42,33 @@ class ConfigError(Exception):
         self.problems = problems
 
 
+class ConfigUnreadable(ConfigError):
+    """The config file exists but this user may not read it (the installed service's config is
+    root:arbiterd 0640 in a 0750 directory)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__([f"{path}: cannot read it: permission denied ({_who_may_read(path)})"])
+        self.path = path
+
+
+def _who_may_read(path: Path) -> str:
+    """``only root and the group 'arbiterd' may read it``, from the file or its directory."""
+    for candidate in (path, path.parent):
+        try:
+            gid = candidate.stat().st_gid
+        except OSError:
+            continue
+        try:
+            import grp
+
+            group = grp.getgrgid(gid).gr_name
+        except KeyError:
+            group = str(gid)
+        if group != "root":
+            return f"only root and the group {group!r} may read it"
+    return "only root may read it"
+
+
 @dataclass
 class Config:
     """Validated configuration: every section with every key, defaults filled in."""
@@ -120,30 +147,40 @@ def load_config(path: Path | None = None, *, sim: bool = False,
     the simulated robot. An explicit path must exist.
     """
     env = os.environ if env is None else env
-    raw, source, builtin = _read_source(path)
+    notes: list[str] = []
+    raw, source, builtin = _read_source(path, sim, notes)
     problems: list[str] = []
     flat = _flatten_file(raw, source, problems)
     tables = _section_tables(problems, set(flat), source)
-    _apply_env(flat, env, tables, problems)
-    sections = _validate(flat, tables, source, problems)
+    from_env = _apply_env(flat, env, tables, problems)
+    sections = _validate(flat, tables, source, problems, from_env)
     token = _read_token(sections.get("security", {}), source, problems)
     if problems:
         raise ConfigError(problems)
-    config = Config(sections, source=source, sim=sim or builtin, token=token)
+    config = Config(sections, source=source, sim=sim or builtin, token=token, warnings=notes)
     if config["control"]["cmd_vel_timeout"] == 0:
         config.warnings.append("[control] cmd_vel_timeout = 0: the deadman stop is DISABLED")
     return config
 
 
-def _read_source(path: Path | None) -> tuple[dict[str, Any], str, bool]:
-    if path is None:
-        if not DEFAULT_PATH.exists():
-            return {}, BUILTIN, True
-        path = DEFAULT_PATH
+def _read_source(path: Path | None, sim: bool,
+                 notes: list[str]) -> tuple[dict[str, Any], str, bool]:
+    """The parsed file, its name, and whether the built-in defaults stand in for it."""
+    default = path is None
+    path = DEFAULT_PATH if path is None else path
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
+        if default:
+            return {}, BUILTIN, True
         raise ConfigError([f"{path}: config file not found"]) from None
+    except PermissionError:
+        if default and sim:  # `run --sim` from a clone on a robot with the service installed
+            notes.append(f"{path} is the installed service's config and this user may not "
+                         f"read it ({_who_may_read(path)}): running the simulated robot on the "
+                         "built-in defaults; pass --config FILE to use a config of your own")
+            return {}, BUILTIN, True
+        raise ConfigUnreadable(path) from None
     except OSError as exc:
         raise ConfigError([f"{path}: cannot read config file: {exc.strerror}"]) from None
     try:
@@ -188,16 +225,24 @@ def env_name(section: str, key: str) -> str:
 
 
 def _apply_env(flat: dict[str, dict[str, Any]], env: Mapping[str, str],
-               tables: dict[str, Options], problems: list[str]) -> None:
+               tables: dict[str, Options], problems: list[str]) -> dict[tuple[str, str], str]:
+    """Put the ``ARBITERD_<SECTION>_<KEY>`` overrides into ``flat``; returns which
+    (section, key) each variable set, so a bad value is blamed on the variable."""
     names = {env_name(section, key): (section, key)
              for section, options in tables.items() for key in options}
     prefixes = tuple(env_name(section, "") for section in SECTIONS)
+    from_env: dict[tuple[str, str], str] = {}
     for var, text in env.items():
         if var in names:
             section, key = names[var]
             flat.setdefault(section, {})[key] = _parse_env_value(text)
+            from_env[(section, key)] = f"{var}={text}"
         elif var.startswith(prefixes):
-            problems.append(f"environment: {var}: no such config key")
+            close = difflib.get_close_matches(var, list(names), n=1, cutoff=0.8)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            problems.append(f"environment variable {var}: no such config key{hint}; the "
+                            "overrides are ARBITERD_<SECTION>_<KEY>, e.g. ARBITERD_HTTP_PORT")
+    return from_env
 
 
 def _parse_env_value(text: str) -> Any:
@@ -208,7 +253,8 @@ def _parse_env_value(text: str) -> Any:
 
 
 def _validate(flat: dict[str, dict[str, Any]], tables: dict[str, Options], source: str,
-              problems: list[str]) -> dict[str, dict[str, Any]]:
+              problems: list[str],
+              from_env: Mapping[tuple[str, str], str]) -> dict[str, dict[str, Any]]:
     sections: dict[str, dict[str, Any]] = {}
     for section, options in tables.items():
         values = defaults(options)
@@ -219,7 +265,9 @@ def _validate(flat: dict[str, dict[str, Any]], tables: dict[str, Options], sourc
                 continue
             value, err = option.validate(value)
             if err:
-                problems.append(f"{source}: [{section}] {key}: {err}")
+                where = (f"environment variable {from_env[(section, key)]}"
+                         if (section, key) in from_env else source)
+                problems.append(f"{where}: [{section}] {key}: {err}")
             values[key] = value
         if section in flat:
             problems += [f"{source}: {p}" for p in _cross_checks(section, values)]

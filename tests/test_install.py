@@ -1,17 +1,28 @@
 # install.sh systemd/uninstall in a staging root: layout, owners and modes, idempotence, refusals.
 from __future__ import annotations
 
+import grp
+import inspect
+import json
 import os
+import shlex
 import shutil
+import signal
 import stat
 import subprocess
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from sim.arduino_emulator import ArduinoEmulator
+from sim.rplidar_emulator import RplidarEmulator
+from tests.conftest import free_port
 from tests.deploy_helpers import INSTALL_SH, SYSTEMD_DIR
+from tests.deploy_helpers.machine import Machine
+from tests.deploy_helpers.machine import available as machine_available
 from tests.deploy_helpers.wheels import Wheels, wheels
 
 CONFIG_FILES = {
@@ -24,10 +35,12 @@ SYSTEM_FILES = {
     "/etc/systemd/system/arbiterd.service": "root:root 0644",
     "/etc/systemd/system/robot.target": "root:root 0644",
     "/etc/udev/rules.d/99-rplidar.rules": "root:root 0644",
+    "/etc/udev/rules.d/99-arduino.rules": "root:root 0644",
     "/opt/arbiterd": "root:root 0755",
     "/opt/arbiterd/current": "root:root link",
     "/opt/arbiterd/history": "root:root 0644",
     "/opt/arbiterd/releases": "root:root 0755",
+    "/usr/local/bin/arbiterd": "root:root link",
 }
 
 
@@ -111,12 +124,13 @@ def test_lays_out_exactly_the_service_files(staged: tuple[Path, subprocess.Compl
         if mode != "link":
             assert disk_mode(root / path.lstrip("/")) == mode, path
     top = {str(p.relative_to(root)) for p in root.iterdir()}
-    assert top == {".arbiterd-manifest", ".arbiterd-actions", "etc", "opt"}
+    assert top == {".arbiterd-manifest", ".arbiterd-actions", "etc", "opt", "usr"}
     for unit in ("arbiterd.service", "robot.target"):
         placed = root / "etc/systemd/system" / unit
         assert placed.read_bytes() == (SYSTEMD_DIR / unit).read_bytes()
-    rules = root / "etc/udev/rules.d/99-rplidar.rules"
-    assert rules.read_bytes() == (SYSTEMD_DIR / "99-rplidar.rules").read_bytes()
+    for name in ("99-rplidar.rules", "99-arduino.rules"):
+        rules = root / "etc/udev/rules.d" / name
+        assert rules.read_bytes() == (SYSTEMD_DIR / name).read_bytes()
 
 
 def test_release_venv_runs_the_installed_package(
@@ -135,6 +149,11 @@ def test_release_venv_runs_the_installed_package(
     shipped = root / "opt/arbiterd/current"
     assert (shipped / "install.sh").read_bytes() == INSTALL_SH.read_bytes()
     assert (shipped / "systemd/arbiterd.service").is_file()
+    # every user's PATH has the current release's command (a relative link: valid in the root)
+    on_path = shutil.which("arbiterd", path=str(root / "usr/local/bin"))
+    assert on_path and Path(on_path).resolve() == (venv / "bin/arbiterd").resolve()
+    assert os.readlink(root / "usr/local/bin/arbiterd") == \
+        "../../../opt/arbiterd/current/venv/bin/arbiterd"
 
 
 def test_config_token_and_mode(staged: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
@@ -285,3 +304,134 @@ def test_bad_options_are_usage_errors() -> None:
         result = install_sh(*args)
         assert result.returncode == 2, args
         assert message in result.stderr
+
+
+# -- the README's robot steps, as written, on this machine in a private mount namespace --------
+
+README = INSTALL_SH.parent / "README.md"
+
+
+def readme_robot_steps() -> list[str]:
+    """The commands of the first ``sh`` block under README's "On the robot", comments dropped."""
+    section = README.read_text().split("## On the robot", 1)[1].split("\n## ", 1)[0]
+    block = section.split("```sh\n", 1)[1].split("```", 1)[0]
+    return [line.split("  #", 1)[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def set_key(text: str, section: str, key: str, value: str) -> str:
+    """The user's edit: ``key = value`` in ``[section]``, replacing a (commented) assignment."""
+    lines, current = text.splitlines(), None
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if stripped.startswith("[") and stripped.endswith("]"):
+            current = stripped[1:-1]
+        elif current == section and stripped.lstrip("# ").startswith(f"{key} ="):
+            lines[i] = f"{key} = {value}"
+            return "\n".join(lines) + "\n"
+    raise AssertionError(f"no {key} in [{section}] of the installed config")
+
+
+EDITOR = """import json, sys
+{set_key}
+path = sys.argv[-1]
+text = open(path).read()
+for section, key, value in json.load(open({edits!r})):
+    text = set_key(text, section, key, value)
+open(path, "w").write(text)
+"""
+
+
+def device_for(link: Path) -> None:
+    """What the udev rules do for a real board: the device node group dialout, mode 0660."""
+    node = os.path.realpath(link)
+    os.chown(node, 0, grp.getgrnam("dialout").gr_gid)
+    os.chmod(node, 0o660)
+
+
+def step_script(steps: list[str], out: Path) -> str:
+    """Bash running each step in order (output and exit status kept per step), stopping at the
+    first failure; the service is stopped however it ends."""
+    lines = ["trap 'systemctl stop robot.target >/dev/null 2>&1 || true' EXIT", "set +e"]
+    for i, step in enumerate(steps):
+        lines += [f"bash -c {shlex.quote(step)} >{out}/step{i}.out 2>&1",
+                  f"echo $? >{out}/step{i}.rc", f'[ "$(cat {out}/step{i}.rc)" = 0 ] || exit 0']
+    return "\n".join(lines)
+
+
+@pytest.mark.timeout(600)
+def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
+                                                                 built: Wheels) -> None:
+    if why := machine_available():
+        pytest.skip(f"the README robot steps run in a private mount namespace: {why}")
+    steps = readme_robot_steps()
+    assert steps[0].startswith("sudo ./install.sh systemd --hardware --driver serial"), steps
+    machine = Machine(tmp_path / "machine")
+    out = tmp_path / "out"
+    out.mkdir()
+    devices = Path(tempfile.mkdtemp(prefix="arbiterd-dev-"))  # the service user reaches it
+    devices.chmod(0o755)
+    http_port, ws_port = free_port(), free_port()
+    edits = [("driver.serial", "port", f'"{devices / "arduino"}"'),
+             ("lidar", "port", f'"{devices / "rplidar"}"'),
+             ("http", "host", '"127.0.0.1"'), ("http", "port", str(http_port)),
+             ("rosbridge", "host", '"127.0.0.1"'), ("rosbridge", "port", str(ws_port))]
+    (tmp_path / "edits.json").write_text(json.dumps(edits))
+    editor = tmp_path / "editor.py"
+    editor.write_text(EDITOR.format(set_key=inspect.getsource(set_key),
+                                    edits=str(tmp_path / "edits.json")))
+    health = (f"{sys.executable} -c 'import sys, urllib.request, time\n"
+              f"for _ in range(200):\n"
+              f"    body = urllib.request.urlopen(\"http://127.0.0.1:{http_port}/api/health\")"
+              f".read()\n"
+              f"    if b\"\\\"status\\\": \\\"ok\\\"\" in body: break\n"
+              f"    time.sleep(0.1)\n"
+              f"sys.stdout.write(body.decode())' >{out}/health.json")
+    after = "\n".join([
+        f"command -v arbiterd >{out}/which.out",
+        f"id -nG arbiterd >{out}/groups.out",
+        f"setpriv --reuid=65534 --regid=65534 --clear-groups arbiterd check >{out}/nobody.out 2>&1"
+        f" || echo $? >{out}/nobody.rc",
+        health,
+        f"cp /etc/arbiterd/arbiterd.env /etc/arbiterd/arbiterd.toml {out}/",
+    ])
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
+    env.update(ARBITERD_PIP_ARGS=f"--no-index --find-links {built.wheelhouse}",
+               SUDO_EDITOR=f"{sys.executable} {editor}")
+    with ArduinoEmulator(devices / "arduino").start() as arduino, \
+            RplidarEmulator(devices / "rplidar").start() as lidar:
+        device_for(arduino.link)
+        device_for(lidar.link)
+        try:
+            script = step_script(steps, out) + "\nset -e\n" + after
+            ran = machine.run(script, env, INSTALL_SH.parent)
+        finally:
+            if (pid := machine.service_pid()) is not None and Path(f"/proc/{pid}").exists():
+                os.kill(pid, signal.SIGKILL)
+    report = ran.stdout + ran.stderr + "".join(
+        f"\n--- step {i}: {step}\n" + (out / f"step{i}.out").read_text()
+        for i, step in enumerate(steps) if (out / f"step{i}.out").exists())
+    for i in range(len(steps)):
+        assert (out / f"step{i}.rc").read_text().strip() == "0", report
+    assert ran.returncode == 0, report
+    # the service: the real robot, with the chosen driver, healthy; stopped with safe-stop
+    assert "ARBITERD_ARGS=\n" in (out / "arbiterd.env").read_text()
+    assert 'type = "serial"' in (out / "arbiterd.toml").read_text()
+    body = json.loads((out / "health.json").read_text())
+    assert (body["status"], body["mode"], body["driver"]) == ("ok", "hardware", "serial"), body
+    status = (out / f"step{len(steps) - 1}.out").read_text()
+    assert ": ok (" in status and "hardware mode, driver serial" in status, status
+    check = (out / "step2.out").read_text()
+    assert check.startswith("arbiterd check: ok: /etc/arbiterd/arbiterd.toml"), check
+    calls = (machine.state / "systemctl.log").read_text()
+    assert "enable --now robot.target" in calls and "ExecStopPost exit 0" in calls, calls
+    assert "motors zeroed through the serial driver" in (machine.state / "arbiterd.log").read_text()
+    # arbiterd on PATH for every user; the service user in dialout; the udev rules in place
+    assert (out / "which.out").read_text().strip() == "/usr/local/bin/arbiterd"
+    assert "dialout" in (out / "groups.out").read_text().split()
+    assert "service user arbiterd: groups" in (out / "step0.out").read_text()
+    for name in ("99-rplidar.rules", "99-arduino.rules"):
+        assert (machine.upper(f"/etc/udev/rules.d/{name}")).is_file()
+    assert "udevadm control --reload" in (machine.state / "udevadm.log").read_text()
+    # a normal user who forgets sudo is told the command to run
+    assert (out / "nobody.rc").read_text().strip() == "78"
+    assert "run it as root: sudo arbiterd check" in (out / "nobody.out").read_text()

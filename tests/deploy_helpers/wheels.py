@@ -9,13 +9,14 @@ from pathlib import Path
 
 from tests.deploy_helpers import REPO
 
-SOURCE_DIRS = ("daemon", "drivers", "sensors", "sim")
+SOURCE_DIRS = ("base", "daemon", "drivers", "sensors", "sim")
 
 
 @dataclass(frozen=True)
 class Wheels:
     wheel: Path  # arbiterd built from this checkout
-    wheelhouse: Path  # that wheel plus every runtime dependency, for pip --no-index
+    wheelhouse: Path  # that wheel, every runtime dependency, pip, setuptools and wheel, for
+    # pip --no-index (installing the wheel or building the source tree offline)
     broken_wheel: Path  # a release whose daemon dies at start-up
 
 
@@ -60,6 +61,8 @@ def wheels(work: Path) -> Wheels:
         house.mkdir()
         shutil.copy(wheel, house)
         pip("wheel", "-w", str(house), str(wheel))
+        # what a release venv bootstraps with, and what an offline source build needs
+        pip("download", "-d", str(house), "pip", "setuptools>=68", "wheel")
         broken = build_wheel(broken_source(work), work / "broken")
         _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=house, broken_wheel=broken)
     return _cache["wheels"]
