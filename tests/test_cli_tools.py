@@ -1,17 +1,32 @@
-# `arbiterd check` probing a lidar, `arbiterd status` against a running daemon.
+# The arbiterd command line as a user meets it: check (verdict first), status (the configured
+# address, a closed pipe), safe-stop --sim, and the errors for an unreadable config or a bad
+# ARBITERD_* override.
 from __future__ import annotations
 
+import grp
+import os
+import shutil
+import signal
 import subprocess
 import sys
+import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import pytest
+
 from sim.rplidar_emulator import RplidarEmulator
-from tests.daemon_proc import REPO, DaemonProcess
+from tests.conftest import DaemonProcess, free_port, wait_for
+from tests.daemon_proc import REPO, http
+
+NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "daemon.cli", *args], cwd=REPO,
-                          capture_output=True, text=True, timeout=60)
+def run_cli(*args: str, env: dict[str, str] | None = None,
+            prefix: tuple[str, ...] = ()) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*prefix, sys.executable, "-m", "daemon.cli", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=60,
+                          env={**os.environ, **(env or {})})
 
 
 def lidar_config(tmp_path: Path, port: Path) -> Path:
@@ -20,33 +35,194 @@ def lidar_config(tmp_path: Path, port: Path) -> Path:
     return path
 
 
-def test_check_probes_the_lidar(tmp_path: Path) -> None:
+def test_check_probes_the_lidar_and_says_its_verdict_first(tmp_path: Path) -> None:
     with RplidarEmulator(tmp_path / "rplidar").start() as lidar:
-        result = run_cli("check", "--config", str(lidar_config(tmp_path, lidar.link)))
-        assert result.returncode == 0, result.stderr
-        assert "# lidar: A1M8" in result.stderr and "health ok" in result.stderr
+        config = lidar_config(tmp_path, lidar.link)
+        result = run_cli("check", "--config", str(config))
+        assert result.returncode == 0, result.stdout + result.stderr
+        lines = result.stdout.splitlines()
+        assert lines[0] == (f"arbiterd check: ok: {config}: configuration valid and the hardware "
+                            f"answers (driver mock, lidar on {lidar.link})")
+        assert "# lidar: A1M8" in result.stdout and "health ok" in result.stdout
+        assert "[http]" not in result.stdout and len(lines) < 10, "the config only with -v"
         lidar.set_health(2, 0x8001, clears_on_reset=False)
-        result = run_cli("check", "--config", str(lidar_config(tmp_path, lidar.link)))
+        result = run_cli("check", "--config", str(config))
         assert result.returncode == 69
-        assert "reports a health error (code 0x8001)" in result.stderr
+        first, second = result.stdout.splitlines()[:2]
+        assert first == (f"arbiterd check: FAILED: {config}: configuration valid, but 1 hardware "
+                         "problem:")
+        assert "reports a health error (code 0x8001)" in second
+
+
+def test_check_verbose_adds_the_effective_configuration(tmp_path: Path) -> None:
+    config = tmp_path / "arbiterd.toml"
+    config.write_text('[driver]\ntype = "mock"\n[http]\nport = 8123\n')
+    result = run_cli("check", "--verbose", "--no-probe", "--config", str(config))
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith(f"arbiterd check: ok: {config}: configuration valid")
+    assert f"# effective configuration ({config})" in lines and "port = 8123" in lines
 
 
 def test_check_reports_a_missing_lidar(tmp_path: Path) -> None:
     result = run_cli("check", "--config", str(lidar_config(tmp_path, tmp_path / "nothing")))
     assert result.returncode == 69
-    assert f"hardware: [lidar] {tmp_path / 'nothing'}" in result.stderr
+    assert result.stdout.startswith("arbiterd check: FAILED:")
+    assert f"hardware: [lidar] {tmp_path / 'nothing'}" in result.stdout
 
 
-def test_status_summarises_a_running_daemon(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path) as daemon:
-        daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
-        result = run_cli("status", "--url", daemon.base_url)
-        assert result.returncode == 0, result.stderr
-        first = result.stdout.splitlines()[0]
-        assert first.startswith("arbiterd ") and ": ok (ready), hardware mode, driver mock" in first
-        assert "control" in result.stdout and "commands 1;" in result.stdout
+def test_a_bad_override_names_the_variable_not_the_file(tmp_path: Path) -> None:
+    config = tmp_path / "arbiterd.toml"
+    config.write_text('[driver]\ntype = "mock"\n')
+    result = run_cli("check", "--no-probe", "--config", str(config),
+                     env={"ARBITERD_HTTP_PORT": "80a", "ARBITERD_HTTP_PROT": "81"})
+    assert result.returncode == 78
+    assert result.stdout.splitlines()[0] == ("arbiterd check: FAILED: configuration error "
+                                             "(2 problems):")
+    assert ("environment variable ARBITERD_HTTP_PORT=80a: [http] port: expected an integer"
+            in result.stdout)
+    assert ("environment variable ARBITERD_HTTP_PROT: no such config key (did you mean "
+            "ARBITERD_HTTP_PORT?)" in result.stdout)
+    assert str(config) not in result.stdout
+
+
+# -- the installed service's config, unreadable for a normal user ------------------------------
+
+@pytest.fixture
+def etc() -> Iterator[Path]:
+    """A directory everyone can reach, as everyone reaches /etc (pytest's tmp_path is 0700)."""
+    top = Path(tempfile.mkdtemp(prefix="arbiterd-etc-"))
+    top.chmod(0o755)
+    yield top
+    shutil.rmtree(top)
+
+
+def service_config(etc: Path, text: str) -> Path:
+    """A config laid out as install.sh does (root:dialout here, 0640 in a 0750 directory)."""
+    config_dir = etc / "arbiterd"
+    config_dir.mkdir()
+    path = config_dir / "arbiterd.toml"
+    path.write_text(text)
+    path.chmod(0o640)
+    config_dir.chmod(0o750)
+    if os.geteuid() == 0:
+        os.chown(config_dir, 0, grp.getgrnam("dialout").gr_gid)  # a group nobody is not in
+        os.chown(path, 0, grp.getgrnam("dialout").gr_gid)
+    return path
+
+
+def as_normal_user(default: Path, *args: str,
+                   env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``arbiterd ARGS`` as a user who may not read ``default``, the default config path."""
+    code = (f"import sys; from pathlib import Path; import daemon.config as c; "
+            f"c.DEFAULT_PATH = Path({str(default)!r}); from daemon.cli import main; "
+            f"sys.exit(main({list(args)!r}))")
+    prefix = NOBODY if os.geteuid() == 0 else []
+    return subprocess.run([*prefix, sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                          text=True, timeout=60, env={**os.environ, **(env or {})})
+
+
+def test_check_without_config_says_to_use_sudo(etc: Path) -> None:
+    default = service_config(etc, '[driver]\ntype = "mock"\n')
+    result = as_normal_user(default, "check")
+    assert result.returncode == 78, result.stderr
+    assert result.stdout.splitlines() == [
+        "arbiterd check: FAILED: configuration error (1 problem):",
+        f"  {default}: cannot read it: permission denied (only root and the group 'dialout' "
+        "may read it)",
+        "  run it as root: sudo arbiterd check"]
+    assert "Traceback" not in result.stderr
+
+
+def test_run_without_config_says_what_to_do_instead(etc: Path) -> None:
+    default = service_config(etc, '[driver]\ntype = "mock"\n')
+    result = as_normal_user(default, "run")
+    assert result.returncode == 78
+    assert f"{default}: cannot read it: permission denied" in result.stderr
+    assert "`arbiterd run --sim` runs the simulated robot on the built-in defaults" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_run_sim_without_config_falls_back_to_the_defaults_and_says_why(
+        tmp_path: Path, etc: Path) -> None:
+    default = service_config(etc, '[driver]\ntype = "mock"\n')
+    port = free_port()
+    env = {"ARBITERD_HTTP_HOST": "127.0.0.1", "ARBITERD_HTTP_PORT": str(port),
+           "ARBITERD_ROSBRIDGE_HOST": "127.0.0.1", "ARBITERD_ROSBRIDGE_PORT": str(free_port())}
+    code = (f"import sys; from pathlib import Path; import daemon.config as c; "
+            f"c.DEFAULT_PATH = Path({str(default)!r}); from daemon.cli import main; "
+            f"sys.exit(main(['run', '--sim']))")
+    log = tmp_path / "daemon.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen([*(NOBODY if os.geteuid() == 0 else []), sys.executable, "-c",
+                                 code], cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
+                                env={**os.environ, **env})
+    try:
+        body = wait_for(lambda: _health(port, proc, log), "the daemon's /api/health")
+        assert body["mode"] == "sim"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(15) == 0
+    text = log.read_text()
+    assert (f"{default} is the installed service's config and this user may not read it "
+            "(only root and the group 'dialout' may read it): running the simulated robot on "
+            "the built-in defaults; pass --config FILE") in text
+
+
+def _health(port: int, proc: subprocess.Popen[bytes], log: Path) -> object:
+    assert proc.poll() is None, log.read_text()
+    try:
+        status, body = http("GET", f"http://127.0.0.1:{port}/api/health", timeout=1.0)
+    except OSError:
+        return None
+    return body if status in (200, 503) else None
+
+
+# -- status ------------------------------------------------------------------------------------
+
+def test_status_reads_the_address_from_the_config(
+        daemon_process: Callable[..., DaemonProcess]) -> None:
+    daemon = daemon_process()
+    daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
+    result = run_cli("status", "--config", str(daemon.config_path))
+    assert result.returncode == 0, result.stderr
+    first = result.stdout.splitlines()[0]
+    assert first.startswith("arbiterd ") and ": ok (ready), hardware mode, driver mock" in first
+    assert "control" in result.stdout and "commands 1;" in result.stdout
+    by_env = run_cli("status", "--config", os.devnull,
+                     env={"ARBITERD_HTTP_PORT": str(daemon.http_port)})
+    assert by_env.returncode == 0, by_env.stderr
+    assert ": ok (ready), hardware mode, driver mock" in by_env.stdout.splitlines()[0]
+    by_url = run_cli("status", "--url", daemon.base_url)
+    assert by_url.returncode == 0
+    assert by_url.stdout.split(", up ")[0] == first.split(", up ")[0]
+
+
+def test_status_into_a_closed_pipe_is_quiet(
+        daemon_process: Callable[..., DaemonProcess]) -> None:
+    daemon = daemon_process()
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # `arbiterd status | head -1` with head already gone
+    try:
+        result = subprocess.run([sys.executable, "-m", "daemon.cli", "status", "--url",
+                                 daemon.base_url], cwd=REPO, stdout=write_end,
+                                stderr=subprocess.PIPE, text=True, timeout=60, check=False)
+    finally:
+        os.close(write_end)
+    assert result.returncode == 141
+    assert result.stderr == ""
 
 
 def test_status_of_nothing_says_so(tmp_path: Path) -> None:
     result = run_cli("status", "--url", "http://127.0.0.1:9")
-    assert result.returncode == 69 and "cannot reach" in result.stderr
+    assert result.returncode == 69 and "cannot reach http://127.0.0.1:9" in result.stderr
+
+
+def test_safe_stop_in_sim_mode_touches_no_hardware(tmp_path: Path) -> None:
+    config = tmp_path / "arbiterd.toml"  # a serial board that is not there
+    config.write_text(f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{tmp_path}/no"\n')
+    result = run_cli("safe-stop", "--config", str(config), "--sim")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "arbiterd safe-stop: simulated robot (--sim): no hardware to zero\n"
+    real = run_cli("safe-stop", "--config", str(config))
+    assert real.returncode == 69 and "could not zero the motors" in real.stderr

@@ -12,6 +12,8 @@ import stat
 import subprocess
 import sys
 import tempfile
+import urllib.error
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,9 +21,9 @@ import pytest
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_for
 from tests.deploy_helpers import INSTALL_SH, SYSTEMD_DIR
-from tests.deploy_helpers.machine import Machine
+from tests.deploy_helpers.machine import FAKE_SYSTEMCTL, Machine
 from tests.deploy_helpers.machine import available as machine_available
 from tests.deploy_helpers.wheels import Wheels, wheels
 
@@ -49,9 +51,11 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Wheels:
     return wheels(tmp_path_factory.mktemp("wheels"))
 
 
-def install_sh(*args: str, wheelhouse: Path | None = None,
-               user: bool = False) -> subprocess.CompletedProcess[str]:
+def install_sh(*args: str, wheelhouse: Path | None = None, user: bool = False,
+               env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    extra = env or {}
     env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
+    env.update(extra)
     if wheelhouse is not None:
         env["ARBITERD_PIP_ARGS"] = f"--no-index --find-links {wheelhouse}"
     script, cwd = INSTALL_SH, None
@@ -138,6 +142,8 @@ def test_release_venv_runs_the_installed_package(
     root, _ = staged
     venv = root / "opt/arbiterd/current/venv"
     assert "include-system-site-packages = true" in (venv / "pyvenv.cfg").read_text()
+    if Path("/usr/bin/python3").exists():  # the system's Python, which sees apt's GPIO modules
+        assert "home = /usr/bin\n" in (venv / "pyvenv.cfg").read_text()
     result = subprocess.run([str(venv / "bin/arbiterd"), "--version"], capture_output=True,
                             text=True, timeout=60, check=False)
     assert result.returncode == 0 and result.stdout.startswith("arbiterd "), result.stderr
@@ -163,10 +169,12 @@ def test_config_token_and_mode(staged: tuple[Path, subprocess.CompletedProcess[s
     assert first.stdout.count(token) == 1, "the token is printed exactly once"
     config = (root / "etc/arbiterd/arbiterd.toml").read_text()
     assert 'token_file = "/etc/arbiterd/token"' in config
+    assert 'type = "serial"' in config and 'port = "/dev/arduino"' in config  # the udev name
     assert "ARBITERD_ARGS=--sim\n" in (root / "etc/arbiterd/arbiterd.env").read_text()
     recorded = actions(root)
     assert any(a.startswith("ensure system user arbiterd") and "gpio dialout" in a
                for a in recorded)
+    assert "verify arbiterd is in groups: dialout" in recorded
     assert "systemctl daemon-reload" in recorded
     assert "systemctl enable arbiterd.service robot.target" in recorded
     assert "systemctl restart arbiterd.service" in recorded
@@ -265,8 +273,8 @@ def test_staging_dry_run_never_names_a_path_outside_the_root(tmp_path: Path,
     assert result.returncode == 0, result.stderr
     system_dirs = ("/etc", "/opt", "/var", "/usr")
     for line in result.stdout.splitlines():
-        if line.startswith("[dry-run]"):
-            assert not [w for w in line.split()[1:] if w.startswith(system_dirs)], line
+        if line.startswith("[dry-run]"):  # the arguments (the command may be /usr/bin/...)
+            assert not [w for w in line.split()[2:] if w.startswith(system_dirs)], line
 
 
 def test_dry_run_on_this_machine_prints_the_real_actions_and_changes_nothing() -> None:
@@ -308,7 +316,8 @@ def test_bad_options_are_usage_errors() -> None:
 
 # -- the README's robot steps, as written, on this machine in a private mount namespace --------
 
-README = INSTALL_SH.parent / "README.md"
+REPO_DIR = INSTALL_SH.parent
+README = REPO_DIR / "README.md"
 
 
 def readme_robot_steps() -> list[str]:
@@ -435,3 +444,159 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     # a normal user who forgets sudo is told the command to run
     assert (out / "nobody.rc").read_text().strip() == "78"
     assert "run it as root: sudo arbiterd check" in (out / "nobody.out").read_text()
+
+
+def test_a_failed_daemon_reload_is_redone_by_the_next_run(tmp_path: Path, built: Wheels) -> None:
+    root, state = tmp_path / "root", tmp_path / "systemd-state"
+    http_port = free_port()
+    etc = root / "etc/arbiterd"
+    etc.mkdir(parents=True)
+    (etc / "arbiterd.toml").write_text(
+        f'[driver]\ntype = "mock"\n[http]\nhost = "127.0.0.1"\nport = {http_port}\n'
+        f'[rosbridge]\nhost = "127.0.0.1"\nport = {free_port()}\n')
+    state.mkdir()
+    (state / "fail-daemon-reload").touch()
+    env = {"ARBITERD_SYSTEMCTL": str(FAKE_SYSTEMCTL), "FAKE_SYSTEMD_ROOT": str(root),
+           "FAKE_SYSTEMD_STATE": str(state)}
+    try:
+        failed = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel),
+                            wheelhouse=built.wheelhouse, env=env)
+        assert failed.returncode == 1
+        assert ("systemctl daemon-reload failed; fix the cause and re-run this command (it will "
+                "reload then)") in failed.stderr
+        again = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel),
+                           wheelhouse=built.wheelhouse, env=env)
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert "finishing what an earlier run left undone" in again.stdout
+        recorded = actions(root)
+        assert "systemctl daemon-reload" in recorded  # although no unit changed in this run
+        assert "systemctl restart arbiterd.service" in recorded
+        assert "health: ok" in again.stdout
+        assert not (root / "opt/arbiterd/.pending").exists()
+    finally:
+        install_sh("uninstall", "--root", str(root), env=env)  # stops the fake's daemon
+
+
+def test_apt_packages_only_raspberry_pi_os_has_are_explained() -> None:
+    if Path("/etc/apt/sources.list.d/raspi.list").exists():
+        pytest.skip("this machine is Raspberry Pi OS: pigpiod and python3-lgpio are in its apt")
+    for driver, package, library in [("pigpio", "pigpiod", "pigpiod, the GPIO daemon"),
+                                     ("l298n", "python3-lgpio", "lgpio, the GPIO library")]:
+        result = install_sh("systemd", "--dry-run", "--hardware", "--driver", driver)
+        assert result.returncode == 1, result.stdout
+        message = " ".join(result.stderr.split())
+        assert f"install.sh: error: apt has no package {package} on " in message
+        assert library in message
+        assert "packaged by Raspberry Pi OS in its own apt repository, not by Debian" in message
+        assert "What to do instead: install Raspberry Pi OS Bookworm" in message
+        assert "github.com/joan2937/" in message and "re-run this command" in message
+        assert "--driver serial (an Arduino with ROSArduinoBridge) or --driver odrive_can" \
+            in message
+        assert "apt-get install" not in result.stdout
+
+
+def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
+        tmp_path: Path) -> None:
+    tools = tmp_path / "bin"  # a machine with python3 but none of the test tools
+    tools.mkdir()
+    for name in ("bash", "cat", "cut", "sha256sum", "dirname", "sed", "env", "apt-get"):
+        found = shutil.which(name)
+        assert found, name
+        (tools / name).symlink_to(found)
+    (tools / "python3").symlink_to("/usr/bin/python3" if Path("/usr/bin/python3").exists()
+                                   else sys.executable)
+    env = {"PATH": str(tools), "ARBITERD_DRY_RUN": "1",
+           "ARBITERD_DEV_VENV": str(tmp_path / "venv")}
+    sim = install_sh("sim", env=env)
+    assert sim.returncode == 0, sim.stderr
+    assert "system packages: all present" in sim.stdout and "apt-get" not in sim.stdout
+    assert f"pip install -q --disable-pip-version-check -e {REPO_DIR}\n" in sim.stdout
+    assert "npm" not in sim.stdout
+    test = install_sh("test", env=env)
+    assert test.returncode == 0, test.stderr
+    apt = next(line for line in test.stdout.splitlines() if " apt-get install " in line)
+    assert {"nodejs", "npm", "openssh-client", "rsync", "systemd"} <= set(apt.split())
+    assert f"-e {REPO_DIR}\\[test\\,dev\\,bench\\]\n" in test.stdout  # printf %q
+
+
+def test_arduino_rule_names_the_usual_boards_for_dialout_only() -> None:
+    boards = set()
+    for line in (SYSTEMD_DIR / "99-arduino.rules").read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        fields = dict(part.strip().replace("+=", "=").replace("==", "=").split("=", 1)
+                      for part in line.split(","))
+        assert fields["SUBSYSTEM"] == '"tty"' and fields["SYMLINK"] == '"arduino"', line
+        assert fields["GROUP"] == '"dialout"' and fields["MODE"] == '"0660"', line
+        boards.add((fields["ATTRS{idVendor}"].strip('"'),
+                    fields.get("ATTRS{idProduct}", "*").strip('"')))
+    assert boards == {("2341", "*"), ("1a86", "7523"), ("0403", "6001")}
+
+
+# -- the README's Quick start with Debian 12's own Python (what a Pi has) -----------------------
+
+SYSTEM_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+
+
+def fresh_clone(dest: Path) -> Path:
+    """The checkout's files as a clone has them (tracked and new, nothing ignored)."""
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others",
+                             "--exclude-standard"], cwd=REPO_DIR, capture_output=True,
+                            check=True, timeout=60).stdout.decode().split("\0")
+    for name in filter(None, listed):
+        source = REPO_DIR / name
+        if source.is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, dest / name)
+    return dest
+
+
+@pytest.mark.timeout(1800)
+def test_readme_quick_start_with_debian_python(tmp_path: Path) -> None:
+    """Both Quick start commands on a clone whose python3 is Debian's (3.11.2, pip 23.0.1, no
+    `wheel` in its venvs), with an empty pip cache so every sdist is really built."""
+    if not Path("/usr/bin/python3").exists():
+        pytest.skip("no /usr/bin/python3 (Debian's own Python) on this machine")
+    clone = fresh_clone(tmp_path / "clone")
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("ARBITERD_", "PYENV", "VIRTUAL_ENV", "PIP_CACHE"))}
+    env.update(PATH=SYSTEM_PATH, PIP_CACHE_DIR=str(tmp_path / "pip-cache"))
+    assert Path(shutil.which("python3", path=SYSTEM_PATH) or "").resolve() == \
+        Path("/usr/bin/python3").resolve()
+    # ./install.sh test: the part that failed was building the test wheels (sdnotify's sdist)
+    tested = subprocess.run(
+        ["./install.sh", "test", "-q", "-p", "no:cacheprovider", f"--basetemp={tmp_path}/t",
+         "tests/test_install.py", "-k", "release_venv_runs"],
+        cwd=clone, env=env, capture_output=True, text=True, timeout=1500, check=False)
+    assert tested.returncode == 0, tested.stdout[-6000:] + tested.stderr[-6000:]
+    assert "1 passed" in tested.stdout, tested.stdout[-3000:]
+    venv_cfg = (clone / ".venv/pyvenv.cfg").read_text()
+    assert "home = /usr/bin\n" in venv_cfg, venv_cfg
+    # ./install.sh sim: the daemon on the simulated robot, until Ctrl-C
+    port = free_port()
+    env.update(ARBITERD_HTTP_HOST="127.0.0.1", ARBITERD_HTTP_PORT=str(port),
+               ARBITERD_ROSBRIDGE_HOST="127.0.0.1", ARBITERD_ROSBRIDGE_PORT=str(free_port()))
+    log = tmp_path / "sim.log"
+    with log.open("w") as out:
+        sim = subprocess.Popen(["./install.sh", "sim"], cwd=clone, env=env, stdout=out,
+                               stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    try:
+        body = wait_for(lambda: sim_health(port, sim, log), "/api/health of ./install.sh sim",
+                        within_s=300)
+        assert body["mode"] == "sim" and body["status"] in ("ok", "degraded"), body
+    finally:
+        sim.send_signal(signal.SIGINT)
+        assert sim.wait(30) == 0, log.read_text()
+    assert "virtual environment" in log.read_text() and "up to date" in log.read_text()
+
+
+def sim_health(port: int, sim: subprocess.Popen[bytes], log: Path) -> dict[str, object] | None:
+    assert sim.poll() is None, log.read_text()
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=1) as reply:
+            body: dict[str, object] = json.load(reply)
+    except urllib.error.HTTPError as exc:
+        body = json.load(exc)
+    except OSError:
+        return None
+    return body
