@@ -135,6 +135,8 @@ def test_good_deploy_switches_releases(pi: FakePi) -> None:
     assert health["status"] == "ok" and health["mode"] == "sim"
     assert "restart arbiterd.service" in pi.systemctl_calls()
     assert "ExecStopPost exit 0" in pi.systemctl_calls()  # safe-stop after the old one stopped
+    # in sim mode (ARBITERD_ARGS=--sim reaches safe-stop too) it opens no serial port
+    assert "simulated robot (--sim): no hardware to zero" in pi.daemon_log()
     assert (pi.root / "opt/arbiterd/releases" / after / "venv/bin/arbiterd").exists()
 
 
