@@ -146,14 +146,15 @@ def test_check_lists_all_problems_and_prints_effective_config(tmp_path: Path) ->
     bad = write(tmp_path, "[robot]\nwheel_radius = 0\n[control]\nupdate_rat = 50\n")
     result = run_cli("check", "--config", str(bad))
     assert result.returncode == 78
-    assert "2 problems" in result.stderr
-    assert "[robot] wheel_radius: must be > 0.0" in result.stderr
-    assert "[control] update_rat: unknown key" in result.stderr
+    assert result.stdout.startswith("arbiterd check: FAILED: configuration error (2 problems)")
+    assert "[robot] wheel_radius: must be > 0.0" in result.stdout
+    assert "[control] update_rat: unknown key" in result.stdout
     good = write(tmp_path, "[driver]\ntype = \"mock\"\n[robot]\nwheel_radius = 0.04\n")
-    result = run_cli("check", "--config", str(good))
+    result = run_cli("check", "--verbose", "--config", str(good))
     assert result.returncode == 0, result.stderr
-    assert "wheel_radius = 0.04" in result.stdout
-    assert "hardware probe: ok" in result.stderr
+    assert result.stdout.startswith(f"arbiterd check: ok: {good}: configuration valid and the "
+                                    "hardware answers")
+    assert "wheel_radius = 0.04" in result.stdout  # the effective config, with --verbose
 
 
 def test_usage_error_exits_2() -> None:
