@@ -168,12 +168,12 @@ def _toml_value(value: Any) -> str:
 
 def cmd_status(args: argparse.Namespace) -> int:
     try:
-        base = _status_url(args)
+        base, token = _status_url(args)
     except ConfigError as exc:
         return _report_config_error(exc, args)
     try:
-        health = _get_json(f"{base}/api/health")
-        latency = _get_json(f"{base}/api/latency")
+        health = _get_json(f"{base}/api/health", token)
+        latency = _get_json(f"{base}/api/latency", token)
     except (urllib.error.URLError, OSError, ValueError) as exc:
         print(f"arbiterd status: cannot reach {base}: {exc}", file=sys.stderr)
         return EXIT_HARDWARE
@@ -181,10 +181,11 @@ def cmd_status(args: argparse.Namespace) -> int:
     return EXIT_OK if health.get("status") != "error" else 1
 
 
-def _status_url(args: argparse.Namespace) -> str:
-    """--url, else the [http] address of --config or the default config (env overrides too)."""
+def _status_url(args: argparse.Namespace) -> tuple[str, str]:
+    """--url, else the [http] address of --config or the default config (env overrides too);
+    and the config's token, for a daemon whose reads need it."""
     if args.url:
-        return str(args.url).rstrip("/")
+        return str(args.url).rstrip("/"), ""
     try:
         config = _load(args)
     except ConfigUnreadable as exc:
@@ -192,18 +193,21 @@ def _status_url(args: argparse.Namespace) -> str:
             raise
         print(f"arbiterd status: {exc.problems[0]}; asking {DEFAULT_URL} "
               "(sudo arbiterd status reads the configured port)", file=sys.stderr)
-        return DEFAULT_URL
+        return DEFAULT_URL, ""
     host, port = config["http"]["host"], config["http"]["port"]
     if host in ("", "0.0.0.0", "::", "[::]"):
         host = "127.0.0.1"
     elif ":" in host and not host.startswith("["):
         host = f"[{host}]"
-    return f"http://{host}:{port}"
+    return f"http://{host}:{port}", config.token
 
 
-def _get_json(url: str) -> dict[str, Any]:
+def _get_json(url: str, token: str = "") -> dict[str, Any]:
+    request = urllib.request.Request(url)
+    if token:
+        request.add_header("Authorization", f"Bearer {token}")
     try:
-        with urllib.request.urlopen(url, timeout=5) as response:
+        with urllib.request.urlopen(request, timeout=5) as response:
             data: dict[str, Any] = json.load(response)
     except urllib.error.HTTPError as exc:  # 503 still carries the health body
         data = json.load(exc)

@@ -198,6 +198,18 @@ def test_status_reads_the_address_from_the_config(
     assert by_url.stdout.split(", up ")[0] == first.split(", up ")[0]
 
 
+def test_status_sends_the_config_token_when_reads_need_it(
+        daemon_process: Callable[..., DaemonProcess]) -> None:
+    daemon = daemon_process('[security]\ntoken = "s3cret-t0ken"\nread_requires_token = true\n'
+                            'open_health = true\n')
+    assert daemon.get("/api/latency")[0] == 401
+    daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret-t0ken")
+    result = run_cli("status", "--config", str(daemon.config_path))
+    assert result.returncode == 0, result.stderr
+    assert ": ok (ready), hardware mode, driver mock" in result.stdout.splitlines()[0]
+    assert "commands 1;" in result.stdout  # /api/latency answered: the token was sent
+
+
 def test_status_into_a_closed_pipe_is_quiet(
         daemon_process: Callable[..., DaemonProcess]) -> None:
     daemon = daemon_process()
