@@ -143,6 +143,15 @@ def test_run_without_config_says_what_to_do_instead(etc: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
+def test_status_without_config_says_which_address_it_asks(etc: Path) -> None:
+    default = service_config(etc, '[driver]\ntype = "mock"\n[http]\nport = 8123\n')
+    result = as_normal_user(default, "status")
+    assert (f"arbiterd status: {default}: cannot read it: permission denied (only root and the "
+            "group 'dialout' may read it); asking http://127.0.0.1:8085 (sudo arbiterd status "
+            "reads the configured port)") in result.stderr
+    assert "Traceback" not in result.stderr
+
+
 def test_run_sim_without_config_falls_back_to_the_defaults_and_says_why(
         tmp_path: Path, etc: Path) -> None:
     default = service_config(etc, '[driver]\ntype = "mock"\n')

@@ -437,7 +437,9 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     # arbiterd on PATH for every user; the service user in dialout; the udev rules in place
     assert (out / "which.out").read_text().strip() == "/usr/local/bin/arbiterd"
     assert "dialout" in (out / "groups.out").read_text().split()
-    assert "service user arbiterd: groups" in (out / "step0.out").read_text()
+    installed = (out / "step0.out").read_text()
+    assert "service user arbiterd: groups" in installed
+    assert "installed, not started. Next:\n    sudoedit /etc/arbiterd/arbiterd.toml" in installed
     for name in ("99-rplidar.rules", "99-arduino.rules"):
         assert (machine.upper(f"/etc/udev/rules.d/{name}")).is_file()
     assert "udevadm control --reload" in (machine.state / "udevadm.log").read_text()
@@ -509,6 +511,7 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
            "ARBITERD_DEV_VENV": str(tmp_path / "venv")}
     sim = install_sh("sim", env=env)
     assert sim.returncode == 0, sim.stderr
+    assert "the arbiterd service runs" not in sim.stderr
     assert "system packages: all present" in sim.stdout and "apt-get" not in sim.stdout
     assert f"pip install -q --disable-pip-version-check -e {REPO_DIR}\n" in sim.stdout
     assert "npm" not in sim.stdout
@@ -517,6 +520,13 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     apt = next(line for line in test.stdout.splitlines() if " apt-get install " in line)
     assert {"nodejs", "npm", "openssh-client", "rsync", "systemd"} <= set(apt.split())
     assert f"-e {REPO_DIR}\\[test\\,dev\\,bench\\]\n" in test.stdout  # printf %q
+    # on a robot whose service is running, sim says the ports are taken and what to do
+    (tools / "systemctl").write_text("#!/bin/sh\n[ \"$1\" = is-active ] && exit 0; exit 1\n")
+    (tools / "systemctl").chmod(0o755)
+    on_robot = install_sh("sim", env=env)
+    assert ("the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; "
+            "stop it first (sudo systemctl stop robot.target) or pass --config FILE with other "
+            "ports") in on_robot.stderr
 
 
 def test_arduino_rule_names_the_usual_boards_for_dialout_only() -> None:
@@ -600,3 +610,35 @@ def sim_health(port: int, sim: subprocess.Popen[bytes], log: Path) -> dict[str, 
     except OSError:
         return None
     return body
+
+
+def test_the_service_users_groups_are_verified(tmp_path: Path) -> None:
+    """On a machine without a 'gpio' group (not Raspberry Pi OS) the l298n driver cannot reach
+    /dev/gpiochip*: the install stops at the user step and says why and what to do."""
+    if why := machine_available():
+        pytest.skip(f"runs useradd in a private mount namespace: {why}")
+    if grp_exists("gpio"):
+        pytest.skip("this machine has a gpio group (Raspberry Pi OS): nothing to refuse")
+    machine = Machine(tmp_path / "machine")
+    # lgpio "built from source": a module the system Python finds, so the packages step passes
+    script = ("mkdir -p /usr/local/lib/python3/dist-packages\n"
+              "echo '# stand-in' >/usr/local/lib/python3/dist-packages/lgpio.py\n"
+              "export PYTHONPATH=/usr/local/lib/python3/dist-packages\n"
+              "./install.sh systemd --hardware --driver l298n --no-start")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
+    ran = machine.run(script, env, REPO_DIR, timeout_s=120)
+    assert ran.returncode == 1, ran.stdout + ran.stderr
+    message = " ".join(ran.stderr.split())
+    assert "group gpio does not exist here (not a Raspberry Pi OS image?)" in message
+    assert ("install.sh: error: the service user arbiterd is not in group(s) gpio, so it cannot "
+            "open the robot's devices.") in message
+    assert "Create the missing group(s) and a udev rule giving them the devices" in message
+    assert "installing release" not in ran.stdout  # stopped before anything was built
+
+
+def grp_exists(name: str) -> bool:
+    try:
+        grp.getgrnam(name)
+    except KeyError:
+        return False
+    return True
