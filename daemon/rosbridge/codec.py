@@ -19,12 +19,12 @@ Id = str | int | None
 
 
 class ProtocolError(Exception):
-    """A request the server refuses; answered with a ``status`` error carrying ``id``."""
+    """A request the server refuses. The session that handles the request answers it with a
+    ``status`` error carrying the request's ``id``; raisers never pass the id themselves."""
 
-    def __init__(self, message: str, request_id: Id = None) -> None:
+    def __init__(self, message: str) -> None:
         super().__init__(message)
         self.message = message
-        self.request_id = request_id
 
 
 def request_id(frame: Any) -> Id:
@@ -36,22 +36,30 @@ def request_id(frame: Any) -> Id:
     return None
 
 
-def decode_frame(text: str | bytes) -> dict[str, Any]:
-    """One WebSocket frame -> a request object with a string ``op``, or ProtocolError."""
+def parse_json(text: str | bytes) -> Any:
+    """One WebSocket frame's JSON value, or ProtocolError."""
     try:
-        frame = orjson.loads(text)  # refuses NaN, Infinity and overflowing numbers
+        return orjson.loads(text)  # refuses NaN, Infinity and overflowing numbers
     except orjson.JSONDecodeError as exc:
         raise ProtocolError(f"invalid JSON: {exc}") from None
-    if not isinstance(frame, dict):
-        raise ProtocolError(f"a request must be a JSON object, got {type(frame).__name__}")
-    rid = request_id(frame)
-    if "id" in frame and rid is None and frame["id"] is not None:
+
+
+def check_frame(value: Any) -> dict[str, Any]:
+    """A parsed frame -> a request object with a string ``op``, or ProtocolError."""
+    if not isinstance(value, dict):
+        raise ProtocolError(f"a request must be a JSON object, got {type(value).__name__}")
+    if "id" in value and request_id(value) is None and value["id"] is not None:
         raise ProtocolError("field 'id': expected a string or integer")
-    if "op" not in frame:
-        raise ProtocolError("missing field 'op'", rid)
-    if not isinstance(frame["op"], str):
-        raise ProtocolError("field 'op': expected a string", rid)
-    return frame
+    if "op" not in value:
+        raise ProtocolError("missing field 'op'")
+    if not isinstance(value["op"], str):
+        raise ProtocolError("field 'op': expected a string")
+    return value
+
+
+def decode_frame(text: str | bytes) -> dict[str, Any]:
+    """One WebSocket frame -> a request object with a string ``op``, or ProtocolError."""
+    return check_frame(parse_json(text))
 
 
 # -- field access -------------------------------------------------------------------------------
@@ -61,18 +69,16 @@ def get_str(frame: dict[str, Any], key: str, default: str | None = None) -> str:
     value = frame.get(key, default)
     if not isinstance(value, str) or not value:
         what = "missing field" if key not in frame else "expected a non-empty string in field"
-        raise ProtocolError(f"{frame['op']}: {what} {key!r}", request_id(frame))
+        raise ProtocolError(f"{frame['op']}: {what} {key!r}")
     return value
 
 
 def get_number(frame: dict[str, Any], key: str, default: float, minval: float = 0.0) -> float:
     value = frame.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a number",
-                            request_id(frame))
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a number")
     if value < minval:
-        raise ProtocolError(f"{frame['op']}: field {key!r}: must be >= {minval:g}",
-                            request_id(frame))
+        raise ProtocolError(f"{frame['op']}: field {key!r}: must be >= {minval:g}")
     return float(value)
 
 
@@ -81,16 +87,14 @@ def get_int(frame: dict[str, Any], key: str, default: int | None) -> int | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a non-negative integer",
-                            request_id(frame))
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected a non-negative integer")
     return value
 
 
 def get_bool(frame: dict[str, Any], key: str, default: bool) -> bool:
     value = frame.get(key, default)
     if not isinstance(value, bool):
-        raise ProtocolError(f"{frame['op']}: field {key!r}: expected true or false",
-                            request_id(frame))
+        raise ProtocolError(f"{frame['op']}: field {key!r}: expected true or false")
     return value
 
 
@@ -99,8 +103,7 @@ def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
     sent = get_str(frame, key)
     name = sent if sent.startswith("/") else "/" + sent
     if _ROS_NAME.match(name) is None:
-        raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name",
-                            request_id(frame))
+        raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name")
     return name, sent
 
 
@@ -185,11 +188,11 @@ class Defragmenter:
             raise ProtocolError("fragment: missing field 'id' (string or integer)")
         data = frame.get("data")
         if not isinstance(data, str):
-            raise ProtocolError("fragment: field 'data': expected a string", rid)
+            raise ProtocolError("fragment: field 'data': expected a string")
         num, total = get_int(frame, "num", None), get_int(frame, "total", None)
         if num is None or total is None or total < 1 or num >= total:
             raise ProtocolError("fragment: fields 'num' and 'total' must be integers with "
-                                "0 <= num < total", rid)
+                                "0 <= num < total")
         self._expire(now)
         partial = self._partial(rid, total, now)
         partial.size += len(data) - len(partial.parts.get(num, ""))
@@ -197,7 +200,7 @@ class Defragmenter:
         if partial.size > self.max_bytes:
             del self._pending[rid]
             raise ProtocolError(f"fragment: message {rid!r} exceeds {self.max_bytes} bytes; "
-                                "dropped", rid)
+                                "dropped")
         if len(partial.parts) < total:
             return None
         del self._pending[rid]
@@ -208,11 +211,11 @@ class Defragmenter:
         if partial is not None and partial.total != total:
             del self._pending[rid]
             raise ProtocolError(f"fragment: 'total' changed from {partial.total} to {total} "
-                                f"for id {rid!r}; dropped", rid)
+                                f"for id {rid!r}; dropped")
         if partial is None:
             if len(self._pending) >= self.max_pending:
                 raise ProtocolError(f"fragment: more than {self.max_pending} fragmented "
-                                    "messages in flight", rid)
+                                    "messages in flight")
             partial = self._pending[rid] = _Partial(total, now)
         return partial
 

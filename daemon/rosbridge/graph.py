@@ -1,19 +1,34 @@
-# The bridge's topic and service registry: robot topics, client topics, client services.
+# The bridge's graph: robot and client topics, client services, forwarded calls, and fan-out.
 from __future__ import annotations
 
+import asyncio
+import itertools
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from daemon.rosbridge import rosapi
+from daemon.rosbridge.codec import Id
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.topics import RobotTopic
-
-if TYPE_CHECKING:
-    from daemon.rosbridge.session import ClientSession
 
 DAEMON_NODE = "/arbiterd"
 ROSAPI_NODE = "/rosapi"
 BRIDGE_NODE = "/rosbridge_websocket"
+
+
+class Peer(Hashable, Protocol):
+    """What the graph needs from a connected client (a ``ClientSession``)."""
+
+    def deliver(self, topic: str, message: SharedMessage) -> None:
+        """Queue a message of a subscribed topic (runs inside the publisher: O(1))."""
+
+    def service_response(self, spelling: str, values: Any, result: bool, rid: Id,
+                         fragment_size: int | None = None) -> None:
+        """Answer one of this client's service calls."""
+
+    def reply(self, body: dict[str, Any]) -> None:
+        """Send this client a request (a forwarded ``call_service``)."""
 
 
 @dataclass(eq=False)
@@ -23,8 +38,8 @@ class Topic:
     name: str
     type: str
     robot: RobotTopic | None = None
-    publishers: dict[ClientSession, str] = field(default_factory=dict)  # client -> its type
-    subscribers: set[ClientSession] = field(default_factory=set)
+    publishers: dict[Peer, str] = field(default_factory=dict)  # client -> its type
+    subscribers: set[Peer] = field(default_factory=set)
     latched: SharedMessage | None = None
 
     @property
@@ -47,49 +62,163 @@ class ProvidedService:
 
     name: str
     type: str
-    provider: ClientSession
+    provider: Peer
 
 
 @dataclass(eq=False)
 class PendingCall:
     """A forwarded call waiting for the provider's ``service_response``."""
 
-    caller: ClientSession
-    caller_id: str | int | None
+    caller: Peer
+    caller_id: Id
     spelling: str
     service: ProvidedService
-    timer: Any = None
+    timer: asyncio.TimerHandle | None = None
 
 
 class BridgeGraph:
-    """Topics, services and the node names rosapi reports."""
+    """Topics, services and forwarded calls of every client, and the node names rosapi
+    reports. ``latest(bus_topic)`` gives the robot's latest state for a new subscriber."""
 
-    def __init__(self, robot_topics: dict[str, RobotTopic]) -> None:
+    def __init__(self, robot_topics: dict[str, RobotTopic],
+                 latest: Callable[[str], Any] = lambda bus_topic: None) -> None:
         self.topics: dict[str, Topic] = {
             name: Topic(name, t.type, t) for name, t in robot_topics.items()}
         self.services: dict[str, ProvidedService] = {}
         self.pending: dict[str, PendingCall] = {}
-        self._call_counter = 0
+        self._latest = latest
+        self._call_numbers = itertools.count(1)
 
     # -- topics ---------------------------------------------------------------------------
 
-    def relay_topic(self, name: str, type_name: str) -> Topic:
+    def topic(self, name: str) -> Topic | None:
+        return self.topics.get(name)
+
+    def add_publisher(self, peer: Peer, name: str, type_name: str) -> Topic:
+        topic = self._topic_for(name, type_name)
+        topic.publishers[peer] = type_name
+        return topic
+
+    def remove_publisher(self, peer: Peer, name: str) -> None:
+        topic = self.topics.get(name)
+        if topic is not None:
+            topic.publishers.pop(peer, None)
+            self._forget_if_unused(topic)
+
+    def add_subscriber(self, peer: Peer, name: str, type_name: str) -> Topic:
+        """Subscribe ``peer``; a first subscription gets the latched or latest message."""
+        topic = self._topic_for(name, type_name)
+        if peer not in topic.subscribers:
+            topic.subscribers.add(peer)
+            self._send_latest(topic, peer)
+        return topic
+
+    def remove_subscriber(self, peer: Peer, name: str) -> None:
+        topic = self.topics.get(name)
+        if topic is not None:
+            topic.subscribers.discard(peer)
+            self._forget_if_unused(topic)
+
+    def fan_out(self, topic: Topic, shared: SharedMessage) -> None:
+        for peer in topic.subscribers:
+            peer.deliver(topic.name, shared)
+
+    def publish(self, topic: Topic, shared: SharedMessage, *, latch: bool = False) -> None:
+        """A client's message on a topic: kept for late subscribers when latched."""
+        if latch:
+            topic.latched = shared
+        self.fan_out(topic, shared)
+
+    def _topic_for(self, name: str, type_name: str) -> Topic:
         topic = self.topics.get(name)
         if topic is None:
             topic = self.topics[name] = Topic(name, type_name)
         return topic
 
-    def forget_if_unused(self, topic: Topic) -> None:
+    def _send_latest(self, topic: Topic, peer: Peer) -> None:
+        if topic.latched is not None:
+            peer.deliver(topic.name, topic.latched)
+            return
+        robot = topic.robot
+        if robot is None or not robot.state or not robot.bus:
+            return
+        latest = self._latest(robot.bus)
+        if latest is not None:
+            peer.deliver(topic.name, SharedMessage(topic.name, latest, robot.convert))
+
+    def _forget_if_unused(self, topic: Topic) -> None:
         if topic.robot is None and not topic.publishers and not topic.subscribers:
             self.topics.pop(topic.name, None)
 
-    # -- services -------------------------------------------------------------------------
+    # -- client-provided services -----------------------------------------------------------
 
-    def next_call_id(self, service: str) -> str:
-        self._call_counter += 1
-        return f"service_request:{service}:{self._call_counter}"
+    def service(self, name: str) -> ProvidedService | None:
+        return self.services.get(name)
 
-    # -- rosapi Graph protocol ------------------------------------------------------------------
+    def advertise_service(self, peer: Peer, name: str, type_name: str) -> None:
+        """``peer`` provides ``name`` now; calls waiting for an earlier provider fail."""
+        old = self.services.get(name)
+        if old is not None and old.provider is not peer:
+            self.withdraw_service(old, f"Service {name} was re-advertised")
+        self.services[name] = ProvidedService(name, type_name, peer)
+
+    def withdraw_service(self, service: ProvidedService, reason: str) -> None:
+        if self.services.get(service.name) is service:
+            del self.services[service.name]
+        for call_id, pending in list(self.pending.items()):
+            if pending.service is service:
+                self.fail_call(call_id, reason)
+
+    # -- forwarded calls ------------------------------------------------------------------
+
+    def forward_call(self, caller: Peer, caller_id: Id, spelling: str,
+                     service: ProvidedService, args: Any, timeout_s: float | None) -> str:
+        """Send the call to the provider under a new id; the answer goes back to ``caller``."""
+        call_id = f"service_request:{service.name}:{next(self._call_numbers)}"
+        pending = self.pending[call_id] = PendingCall(caller, caller_id, spelling, service)
+        if timeout_s is not None:
+            pending.timer = asyncio.get_running_loop().call_later(
+                timeout_s, self.fail_call, call_id, f"Service {service.name} timed out")
+        service.provider.reply({"op": "call_service", "id": call_id, "service": service.name,
+                                "args": args})
+        return call_id
+
+    def answer_call(self, provider: Peer, call_id: str, values: Any, result: bool) -> bool:
+        """The provider's answer to ``call_id``; False when no such call waits for it."""
+        pending = self.pending.get(call_id)
+        if pending is None or pending.service.provider is not provider:
+            return False
+        self._forget_call(call_id)
+        pending.caller.service_response(pending.spelling, values, result, pending.caller_id)
+        return True
+
+    def fail_call(self, call_id: str, reason: str) -> None:
+        pending = self._forget_call(call_id)
+        if pending is not None:
+            pending.caller.service_response(pending.spelling, reason, False, pending.caller_id)
+
+    def _forget_call(self, call_id: str) -> PendingCall | None:
+        pending = self.pending.pop(call_id, None)
+        if pending is not None and pending.timer is not None:
+            pending.timer.cancel()
+        return pending
+
+    # -- a client leaves ------------------------------------------------------------------
+
+    def forget(self, peer: Peer) -> None:
+        """Everything ``peer`` set up goes: its topics, services and calls."""
+        for topic in [t for t in self.topics.values()
+                      if peer in t.publishers or peer in t.subscribers]:
+            topic.publishers.pop(peer, None)
+            topic.subscribers.discard(peer)
+            self._forget_if_unused(topic)
+        for service in [s for s in self.services.values() if s.provider is peer]:
+            self.withdraw_service(service, f"Service {service.name} was unadvertised")
+        for call_id, pending in list(self.pending.items()):
+            if pending.caller is peer:
+                self._forget_call(call_id)
+
+    # -- rosapi Graph protocol --------------------------------------------------------------
 
     def topic_types(self) -> dict[str, str]:
         return {name: self.topics[name].type for name in sorted(self.topics)}

@@ -117,11 +117,13 @@ class TopicQueue:
 class Outbox:
     """Everything waiting to go to one client: replies first, then topic queues in turn."""
 
-    def __init__(self, wake: Callable[[], None]) -> None:
+    def __init__(self, wake: Callable[[], None],
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.replies: deque[str] = deque(maxlen=REPLY_QUEUE)
         self.topics: dict[str, TopicQueue] = {}
         self.replies_dropped = 0
         self._wake = wake
+        self._clock = clock
         self._turn = 0
 
     def reply(self, text: str) -> None:
@@ -132,7 +134,7 @@ class Outbox:
 
     def offer(self, topic: str, message: SharedMessage) -> None:
         queue = self.topics.get(topic)
-        if queue is not None and queue.offer(message, time.monotonic()):
+        if queue is not None and queue.offer(message, self._clock()):
             self._wake()
 
     def next_item(self) -> tuple[str | None, TopicQueue | None, SharedMessage | None,
@@ -140,7 +142,7 @@ class Outbox:
         """(reply) or (queue, message) ready now, else the delay until one may be ready."""
         if self.replies:
             return self.replies.popleft(), None, None, None
-        now = time.monotonic()
+        now = self._clock()
         queues = list(self.topics.values())
         delay: float | None = None
         for i in range(len(queues)):

@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 from aiohttp import WSCloseCode, web
 
-from daemon.rosbridge.graph import BridgeGraph, ProvidedService, Topic
+from daemon.rosbridge.access import Authority
+from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.topics import log_msg, robot_topics
@@ -43,7 +44,8 @@ class RosbridgeServer:
         self.max_clients: int = cfg["max_clients"]
         self.max_message_bytes: int = cfg["max_message_bytes"]
         self.graph = BridgeGraph(robot_topics(
-            sim=ctx.mode == "sim", odom_tf=ctx.config["control"]["enable_odom_tf"]))
+            sim=ctx.mode == "sim", odom_tf=ctx.config["control"]["enable_odom_tf"]),
+            latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
         self.refused = {"origin": 0, "token": 0, "full": 0}
         self.connections = 0
@@ -107,18 +109,25 @@ class RosbridgeServer:
         self.connections += 1
         client_id = self.connections
         peer = request.remote or "?"
-        may_drive = self.security.token_ok(request.headers, request.query)
-        client = self.clients[client_id] = ClientSession(self, ws, client_id, may_drive, peer)
+        authority = self._authority(request)
+        client = self.clients[client_id] = ClientSession(
+            ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
+            max_message_bytes=self.max_message_bytes)
         client.transport = request.transport
         log.info("rosbridge client %s connected from %s%s", client_id, peer,
-                 "" if may_drive else " (read-only: no valid token)")
+                 "" if authority.may_drive else " (read-only: no valid token)")
         try:
             await client.serve()
         finally:
             del self.clients[client_id]
-            await self._client_gone(client)
+            await client.close()  # brakes first if it was driving
             log.info("rosbridge client %s disconnected", client_id)
         return ws
+
+    def _authority(self, request: web.Request) -> Authority:
+        has_token = self.security.token_ok(request.headers, request.query)
+        return Authority(may_read=has_token or not self.security.read_requires_token,
+                         may_drive=has_token)
 
     def _refusal(self, request: web.Request) -> web.Response | None:
         if not self.security.origin_ok(request.headers.get("Origin"), request.host):
@@ -134,14 +143,6 @@ class RosbridgeServer:
                                 "already connected\n")
         return None
 
-    async def _client_gone(self, client: ClientSession) -> None:
-        await client.close()  # brakes first if it was driving
-        for service in [s for s in self.graph.services.values() if s.provider is client]:
-            self.withdraw_service(service, f"Service {service.name} was unadvertised")
-        for call_id, pending in list(self.graph.pending.items()):
-            if pending.caller is client:
-                self._forget_call(call_id)
-
     # -- telemetry fan-out ------------------------------------------------------------------------
 
     def _wire_bus(self) -> None:
@@ -156,50 +157,14 @@ class RosbridgeServer:
 
         def on_message(message: Any) -> None:  # runs inside the publisher (control tick)
             if topic.subscribers:
-                self.fan_out(topic, SharedMessage(topic.name, message, convert))
+                self.graph.fan_out(topic, SharedMessage(topic.name, message, convert))
 
         return on_message
-
-    def fan_out(self, topic: Topic, shared: SharedMessage) -> None:
-        for client in topic.subscribers:
-            client.outbox.offer(topic.name, shared)
-
-    def send_latest(self, topic: Topic, client: ClientSession) -> None:
-        """A new subscriber gets the latched message, or the robot's latest state."""
-        if topic.latched is not None:
-            client.outbox.offer(topic.name, topic.latched)
-            return
-        robot = topic.robot
-        if robot is None or not robot.state or not robot.bus:
-            return
-        latest = self.ctx.bus.latest(robot.bus)
-        if latest is not None:
-            client.outbox.offer(topic.name, SharedMessage(topic.name, latest, robot.convert))
 
     def publish_log(self, record: logging.LogRecord) -> None:
         topic = self.graph.topics.get("/rosout")
         if topic is not None and topic.subscribers:
-            self.fan_out(topic, SharedMessage(topic.name, log_msg(record)))
-
-    # -- client-provided services ------------------------------------------------------------------
-
-    def withdraw_service(self, service: ProvidedService, reason: str) -> None:
-        if self.graph.services.get(service.name) is service:
-            del self.graph.services[service.name]
-        for call_id, pending in list(self.graph.pending.items()):
-            if pending.service is service:
-                self.fail_call(call_id, reason)
-
-    def fail_call(self, call_id: str, reason: str) -> None:
-        pending = self._forget_call(call_id)
-        if pending is not None:
-            pending.caller.service_response(pending.spelling, reason, False, pending.caller_id)
-
-    def _forget_call(self, call_id: str) -> Any:
-        pending = self.graph.pending.pop(call_id, None)
-        if pending is not None and pending.timer is not None:
-            pending.timer.cancel()
-        return pending
+            self.graph.fan_out(topic, SharedMessage(topic.name, log_msg(record)))
 
 
 class RosoutHandler(logging.Handler):

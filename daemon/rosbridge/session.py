@@ -6,6 +6,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import orjson
@@ -13,31 +14,32 @@ from aiohttp import WSMsgType, web
 
 from daemon.control.api import STAMP_FIELDS, parse_stamp
 from daemon.control.commands import CommandError, parse_twist
-from daemon.rosbridge import rosapi
+from daemon.rosbridge import access, rosapi
+from daemon.rosbridge.access import Authority
 from daemon.rosbridge.codec import (
     STATUS_LEVELS,
     Defragmenter,
     Id,
     ProtocolError,
-    decode_frame,
+    check_frame,
     encode,
     fragments,
     get_bool,
     get_int,
     get_number,
-    get_str,
     level_allows,
+    parse_json,
     request_id,
     status_frame,
     topic_name,
 )
-from daemon.rosbridge.graph import PendingCall, ProvidedService, Topic
+from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.msgtypes import MessageError, check_message, has_type, normalize_type
 from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.rosbridge.topics import COMMAND_TOPICS, TWIST, TWIST_STAMPED
 
 if TYPE_CHECKING:
-    from daemon.rosbridge.server import RosbridgeServer
+    from daemon.control.loop import ControlLoop
 
 log = logging.getLogger("arbiterd.rosbridge")
 
@@ -45,44 +47,74 @@ COMPRESSIONS = ("none", "png", "cbor", "cbor-raw")
 INLINE_SENDS = 4  # most messages the reader sends itself after one request
 REFUSAL_REPEAT_S = 0.5  # the same refused-command status at most this often per client
 
-OpHandler = Callable[[dict[str, Any], float], Awaitable[None]]
+Clock = Callable[[], float]
+
+
+@dataclass
+class Request:
+    """One incoming op being handled: its frame, receipt time, ``id``, and the canonical
+    topic or service it names (``""`` for ops that name none)."""
+
+    frame: dict[str, Any]
+    t_recv: float
+    id: Id
+    target: str = ""
+    spelling: str = ""
+
+    @property
+    def op(self) -> str:
+        return str(self.frame["op"])
+
+
+OpHandler = Callable[[Request], Awaitable[None]]
+
+# the ops this server handles, each by its method ``op_<name>``
+OPS = ("advertise", "unadvertise", "publish", "subscribe", "unsubscribe", "call_service",
+       "service_response", "advertise_service", "unadvertise_service", "set_level",
+       "fragment")
+
+# op -> the field naming its topic or service (parsed once, before the access check)
+TARGET_FIELDS = {"advertise": "topic", "unadvertise": "topic", "publish": "topic",
+                 "subscribe": "topic", "unsubscribe": "topic", "call_service": "service",
+                 "service_response": "service", "advertise_service": "service",
+                 "unadvertise_service": "service"}
 
 
 class ClientSession:
-    """State and op handlers of one connected client (command source ``ws:<id>``)."""
+    """State and op handlers of one connected client (command source ``ws:<id>``). It is
+    handed what it works with: the graph, the control loop, a clock and its authority."""
 
-    def __init__(self, server: RosbridgeServer, ws: web.WebSocketResponse, client_id: int,
-                 may_drive: bool, peer: str) -> None:
-        self.server = server
+    def __init__(self, ws: web.WebSocketResponse, client_id: int, peer: str, *,
+                 graph: BridgeGraph, control: ControlLoop, authority: Authority,
+                 max_message_bytes: int, clock: Clock = time.monotonic) -> None:
         self.ws = ws
         self.id = client_id
-        self.source = f"ws:{client_id}"
-        self.may_drive = may_drive
         self.peer = peer
+        self.graph = graph
+        self.control = control
+        self.authority = authority
+        self.clock = clock
+        self.source = f"ws:{client_id}"
         self.transport: asyncio.BaseTransport | None = None
         self.level = "error"
         self.advertised: dict[str, set[Id]] = {}
         self.latching: set[str] = set()
-        self.outbox = Outbox(self._wake)
-        self.defrag = Defragmenter(server.max_message_bytes)
+        self.outbox = Outbox(self._wake, clock)
+        self.defrag = Defragmenter(max_message_bytes)
         self.frames_in = 0
         self.errors = 0
         self._wakeup = asyncio.Event()
         self._writer_idle = False
         self._next_delay: float | None = None
         self._refusals: dict[str, float] = {}
-        self._ops: dict[str, OpHandler] = {
-            "advertise": self.op_advertise, "unadvertise": self.op_unadvertise,
-            "publish": self.op_publish, "subscribe": self.op_subscribe,
-            "unsubscribe": self.op_unsubscribe, "call_service": self.op_call_service,
-            "service_response": self.op_service_response,
-            "advertise_service": self.op_advertise_service,
-            "unadvertise_service": self.op_unadvertise_service,
-            "set_level": self.op_set_level, "fragment": self.op_fragment,
-        }
+        self._ops: dict[str, OpHandler] = {op: getattr(self, f"op_{op}") for op in OPS}
 
     def __repr__(self) -> str:
         return f"<client {self.id} {self.peer}>"
+
+    @property
+    def may_drive(self) -> bool:
+        return self.authority.may_drive
 
     # -- reading ----------------------------------------------------------------------------
 
@@ -91,7 +123,7 @@ class ClientSession:
         writer = asyncio.create_task(self._write_forever(), name=f"rosbridge-writer-{self.id}")
         try:
             async for message in self.ws:
-                t_recv = time.monotonic()
+                t_recv = self.clock()
                 if message.type in (WSMsgType.TEXT, WSMsgType.BINARY):
                     await self.handle_text(message.data, t_recv)
                     if self._writer_idle:
@@ -103,21 +135,33 @@ class ClientSession:
             writer.cancel()
 
     async def handle_text(self, text: str | bytes, t_recv: float, nested: bool = False) -> None:
+        """Handle one frame; every refusal is answered here, with the request's ``id``."""
         self.frames_in += 1
+        payload: Any = None
         try:
-            frame = decode_frame(text)
-            handler = self._ops.get(frame["op"])
-            if handler is None or (nested and frame["op"] == "fragment"):
-                raise ProtocolError(f"unknown operation {frame['op']!r}; allowed operations: "
-                                    f"{', '.join(self._ops)}", request_id(frame))
-            await handler(frame, t_recv)
+            payload = parse_json(text)
+            request = self._request(check_frame(payload), t_recv, nested)
+            await self._ops[request.op](request)
         except ProtocolError as exc:
             self.errors += 1
-            self.status("error", exc.message, exc.request_id)
+            self.status("error", exc.message, request_id(payload))
         except Exception:
             log.exception("client %s: request failed", self.id)
             self.errors += 1
             self.status("error", "internal error handling the request; see the daemon log")
+
+    def _request(self, frame: dict[str, Any], t_recv: float, nested: bool) -> Request:
+        """The request context: a known op, its target parsed, its access checked."""
+        op = frame["op"]
+        if op not in self._ops or (nested and op == "fragment"):
+            raise ProtocolError(f"unknown operation {op!r}; allowed operations: "
+                                f"{', '.join(self._ops)}")
+        request = Request(frame, t_recv, request_id(frame))
+        key = TARGET_FIELDS.get(op)
+        if key is not None:
+            request.target, request.spelling = topic_name(frame, key)
+        access.check(op, request.target, self.authority)
+        return request
 
     # -- writing ----------------------------------------------------------------------------
 
@@ -130,6 +174,9 @@ class ClientSession:
 
     def reply(self, body: dict[str, Any]) -> None:
         self.outbox.reply(encode(body))
+
+    def deliver(self, topic: str, message: SharedMessage) -> None:
+        self.outbox.offer(topic, message)
 
     async def _write_forever(self) -> None:
         try:
@@ -181,117 +228,102 @@ class ClientSession:
 
     # -- advertise / publish ------------------------------------------------------------------
 
-    async def op_advertise(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame)
-        type_name = self._message_type(frame, required=True)
-        self._check_may_publish(frame, name)
-        topic = self.server.graph.topics.get(name)
+    async def op_advertise(self, req: Request) -> None:
+        name = req.target
+        type_name = self._message_type(req, required=True)
+        self._check_not_robot_out(req)
+        topic = self.graph.topic(name)
         if topic is not None and not topic.accepts(type_name):
             raise ProtocolError(f"advertise: type conflict on {name}: it is {topic.type}, "
-                                f"not {type_name}", request_id(frame))
-        topic = topic or self.server.graph.relay_topic(name, type_name)
-        topic.publishers[self] = type_name
-        self.advertised.setdefault(name, set()).add(request_id(frame))
-        if get_bool(frame, "latch", False) and topic.robot is None:
+                                f"not {type_name}")
+        topic = self.graph.add_publisher(self, name, type_name)
+        self.advertised.setdefault(name, set()).add(req.id)
+        if get_bool(req.frame, "latch", False) and topic.robot is None:
             self.latching.add(name)
 
-    async def op_unadvertise(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame)
-        ids = self.advertised.get(name)
+    async def op_unadvertise(self, req: Request) -> None:
+        ids = self.advertised.get(req.target)
         if ids is None:
-            raise ProtocolError(f"unadvertise: {name} is not advertised by this client",
-                                request_id(frame))
-        rid = request_id(frame)
-        if rid is not None and rid in ids:
-            ids.discard(rid)
+            raise ProtocolError(f"unadvertise: {req.target} is not advertised by this client")
+        if req.id is not None and req.id in ids:
+            ids.discard(req.id)
         else:
             ids.clear()
         if not ids:
-            await self.withdraw_topic(name)
+            await self.withdraw_topic(req.target)
 
     async def withdraw_topic(self, name: str) -> None:
         self.advertised.pop(name, None)
         self.latching.discard(name)
-        topic = self.server.graph.topics.get(name)
-        if topic is not None:
-            topic.publishers.pop(self, None)
-            self.server.graph.forget_if_unused(topic)
+        self.graph.remove_publisher(self, name)
         if name in COMMAND_TOPICS and not any(t in self.advertised for t in COMMAND_TOPICS):
-            await self.server.control.drop_source(self.source)
+            await self.control.drop_source(self.source)
 
-    async def op_publish(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame)
-        topic = self.server.graph.topics.get(name)
+    async def op_publish(self, req: Request) -> None:
+        name = req.target
+        topic = self.graph.topic(name)
         if topic is None:
             raise ProtocolError(f"publish: cannot infer topic type for topic {name} as it is "
-                                "not yet advertised", request_id(frame))
-        self._check_may_publish(frame, name)
-        raw = frame.get("msg", {})
-        type_name = self._publish_type(frame, topic, raw)
+                                "not yet advertised")
+        self._check_not_robot_out(req)
+        raw = req.frame.get("msg", {})
+        type_name = self._publish_type(req, topic, raw)
         try:
             msg = check_message(type_name, raw)
         except MessageError as exc:
-            raise ProtocolError(f"publish {name}: {exc}", request_id(frame)) from None
+            raise ProtocolError(f"publish {name}: {exc}") from None
         if topic.robot_in:
-            await self._command(frame, name, type_name, msg, t_recv)
-        shared = SharedMessage(name, msg)
-        if name in self.latching:
-            topic.latched = shared
-        self.server.fan_out(topic, shared)
+            await self._command(req, type_name, msg)
+        self.graph.publish(topic, SharedMessage(name, msg), latch=name in self.latching)
 
-    def _publish_type(self, frame: dict[str, Any], topic: Topic, raw: Any) -> str:
+    def _publish_type(self, req: Request, topic: Topic, raw: Any) -> str:
         declared = topic.publishers.get(self)
-        if "type" in frame:
-            declared = self._message_type(frame, required=True)
+        if "type" in req.frame:
+            declared = self._message_type(req, required=True)
             if not topic.accepts(declared):
                 raise ProtocolError(f"publish: type conflict on {topic.name}: it is "
-                                    f"{topic.type}, not {declared}", request_id(frame))
+                                    f"{topic.type}, not {declared}")
         if declared is not None:
             return declared
         if topic.name == "/cmd_vel" and isinstance(raw, dict) and "twist" in raw:
             return TWIST_STAMPED
         return topic.type
 
-    def _check_may_publish(self, frame: dict[str, Any], name: str) -> None:
-        topic = self.server.graph.topics.get(name)
+    def _check_not_robot_out(self, req: Request) -> None:
+        topic = self.graph.topic(req.target)
         if topic is not None and topic.robot_out:
-            raise ProtocolError(f"{frame['op']}: {name} is published by the robot; clients "
-                                "cannot publish to it", request_id(frame))
-        if name in COMMAND_TOPICS and not self.may_drive:
-            raise ProtocolError(f"{frame['op']}: {name} moves the robot and needs a valid "
-                                "token (Authorization: Bearer <token> or ?token=<token>)",
-                                request_id(frame))
+            raise ProtocolError(f"{req.op}: {req.target} is published by the robot; clients "
+                                "cannot publish to it")
 
-    def _message_type(self, frame: dict[str, Any], *, required: bool) -> str:
+    def _message_type(self, req: Request, *, required: bool) -> str:
+        frame = req.frame
         if "type" not in frame and not required:
             return ""
         if "type" not in frame:
-            raise ProtocolError(f"{frame['op']}: missing field 'type'", request_id(frame))
+            raise ProtocolError(f"{req.op}: missing field 'type'")
         try:
             type_name = normalize_type(frame["type"])
         except MessageError as exc:
-            raise ProtocolError(f"{frame['op']}: {exc}", request_id(frame)) from None
+            raise ProtocolError(f"{req.op}: {exc}") from None
         if not has_type(type_name):
-            raise ProtocolError(f"{frame['op']}: unknown message type {frame['type']!r}",
-                                request_id(frame))
+            raise ProtocolError(f"{req.op}: unknown message type {frame['type']!r}")
         return type_name
 
     # -- commands -----------------------------------------------------------------------------
 
-    async def _command(self, frame: dict[str, Any], name: str, type_name: str,
-                       msg: dict[str, Any], t_recv: float) -> None:
-        rid = request_id(frame)
+    async def _command(self, req: Request, type_name: str, msg: dict[str, Any]) -> None:
+        name = req.target
         try:
             if name == "/estop":
                 await self._estop(bool(msg["data"]))
                 return
             twist, cmd_id, t_sent = self._parse_command(name, type_name, msg)
         except CommandError as exc:
-            raise ProtocolError(f"publish {name}: msg.{exc}; not applied", rid) from None
-        applied = await self.server.control.submit(self.source, twist, t_recv=t_recv,
-                                                   cmd_id=cmd_id, t_sent_ms=t_sent)
+            raise ProtocolError(f"publish {name}: msg.{exc}; not applied") from None
+        applied = await self.control.submit(self.source, twist, t_recv=req.t_recv,
+                                            cmd_id=cmd_id, t_sent_ms=t_sent)
         if not applied.accepted:
-            self._refused(name, applied.error or "command not applied", rid)
+            self._refused(name, applied.error or "command not applied", req.id)
 
     def _parse_command(self, name: str, type_name: str,
                        msg: dict[str, Any]) -> tuple[Any, Id, float | None]:
@@ -311,40 +343,35 @@ class ClientSession:
 
     async def _estop(self, engage: bool) -> None:
         if engage:
-            await self.server.control.engage_estop(f"rosbridge client {self.id} ({self.peer})")
+            await self.control.engage_estop(f"rosbridge client {self.id} ({self.peer})")
         else:
-            self.server.control.release_estop()
+            self.control.release_estop()
 
     def _refused(self, name: str, reason: str, rid: Id) -> None:
-        now = time.monotonic()
+        now = self.clock()
         if now - self._refusals.get(reason, -1e9) >= REFUSAL_REPEAT_S:
             self._refusals[reason] = now
             self.status("error", f"publish {name}: command refused: {reason}", rid)
 
     # -- subscribe ----------------------------------------------------------------------------
 
-    async def op_subscribe(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, spelling = topic_name(frame)
-        rid = request_id(frame)
-        options = self._subscribe_options(frame)
-        type_name = self._message_type(frame, required=False)
-        topic = self.server.graph.topics.get(name)
+    async def op_subscribe(self, req: Request) -> None:
+        name = req.target
+        options = self._subscribe_options(req.frame)
+        type_name = self._message_type(req, required=False)
+        topic = self.graph.topic(name)
         if topic is None and not type_name:
             raise ProtocolError(f"subscribe: unknown topic {name}; give a 'type' to wait for "
-                                "a publisher", rid)
+                                "a publisher")
         if topic is not None and type_name and not topic.accepts(type_name):
             raise ProtocolError(f"subscribe: type conflict on {name}: it is {topic.type}, "
-                                f"not {type_name}", rid)
-        topic = topic or self.server.graph.relay_topic(name, type_name)
+                                f"not {type_name}")
         queue = self.outbox.topics.get(name)
         if queue is None:
-            state = topic.robot.state if topic.robot is not None else False
-            queue = self.outbox.topics[name] = TopicQueue(name, spelling, state)
-        queue.set_entry(rid, options)
-        first = self not in topic.subscribers
-        topic.subscribers.add(self)
-        if first:
-            self.server.send_latest(topic, self)
+            state = topic.robot.state if topic is not None and topic.robot is not None else False
+            queue = self.outbox.topics[name] = TopicQueue(name, req.spelling, state)
+        queue.set_entry(req.id, options)
+        self.graph.add_subscriber(self, name, type_name)
 
     def _subscribe_options(self, frame: dict[str, Any]) -> SubscribeOptions:
         throttle_ms = get_number(frame, "throttle_rate", 0)
@@ -353,56 +380,51 @@ class ClientSession:
         compression = frame.get("compression", "none")
         if compression not in COMPRESSIONS:
             raise ProtocolError(f"subscribe: field 'compression': expected one of "
-                                f"{', '.join(COMPRESSIONS)}", request_id(frame))
+                                f"{', '.join(COMPRESSIONS)}")
         if compression != "none":
             raise ProtocolError(f"subscribe: compression {compression!r} is not supported by "
-                                "this server; use 'none'", request_id(frame))
+                                "this server; use 'none'")
         if fragment_size == 0:
-            raise ProtocolError("subscribe: field 'fragment_size': must be positive",
-                                request_id(frame))
+            raise ProtocolError("subscribe: field 'fragment_size': must be positive")
         return SubscribeOptions(throttle_ms / 1e3, queue_length, fragment_size)
 
-    async def op_unsubscribe(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame)
-        queue = self.outbox.topics.get(name)
+    async def op_unsubscribe(self, req: Request) -> None:
+        queue = self.outbox.topics.get(req.target)
         if queue is None:
             return
-        rid = request_id(frame)
-        if rid is not None and rid in queue.entries:
-            queue.remove_entry(rid)
+        if req.id is not None and req.id in queue.entries:
+            queue.remove_entry(req.id)
         else:
             queue.entries.clear()
         if not queue.entries:
-            self.drop_subscription(name)
+            self.drop_subscription(req.target)
 
     def drop_subscription(self, name: str) -> None:
         self.outbox.topics.pop(name, None)
-        topic = self.server.graph.topics.get(name)
-        if topic is not None:
-            topic.subscribers.discard(self)
-            self.server.graph.forget_if_unused(topic)
+        self.graph.remove_subscriber(self, name)
 
     # -- services -----------------------------------------------------------------------------
 
-    async def op_call_service(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, spelling = topic_name(frame, "service")
-        rid = request_id(frame)
-        if "timeout" in frame:
-            get_number(frame, "timeout", 0)
+    async def op_call_service(self, req: Request) -> None:
+        name, spelling, frame = req.target, req.spelling, req.frame
+        timeout = get_number(frame, "timeout", 0) if "timeout" in frame else None
         if name in rosapi.SERVICES:
             try:
-                values = rosapi.call(self.server.graph, name, frame.get("args"))
+                values = rosapi.call(self.graph, name, frame.get("args"))
             except rosapi.ServiceError as exc:
-                self.service_response(spelling, str(exc), False, rid)
+                self.service_response(spelling, str(exc), False, req.id)
                 return
-            self.service_response(spelling, values, True, rid, get_int(frame, "fragment_size",
-                                                                       None))
+            self.service_response(spelling, values, True, req.id,
+                                  get_int(frame, "fragment_size", None))
             return
-        provided = self.server.graph.services.get(name)
+        provided = self.graph.service(name)
         if provided is None:
-            self.service_response(spelling, f"Service {name} does not exist", False, rid)
+            self.service_response(spelling, f"Service {name} does not exist", False, req.id)
             return
-        self._forward_call(frame, provided, spelling, rid)
+        args = frame.get("args", {})
+        if not isinstance(args, dict | list):
+            raise ProtocolError("call_service: field 'args': expected an object or a list")
+        self.graph.forward_call(self, req.id, spelling, provided, args, timeout)
 
     def service_response(self, spelling: str, values: Any, result: bool, rid: Id,
                          fragment_size: int | None = None) -> None:
@@ -417,82 +439,49 @@ class ClientSession:
         else:
             self.outbox.reply(text)
 
-    def _forward_call(self, frame: dict[str, Any], provided: ProvidedService, spelling: str,
-                      rid: Id) -> None:
-        args = frame.get("args", {})
-        if not isinstance(args, dict | list):
-            raise ProtocolError("call_service: field 'args': expected an object or a list", rid)
-        call_id = self.server.graph.next_call_id(provided.name)
-        pending = PendingCall(self, rid, spelling, provided)
-        self.server.graph.pending[call_id] = pending
-        if "timeout" in frame:
-            pending.timer = asyncio.get_running_loop().call_later(
-                get_number(frame, "timeout", 0), self.server.fail_call, call_id,
-                f"Service {provided.name} timed out")
-        provided.provider.reply({"op": "call_service", "id": call_id,
-                                 "service": provided.name, "args": args})
-
-    async def op_service_response(self, frame: dict[str, Any], t_recv: float) -> None:
-        rid = request_id(frame)
-        get_str(frame, "service")
-        result = get_bool(frame, "result", False) if "result" in frame else None
+    async def op_service_response(self, req: Request) -> None:
+        result = get_bool(req.frame, "result", False) if "result" in req.frame else None
         if result is None:
-            raise ProtocolError("service_response: missing field 'result'", rid)
-        pending = self.server.graph.pending.get(str(rid)) if rid is not None else None
-        if pending is None or pending.service.provider is not self:
-            raise ProtocolError(f"service_response: no call with id {rid!r} is waiting for "
-                                "this client", rid)
-        values = frame.get("values", {})
-        del self.server.graph.pending[str(rid)]
-        if pending.timer is not None:
-            pending.timer.cancel()
-        pending.caller.service_response(pending.spelling, values, result, pending.caller_id)
+            raise ProtocolError("service_response: missing field 'result'")
+        values = req.frame.get("values", {})
+        if req.id is None or not self.graph.answer_call(self, str(req.id), values, result):
+            raise ProtocolError(f"service_response: no call with id {req.id!r} is waiting for "
+                                "this client")
 
-    async def op_advertise_service(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame, "service")
-        rid = request_id(frame)
+    async def op_advertise_service(self, req: Request) -> None:
         try:
-            type_name = normalize_type(frame.get("type"), "srv")
+            type_name = normalize_type(req.frame.get("type"), "srv")
         except MessageError as exc:
-            raise ProtocolError(f"advertise_service: {exc}", rid) from None
-        if name in rosapi.SERVICES:
-            raise ProtocolError(f"advertise_service: {name} is provided by the daemon", rid)
-        old = self.server.graph.services.get(name)
-        if old is not None and old.provider is not self:
-            self.server.withdraw_service(old, f"Service {name} was re-advertised")
-        self.server.graph.services[name] = ProvidedService(name, type_name, self)
+            raise ProtocolError(f"advertise_service: {exc}") from None
+        if req.target in rosapi.SERVICES:
+            raise ProtocolError(f"advertise_service: {req.target} is provided by the daemon")
+        self.graph.advertise_service(self, req.target, type_name)
 
-    async def op_unadvertise_service(self, frame: dict[str, Any], t_recv: float) -> None:
-        name, _ = topic_name(frame, "service")
-        provided = self.server.graph.services.get(name)
+    async def op_unadvertise_service(self, req: Request) -> None:
+        provided = self.graph.service(req.target)
         if provided is None or provided.provider is not self:
-            raise ProtocolError(f"unadvertise_service: {name} is not advertised by this "
-                                "client", request_id(frame))
-        self.server.withdraw_service(provided, f"Service {name} was unadvertised")
+            raise ProtocolError(f"unadvertise_service: {req.target} is not advertised by this "
+                                "client")
+        self.graph.withdraw_service(provided, f"Service {req.target} was unadvertised")
 
     # -- misc ---------------------------------------------------------------------------------
 
-    async def op_set_level(self, frame: dict[str, Any], t_recv: float) -> None:
-        level = frame.get("level")
+    async def op_set_level(self, req: Request) -> None:
+        level = req.frame.get("level")
         if level not in STATUS_LEVELS:
             raise ProtocolError(f"set_level: field 'level': expected one of "
-                                f"{', '.join(STATUS_LEVELS)}", request_id(frame))
+                                f"{', '.join(STATUS_LEVELS)}")
         self.level = level
 
-    async def op_fragment(self, frame: dict[str, Any], t_recv: float) -> None:
-        joined = self.defrag.add(frame)
+    async def op_fragment(self, req: Request) -> None:
+        joined = self.defrag.add(req.frame, self.clock())
         if joined is not None:
-            await self.handle_text(joined, t_recv, nested=True)
+            await self.handle_text(joined, req.t_recv, nested=True)
 
     async def close(self) -> None:
         """Brake if this client was driving, then forget everything it set up."""
-        await self.server.control.drop_source(self.source)
-        for name in list(self.outbox.topics):
-            self.drop_subscription(name)
-        for name in list(self.advertised):
-            topic = self.server.graph.topics.get(name)
-            if topic is not None:
-                topic.publishers.pop(self, None)
-                self.server.graph.forget_if_unused(topic)
+        await self.control.drop_source(self.source)
+        self.outbox.topics.clear()
         self.advertised.clear()
         self.latching.clear()
+        self.graph.forget(self)

@@ -1,0 +1,67 @@
+# Who may do what over rosbridge: one table of ops (and the topic or service they name) -> access.
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from daemon.rosbridge import rosapi
+from daemon.rosbridge.codec import ProtocolError
+from daemon.rosbridge.topics import COMMAND_TOPICS
+
+Access = Literal["open", "read", "drive"]
+
+ANY = "*"  # every topic or service the table does not name
+
+# The same words as the HTTP routes: "open" = any connected client; "read" = a client that
+# may read telemetry ([security] read_requires_token); "drive" = a client with the token,
+# when one is configured. (op, canonical topic or service name) -> access; (op, ANY) is the
+# rule for every other name. Ops without a topic or service are looked up as (op, ANY).
+TABLE: dict[tuple[str, str], Access] = {
+    **{("advertise", name): "drive" for name in COMMAND_TOPICS},
+    **{("publish", name): "drive" for name in COMMAND_TOPICS},
+    ("advertise", ANY): "open",
+    ("publish", ANY): "open",
+    ("unadvertise", ANY): "open",
+    ("subscribe", ANY): "read",
+    ("unsubscribe", ANY): "open",
+    **{("call_service", name): "read" for name in rosapi.SERVICES},
+    ("call_service", ANY): "read",
+    ("advertise_service", ANY): "open",
+    ("unadvertise_service", ANY): "open",
+    ("service_response", ANY): "open",
+    ("set_level", ANY): "open",
+    ("fragment", ANY): "open",  # the joined request is checked on its own
+}
+
+TOKEN_HINT = "Authorization: Bearer <token> or ?token=<token>"
+
+
+@dataclass(frozen=True)
+class Authority:
+    """What one connection proved when it connected."""
+
+    may_read: bool
+    may_drive: bool
+
+    def allows(self, access: Access) -> bool:
+        if access == "drive":
+            return self.may_drive
+        if access == "read":
+            return self.may_read
+        return True
+
+
+def required(op: str, target: str = ANY) -> Access:
+    """The access ``op`` on ``target`` needs (KeyError for an op the table does not know)."""
+    return TABLE.get((op, target)) or TABLE[(op, ANY)]
+
+
+def check(op: str, target: str, authority: Authority) -> None:
+    """The one access check: a ProtocolError when ``authority`` is not enough."""
+    access = required(op, target or ANY)
+    if authority.allows(access):
+        return
+    what = f"{op} {target}" if target and target != ANY else op
+    limit = "read-only" if access == "drive" else "not allowed to read telemetry"
+    raise ProtocolError(f"{what}: needs a valid token ({TOKEN_HINT}); without it this client "
+                        f"is {limit}")
