@@ -1,15 +1,22 @@
-# Pure rosbridge pieces: type names, message checking, JSON encoding, fragments, queues, typedefs.
+# Pure rosbridge pieces: type names, checking, encoding, fragments, queues, typedefs, budgets.
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
+import random
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from daemon.rosbridge import msgtypes
 from daemon.rosbridge.codec import (
+    FRAGMENT_COST,
     Defragmenter,
+    FragmentLimits,
     ProtocolError,
     decode_frame,
     encode,
@@ -17,6 +24,7 @@ from daemon.rosbridge.codec import (
     request_id,
     topic_name,
 )
+from daemon.rosbridge.limits import RateLimitedLog, TokenBucket
 from daemon.rosbridge.msgtypes import MessageError, check_message, full_text, normalize_type
 from daemon.rosbridge.outbox import EVENT_QUEUE, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.rosbridge.topics import odometry_msg, scan_msg
@@ -170,23 +178,39 @@ def test_fragments_round_trip_in_any_order() -> None:
     text = encode({"op": "publish", "topic": "/x", "msg": {"data": "y" * 1000}})
     pieces = [json.loads(p) for p in fragments(text, 97, "f1")]
     assert len(pieces) == math.ceil(len(text) / 97)
-    joiner = Defragmenter(max_bytes=10_000)
-    results = [joiner.add(p) for p in reversed(pieces)]
+    joiner = Defragmenter(FragmentLimits(max_message_bytes=20_000))
+    results = [joiner.add(p, now=0.0) for p in reversed(pieces)]
     assert results[:-1] == [None] * (len(pieces) - 1)
     assert results[-1] == text and joiner.pending == 0
 
 
 def test_defragmenter_bounds() -> None:
-    joiner = Defragmenter(max_bytes=10, max_pending=1, timeout_s=5.0)
-    with pytest.raises(ProtocolError, match="exceeds 10 bytes"):
-        joiner.add({"op": "fragment", "id": "a", "data": "x" * 11, "num": 0, "total": 2})
+    joiner = Defragmenter(FragmentLimits(max_message_bytes=200, max_sets=1, timeout_s=5.0))
+    with pytest.raises(ProtocolError, match=r"the limit is 200 \(\[rosbridge\] max_message_b"):
+        joiner.add({"op": "fragment", "id": "a", "data": "x" * 137, "num": 0, "total": 2},
+                   now=0.0)
     joiner.add({"op": "fragment", "id": "b", "data": "x", "num": 0, "total": 2}, now=0.0)
     with pytest.raises(ProtocolError, match="in flight"):
         joiner.add({"op": "fragment", "id": "c", "data": "x", "num": 0, "total": 2}, now=1.0)
     joiner.add({"op": "fragment", "id": "c", "data": "x", "num": 0, "total": 2}, now=10.0)
     assert joiner.pending == 1  # "b" expired
     with pytest.raises(ProtocolError, match="0 <= num < total"):
-        joiner.add({"op": "fragment", "id": "d", "data": "x", "num": 2, "total": 2})
+        joiner.add({"op": "fragment", "id": "d", "data": "x", "num": 2, "total": 2}, now=10.0)
+
+
+def test_defragmenter_counts_utf8_bytes_and_empty_fragments() -> None:
+    joiner = Defragmenter(FragmentLimits(max_message_bytes=10_000, max_bytes=10_000))
+    joiner.add({"op": "fragment", "id": "e", "data": "😀" * 100, "num": 0, "total": 3},
+               now=0.0)
+    assert joiner.held_bytes == 400 + FRAGMENT_COST
+    joiner.add({"op": "fragment", "id": "e", "data": "", "num": 1, "total": 3}, now=0.0)
+    assert joiner.held_bytes == 400 + 2 * FRAGMENT_COST
+    assert joiner.add({"op": "fragment", "id": "e", "data": "", "num": 2, "total": 3},
+                      now=0.0) == "😀" * 100
+    assert joiner.held_bytes == 0
+    with pytest.raises(ProtocolError, match="max_fragments_per_message"):
+        joiner.add({"op": "fragment", "id": "f", "data": "", "num": 0, "total": 10**9},
+                   now=0.0)
 
 
 def _messages(n: int) -> list[SharedMessage]:
@@ -256,3 +280,78 @@ def test_shared_message_is_encoded_once_per_spelling() -> None:
     assert json.loads(shared.frame("t")) == {"op": "publish", "topic": "t",
                                              "msg": {"data": "x"}}
     assert len(calls) == 1
+
+
+# -- properties: merged options, fragments, budgets -------------------------------------------
+
+OPTION_VALUES = st.builds(SubscribeOptions, st.sampled_from([0.0, 0.01, 0.1, 1.0]),
+                          st.integers(0, 5), st.one_of(st.none(), st.integers(1, 9)))
+
+
+@given(st.lists(st.tuples(st.booleans(), st.integers(0, 6), OPTION_VALUES), max_size=60))
+def test_merged_options_are_always_the_minimum_of_the_live_entries(
+        steps: list[tuple[bool, int, SubscribeOptions]]) -> None:
+    queue = TopicQueue("/t", "/t", state=True)
+    live: dict[int, SubscribeOptions] = {}
+    for add, key, options in steps:
+        if add:
+            queue.set_entry(key, options)
+            live[key] = options
+        elif key in live:
+            queue.remove_entry(key)
+            del live[key]
+        if live:
+            sizes = [o.fragment_size for o in live.values() if o.fragment_size]
+            assert queue.options == SubscribeOptions(
+                min(o.throttle_s for o in live.values()),
+                min(o.queue_length for o in live.values()), min(sizes) if sizes else None)
+
+
+@settings(max_examples=50)
+@given(st.text(min_size=1, max_size=400), st.integers(1, 50), st.randoms())
+def test_any_text_survives_fragments_in_any_order(text: str, size: int,
+                                                  rng: random.Random) -> None:
+    pieces = [json.loads(p) for p in fragments(text, size, 7)]
+    rng.shuffle(pieces)
+    joiner = Defragmenter(FragmentLimits(max_message_bytes=10**6, max_bytes=10**6))
+    results = [joiner.add(p, now=0.0) for p in pieces]
+    assert results[-1] == text and results[:-1] == [None] * (len(pieces) - 1)
+    assert joiner.held_bytes == 0 and joiner.pending == 0
+
+
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 5), st.text(max_size=30)),
+                max_size=80))
+def test_held_fragment_bytes_never_exceed_the_client_budget(
+        steps: list[tuple[int, int, str]]) -> None:
+    limits = FragmentLimits(max_message_bytes=400, max_sets=3, max_bytes=600)
+    joiner = Defragmenter(limits)
+    for rid, num, data in steps:
+        with contextlib.suppress(ProtocolError):
+            joiner.add({"op": "fragment", "id": rid, "data": data, "num": num, "total": 6},
+                       now=0.0)
+        assert 0 <= joiner.held_bytes <= limits.max_bytes
+        assert joiner.pending <= limits.max_sets
+
+
+def test_token_bucket_rate_burst_and_credit() -> None:
+    now = [0.0]
+    bucket = TokenBucket(rate=10.0, burst=3, clock=lambda: now[0])
+    assert [bucket.take() for _ in range(4)] == [True, True, True, False]
+    now[0] = 0.1
+    assert bucket.take() and not bucket.take()
+    assert bucket.reserve(5.0) == pytest.approx(0.5)  # on credit: paid for in 0.5 s
+    now[0] = 10.0
+    assert bucket.take(3.0)  # refills up to the burst, no further
+
+
+def test_rate_limited_log_counts_what_it_leaves_out(caplog: pytest.LogCaptureFixture) -> None:
+    now = [0.0]
+    line = RateLimitedLog(logging.getLogger("arbiterd.test"), interval_s=10.0,
+                          clock=lambda: now[0])
+    with caplog.at_level(logging.INFO, "arbiterd.test"):
+        for i in range(5):
+            line(logging.INFO, f"bad {i}")
+        now[0] = 11.0
+        line(logging.INFO, "bad 5")
+    assert [r.getMessage() for r in caplog.records] == [
+        "bad 0", "bad 5 (4 more like it in the last 11 s)"]

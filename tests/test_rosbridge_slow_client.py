@@ -13,7 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from daemon.bench.rosbridge_flood import LoopProbe
 from tests.conftest import Robot, eventually, running_robot
+from tests.test_rosbridge_hardening import STALL_LIMIT_MS
 from tests.test_rosbridge_server import connect
 
 STALL_S = 5.0
@@ -100,14 +102,14 @@ async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
             await healthy.send(op="subscribe", topic="/scan")
             await healthy.send(op="advertise", topic="/cmd_vel", type="geometry_msgs/Twist")
             ticks_before = robot.daemon.latency.ticks
-            late_before = robot.daemon.latency.late_ticks
             stop = asyncio.Event()
             scans = asyncio.create_task(publish_scans(robot, stop))
             t_end = time.monotonic() + STALL_S
-            while time.monotonic() < t_end:
-                await healthy.send(op="publish", topic="/cmd_vel",
-                                   msg={"linear": {"x": 0.1}, "angular": {"z": 0.0}})
-                await asyncio.sleep(0.01)
+            async with LoopProbe() as probe:
+                while time.monotonic() < t_end:
+                    await healthy.send(op="publish", topic="/cmd_vel",
+                                       msg={"linear": {"x": 0.1}, "angular": {"z": 0.0}})
+                    await asyncio.sleep(0.01)
             stop.set()
             published_scans = await scans
             latest_odom = await healthy.expect(
@@ -124,10 +126,11 @@ async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
             assert all(len(q.queue) <= 1 for q in stalled.outbox.topics.values())
             assert stalled.outbox.topics["/scan"].dropped > 0
             assert stalled.outbox.dropped > 0
+            # the tick kept running and the loop never stalled near the deadman (how late
+            # each tick was is a figure for `arbiterd bench`, not a test on a shared machine)
             ticks = robot.daemon.latency.ticks - ticks_before
-            late = robot.daemon.latency.late_ticks - late_before
             assert ticks >= int(STALL_S * 50) // 2
-            assert late <= max(2, ticks // 20), f"{late} late ticks of {ticks}"
+            assert probe.longest_stall_s * 1e3 < STALL_LIMIT_MS
         finally:
             sock.close()
         await eventually(lambda: len(bridge.clients) == 1, "the stalled client to go")

@@ -44,4 +44,5 @@ SUITES: dict[str, str] = {
     "process": "daemon.bench.process",
     "rosbridge": "daemon.bench.rosbridge",
     "console": "daemon.bench.console",
+    "rosbridge-flood": "daemon.bench.rosbridge_flood",
 }

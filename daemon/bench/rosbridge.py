@@ -162,7 +162,7 @@ async def echo_server() -> AsyncIterator[str]:
 
 
 @contextlib.asynccontextmanager
-async def bench_daemon(workdir: Path) -> AsyncIterator[Any]:
+async def bench_daemon(workdir: Path, extra_toml: str = "") -> AsyncIterator[Any]:
     from daemon.app import Daemon
     from daemon.config import load_config
 
@@ -170,7 +170,7 @@ async def bench_daemon(workdir: Path) -> AsyncIterator[Any]:
     config_path = workdir / "bench.toml"
     config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
                            f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-                           '[driver]\ntype = "mock"\n')
+                           '[driver]\ntype = "mock"\n' + extra_toml)
     # the mock driver with no simulated world: the figures are the bridge's, not the world's
     daemon = Daemon(load_config(config_path))
     task = asyncio.create_task(daemon.run())

@@ -19,16 +19,19 @@ ANY = "*"  # every topic or service the table does not name
 TABLE: dict[tuple[str, str], Access] = {
     **{("advertise", name): "drive" for name in COMMAND_TOPICS},
     **{("publish", name): "drive" for name in COMMAND_TOPICS},
-    ("advertise", ANY): "open",
-    ("publish", ANY): "open",
+    # with a token configured, a tokenless client is read-only: it may not publish on any
+    # topic (others use them), advertise topics or services, take a service over, answer
+    # calls, or call client-provided services (they may act on the robot)
+    ("advertise", ANY): "drive",
+    ("publish", ANY): "drive",
     ("unadvertise", ANY): "open",
     ("subscribe", ANY): "read",
     ("unsubscribe", ANY): "open",
     **{("call_service", name): "read" for name in rosapi.SERVICES},
-    ("call_service", ANY): "read",
-    ("advertise_service", ANY): "open",
+    ("call_service", ANY): "drive",
+    ("advertise_service", ANY): "drive",
     ("unadvertise_service", ANY): "open",
-    ("service_response", ANY): "open",
+    ("service_response", ANY): "drive",
     ("set_level", ANY): "open",
     ("fragment", ANY): "open",  # the joined request is checked on its own
 }
@@ -38,10 +41,12 @@ TOKEN_HINT = "Authorization: Bearer <token> or ?token=<token>"
 
 @dataclass(frozen=True)
 class Authority:
-    """What one connection proved when it connected."""
+    """What one connection proved when it connected. ``proved`` = it showed the configured
+    token (never true without one): such clients get the reserved slots and no idle limit."""
 
     may_read: bool
     may_drive: bool
+    proved: bool = False
 
     def allows(self, access: Access) -> bool:
         if access == "drive":

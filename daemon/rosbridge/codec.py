@@ -5,7 +5,6 @@ import base64
 import json
 import math
 import re
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -153,14 +152,28 @@ def level_allows(threshold: str, level: str) -> bool:
 
 # -- fragments ----------------------------------------------------------------------------------
 
+FRAGMENT_COST = 64  # bytes each incoming fragment is counted for beyond its data (empty ones too)
+
+
+def fragment_count(text: str, size: int) -> int:
+    return math.ceil(len(text) / size)
+
 
 def fragments(text: str, size: int, fragment_id: str | int) -> Iterator[str]:
-    """Split an encoded message into ``fragment`` ops of at most ``size`` characters of data."""
-    total = math.ceil(len(text) / size)
+    """Split an encoded message into ``fragment`` ops of at most ``size`` characters of data;
+    lazily, so a sender can yield to the event loop between pieces."""
+    total = fragment_count(text, size)
+    head = '{"op":"fragment","id":' + orjson.dumps(fragment_id).decode() + ',"data":'
+    tail = f',"total":{total}}}'
     for num in range(total):
-        piece = text[num * size:(num + 1) * size]
-        yield encode({"op": "fragment", "id": fragment_id, "data": piece, "num": num,
-                      "total": total})
+        piece = orjson.dumps(text[num * size:(num + 1) * size]).decode()
+        yield f'{head}{piece},"num":{num}{tail}'
+
+
+def over_limit(what: str, limit: float, key: str) -> ProtocolError:
+    """The refusal for a budget: names the limit and the ``[rosbridge]`` key that sets it."""
+    shown = f"{limit:g}" if isinstance(limit, float) else str(limit)
+    return ProtocolError(f"{what}: the limit is {shown} ([rosbridge] {key})")
 
 
 @dataclass
@@ -168,21 +181,48 @@ class _Partial:
     total: int
     started: float
     parts: dict[int, str] = field(default_factory=dict)
-    size: int = 0
+    size: int = 0  # bytes counted: UTF-8 of the data plus FRAGMENT_COST per fragment
+
+
+@dataclass(frozen=True)
+class FragmentLimits:
+    """Bounds of one client's unfinished incoming fragments."""
+
+    max_message_bytes: int = 1048576
+    max_sets: int = 8
+    max_bytes: int = 2 * 1048576  # all sets together
+    max_fragments: int = 100_000
+    timeout_s: float = 60.0
 
 
 class Defragmenter:
-    """Joins incoming ``fragment`` ops by ``id``; bounded in bytes, ids and age."""
+    """Joins incoming ``fragment`` ops by ``id``; bounded in bytes (UTF-8, every fragment
+    counted), sets, fragments per message and age."""
 
-    def __init__(self, max_bytes: int, max_pending: int = 8, timeout_s: float = 60.0) -> None:
-        self.max_bytes = max_bytes
-        self.max_pending = max_pending
-        self.timeout_s = timeout_s
+    def __init__(self, limits: FragmentLimits) -> None:
+        self.limits = limits
+        self.held_bytes = 0
         self._pending: dict[str | int, _Partial] = {}
 
-    def add(self, frame: dict[str, Any], now: float | None = None) -> str | None:
+    def add(self, frame: dict[str, Any], now: float) -> str | None:
         """Take one fragment; the joined text when it completes the message, else None."""
-        now = time.monotonic() if now is None else now
+        rid, data, num, total = self._fields(frame)
+        self._expire(now)
+        partial = self._partial(rid, total, now)
+        cost = len(data.encode("utf-8", "surrogatepass")) + FRAGMENT_COST
+        old = partial.parts.get(num)
+        delta = cost - (len(old.encode("utf-8", "surrogatepass")) + FRAGMENT_COST
+                        if old is not None else 0)
+        self._check_room(rid, partial, delta)
+        partial.parts[num] = data
+        partial.size += delta
+        self.held_bytes += delta
+        if len(partial.parts) < total:
+            return None
+        self._drop(rid)
+        return "".join(partial.parts[i] for i in range(total))
+
+    def _fields(self, frame: dict[str, Any]) -> tuple[str | int, str, int, int]:
         rid = request_id(frame)
         if rid is None:
             raise ProtocolError("fragment: missing field 'id' (string or integer)")
@@ -193,35 +233,44 @@ class Defragmenter:
         if num is None or total is None or total < 1 or num >= total:
             raise ProtocolError("fragment: fields 'num' and 'total' must be integers with "
                                 "0 <= num < total")
-        self._expire(now)
-        partial = self._partial(rid, total, now)
-        partial.size += len(data) - len(partial.parts.get(num, ""))
-        partial.parts[num] = data
-        if partial.size > self.max_bytes:
-            del self._pending[rid]
-            raise ProtocolError(f"fragment: message {rid!r} exceeds {self.max_bytes} bytes; "
-                                "dropped")
-        if len(partial.parts) < total:
-            return None
-        del self._pending[rid]
-        return "".join(partial.parts[i] for i in range(total))
+        if total > self.limits.max_fragments:
+            raise over_limit(f"fragment: message {rid!r} would have {total} fragments",
+                             self.limits.max_fragments, "max_fragments_per_message")
+        return rid, data, num, total
+
+    def _check_room(self, rid: str | int, partial: _Partial, delta: int) -> None:
+        if partial.size + delta > self.limits.max_message_bytes:
+            self._drop(rid)
+            raise over_limit(f"fragment: message {rid!r} is larger than allowed; dropped",
+                             self.limits.max_message_bytes, "max_message_bytes")
+        if self.held_bytes + delta > self.limits.max_bytes:
+            self._drop(rid)
+            raise over_limit(f"fragment: this client's unfinished fragments would exceed the "
+                             f"bytes allowed; message {rid!r} dropped", self.limits.max_bytes,
+                             "max_fragment_bytes_per_client")
 
     def _partial(self, rid: str | int, total: int, now: float) -> _Partial:
         partial = self._pending.get(rid)
         if partial is not None and partial.total != total:
-            del self._pending[rid]
+            self._drop(rid)
             raise ProtocolError(f"fragment: 'total' changed from {partial.total} to {total} "
                                 f"for id {rid!r}; dropped")
         if partial is None:
-            if len(self._pending) >= self.max_pending:
-                raise ProtocolError(f"fragment: more than {self.max_pending} fragmented "
-                                    "messages in flight")
+            if len(self._pending) >= self.limits.max_sets:
+                raise over_limit("fragment: too many fragmented messages in flight",
+                                 self.limits.max_sets, "max_fragment_sets_per_client")
             partial = self._pending[rid] = _Partial(total, now)
         return partial
 
+    def _drop(self, rid: str | int) -> None:
+        partial = self._pending.pop(rid, None)
+        if partial is not None:
+            self.held_bytes -= partial.size
+
     def _expire(self, now: float) -> None:
-        for rid in [r for r, p in self._pending.items() if now - p.started > self.timeout_s]:
-            del self._pending[rid]
+        for rid in [r for r, p in self._pending.items()
+                    if now - p.started > self.limits.timeout_s]:
+            self._drop(rid)
 
     @property
     def pending(self) -> int:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+from collections import Counter
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -29,6 +30,9 @@ class Peer(Hashable, Protocol):
 
     def reply(self, body: dict[str, Any]) -> None:
         """Send this client a request (a forwarded ``call_service``)."""
+
+    def status(self, level: str, message: str, rid: Id = None) -> None:
+        """Send this client a ``status`` message."""
 
 
 @dataclass(eq=False)
@@ -78,7 +82,8 @@ class PendingCall:
 
 class BridgeGraph:
     """Topics, services and forwarded calls of every client, and the node names rosapi
-    reports. ``latest(bus_topic)`` gives the robot's latest state for a new subscriber."""
+    reports. ``latest(bus_topic)`` gives the robot's latest state for a new subscriber.
+    Every change bumps ``version``; the sorted views rosapi asks for are kept per version."""
 
     def __init__(self, robot_topics: dict[str, RobotTopic],
                  latest: Callable[[str], Any] = lambda bus_topic: None) -> None:
@@ -86,8 +91,12 @@ class BridgeGraph:
             name: Topic(name, t.type, t) for name, t in robot_topics.items()}
         self.services: dict[str, ProvidedService] = {}
         self.pending: dict[str, PendingCall] = {}
+        self.version = 0
         self._latest = latest
         self._call_numbers = itertools.count(1)
+        self._services_of: Counter[Peer] = Counter()
+        self._calls_of: Counter[Peer] = Counter()
+        self._views: dict[str, tuple[int, dict[str, str]]] = {}
 
     # -- topics ---------------------------------------------------------------------------
 
@@ -133,6 +142,7 @@ class BridgeGraph:
         topic = self.topics.get(name)
         if topic is None:
             topic = self.topics[name] = Topic(name, type_name)
+            self.version += 1
         return topic
 
     def _send_latest(self, topic: Topic, peer: Peer) -> None:
@@ -149,39 +159,62 @@ class BridgeGraph:
     def _forget_if_unused(self, topic: Topic) -> None:
         if topic.robot is None and not topic.publishers and not topic.subscribers:
             self.topics.pop(topic.name, None)
+            self.version += 1
 
     # -- client-provided services -----------------------------------------------------------
 
     def service(self, name: str) -> ProvidedService | None:
         return self.services.get(name)
 
+    def services_of(self, peer: Peer) -> int:
+        return self._services_of[peer]
+
     def advertise_service(self, peer: Peer, name: str, type_name: str) -> None:
         """``peer`` provides ``name`` now; calls waiting for an earlier provider fail."""
         old = self.services.get(name)
-        if old is not None and old.provider is not peer:
+        if old is not None and old.provider is peer:
+            old.type = type_name
+            self.version += 1
+            return
+        if old is not None:
             self.withdraw_service(old, f"Service {name} was re-advertised")
         self.services[name] = ProvidedService(name, type_name, peer)
+        self._services_of[peer] += 1
+        self.version += 1
 
     def withdraw_service(self, service: ProvidedService, reason: str) -> None:
         if self.services.get(service.name) is service:
             del self.services[service.name]
+            self._count(self._services_of, service.provider, -1)
+            self.version += 1
         for call_id, pending in list(self.pending.items()):
             if pending.service is service:
                 self.fail_call(call_id, reason)
 
     # -- forwarded calls ------------------------------------------------------------------
 
+    def calls_of(self, caller: Peer) -> int:
+        return self._calls_of[caller]
+
     def forward_call(self, caller: Peer, caller_id: Id, spelling: str,
-                     service: ProvidedService, args: Any, timeout_s: float | None) -> str:
-        """Send the call to the provider under a new id; the answer goes back to ``caller``."""
+                     service: ProvidedService, args: Any, timeout_s: float,
+                     timeout_reason: str) -> str:
+        """Send the call to the provider under a new id; the answer goes back to ``caller``,
+        or ``timeout_reason`` (a failed response and a status error) after ``timeout_s``."""
         call_id = f"service_request:{service.name}:{next(self._call_numbers)}"
         pending = self.pending[call_id] = PendingCall(caller, caller_id, spelling, service)
-        if timeout_s is not None:
-            pending.timer = asyncio.get_running_loop().call_later(
-                timeout_s, self.fail_call, call_id, f"Service {service.name} timed out")
+        self._calls_of[caller] += 1
+        pending.timer = asyncio.get_running_loop().call_later(
+            timeout_s, self._time_out, call_id, timeout_reason)
         service.provider.reply({"op": "call_service", "id": call_id, "service": service.name,
                                 "args": args})
         return call_id
+
+    def _time_out(self, call_id: str, reason: str) -> None:
+        pending = self.pending.get(call_id)
+        if pending is not None:
+            self.fail_call(call_id, reason)
+            pending.caller.status("error", reason, pending.caller_id)
 
     def answer_call(self, provider: Peer, call_id: str, values: Any, result: bool) -> bool:
         """The provider's answer to ``call_id``; False when no such call waits for it."""
@@ -199,9 +232,17 @@ class BridgeGraph:
 
     def _forget_call(self, call_id: str) -> PendingCall | None:
         pending = self.pending.pop(call_id, None)
-        if pending is not None and pending.timer is not None:
-            pending.timer.cancel()
+        if pending is not None:
+            self._count(self._calls_of, pending.caller, -1)
+            if pending.timer is not None:
+                pending.timer.cancel()
         return pending
+
+    @staticmethod
+    def _count(counter: Counter[Peer], peer: Peer, delta: int) -> None:
+        counter[peer] += delta
+        if counter[peer] <= 0:
+            del counter[peer]
 
     # -- a client leaves ------------------------------------------------------------------
 
@@ -221,7 +262,15 @@ class BridgeGraph:
     # -- rosapi Graph protocol --------------------------------------------------------------
 
     def topic_types(self) -> dict[str, str]:
-        return {name: self.topics[name].type for name in sorted(self.topics)}
+        return self._view("topics", lambda: {
+            name: self.topics[name].type for name in sorted(self.topics)})
+
+    def _view(self, name: str, build: Callable[[], dict[str, str]]) -> dict[str, str]:
+        """A sorted view, built once per graph version (callers must not change it)."""
+        cached = self._views.get(name)
+        if cached is None or cached[0] != self.version:
+            cached = self._views[name] = (self.version, build())
+        return cached[1]
 
     def publishers(self, topic: str) -> list[str]:
         entry = self.topics.get(topic)
@@ -238,9 +287,12 @@ class BridgeGraph:
         return nodes + ([BRIDGE_NODE] if entry.subscribers else [])
 
     def service_types(self) -> dict[str, str]:
-        types = {name: spec[0] for name, spec in rosapi.SERVICES.items()}
-        types.update({name: s.type for name, s in self.services.items()})
-        return dict(sorted(types.items()))
+        def build() -> dict[str, str]:
+            types = {name: spec[0] for name, spec in rosapi.SERVICES.items()}
+            types.update({name: s.type for name, s in self.services.items()})
+            return dict(sorted(types.items()))
+
+        return self._view("services", build)
 
     def node_names(self) -> list[str]:
         return [DAEMON_NODE, ROSAPI_NODE, BRIDGE_NODE]

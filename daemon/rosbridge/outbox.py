@@ -1,16 +1,19 @@
-# Per-client outgoing queues: merged subscriptions, throttling, bounded latest-value queues.
+# Per-client outgoing queues: merged subscriptions, throttling, bounded queues, O(1) scheduling.
 from __future__ import annotations
 
+import heapq
+import itertools
 import time
-from collections import deque
-from collections.abc import Callable
+from collections import Counter, deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.rosbridge.codec import Id, encode, publish_frame
+from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
 EVENT_QUEUE = 100  # messages kept per event topic (every message counts) with queue_length 0
 REPLY_QUEUE = 1024  # status and service replies kept for a client that is not reading
+REPLY_BYTES = 8 * 1048576  # ... and at most this much of them (the oldest go first)
 
 
 class SharedMessage:
@@ -50,13 +53,41 @@ class SubscribeOptions:
     fragment_size: int | None = None
 
 
+class MinTracker:
+    """The minimum of a multiset of numbers: O(log n) add and remove (a heap with lazy
+    deletion, compacted when stale entries pile up)."""
+
+    def __init__(self) -> None:
+        self._heap: list[float] = []
+        self._counts: Counter[float] = Counter()
+
+    def add(self, value: float) -> None:
+        if not self._counts[value]:
+            heapq.heappush(self._heap, value)
+        self._counts[value] += 1
+
+    def remove(self, value: float) -> None:
+        self._counts[value] -= 1
+        if self._counts[value] <= 0:
+            del self._counts[value]
+            if len(self._heap) > 2 * len(self._counts) + 8:
+                self._heap = list(self._counts)
+                heapq.heapify(self._heap)
+
+    def min(self) -> float | None:
+        while self._heap and self._heap[0] not in self._counts:
+            heapq.heappop(self._heap)
+        return self._heap[0] if self._heap else None
+
+
 class TopicQueue:
     """A client's subscription to one topic: its merged options and its bounded queue.
 
     Several subscriptions of one client merge as rosbridge merges them: the minimum
-    throttle_rate, queue_length and fragment_size. ``queue_length`` 0 keeps only the latest
-    message of a state topic (odometry, scans) and up to :data:`EVENT_QUEUE` of an event topic;
-    with a throttle and no queue, messages inside the throttle window are dropped.
+    throttle_rate, queue_length and fragment_size (kept in O(log n) per change). With
+    ``queue_length`` 0 a state topic (odometry, scans) keeps only the latest message and an
+    event topic up to :data:`EVENT_QUEUE`; with a throttle and no queue, messages inside the
+    throttle window are dropped.
     """
 
     def __init__(self, topic: str, spelling: str, state: bool) -> None:
@@ -69,22 +100,39 @@ class TopicQueue:
         self.last_accept = -1e18
         self.next_send = 0.0
         self.dropped = 0
+        self.scheduled = False  # in the outbox's ready or waiting line
+        self.closed = False
+        self._throttle, self._length, self._fragment = MinTracker(), MinTracker(), MinTracker()
 
     def set_entry(self, key: Id, options: SubscribeOptions) -> None:
+        old = self.entries.get(key)
+        if old is not None:
+            self._untrack(old)
         self.entries[key] = options
+        self._throttle.add(options.throttle_s)
+        self._length.add(options.queue_length)
+        if options.fragment_size:
+            self._fragment.add(options.fragment_size)
         self._merge()
 
     def remove_entry(self, key: Id) -> None:
-        self.entries.pop(key, None)
+        old = self.entries.pop(key, None)
+        if old is not None:
+            self._untrack(old)
         if self.entries:
             self._merge()
 
+    def _untrack(self, options: SubscribeOptions) -> None:
+        self._throttle.remove(options.throttle_s)
+        self._length.remove(options.queue_length)
+        if options.fragment_size:
+            self._fragment.remove(options.fragment_size)
+
     def _merge(self) -> None:
-        entries = list(self.entries.values())
-        sizes = [e.fragment_size for e in entries if e.fragment_size]
-        self.options = SubscribeOptions(min(e.throttle_s for e in entries),
-                                        min(e.queue_length for e in entries),
-                                        min(sizes) if sizes else None)
+        fragment = self._fragment.min()
+        self.options = SubscribeOptions(self._throttle.min() or 0.0,
+                                        int(self._length.min() or 0),
+                                        int(fragment) if fragment else None)
         length = self.options.queue_length or (1 if self.state else EVENT_QUEUE)
         if self.queue.maxlen != length:
             self.queue = deque(self.queue, maxlen=length)
@@ -114,45 +162,111 @@ class TopicQueue:
         return self.queue.popleft(), None
 
 
+class FragmentedReply:
+    """A reply sent in ``fragment`` ops, made lazily piece by piece by the writer."""
+
+    def __init__(self, text: str, size: int, fragment_id: str | int) -> None:
+        self.text = text
+        self.size = size
+        self.fragment_id = fragment_id
+
+    def __len__(self) -> int:
+        return len(self.text)
+
+    @property
+    def count(self) -> int:
+        return fragment_count(self.text, self.size)
+
+    def pieces(self) -> Iterator[str]:
+        return fragments(self.text, self.size, self.fragment_id)
+
+
+Reply = str | FragmentedReply
+
+
 class Outbox:
-    """Everything waiting to go to one client: replies first, then topic queues in turn."""
+    """Everything waiting to go to one client: replies first, then the topic queues that have
+    a message, in turn. Finding the next message is O(1): a queue joins the ready line when
+    it gets a message and a throttled one waits in a heap until it may send again."""
 
     def __init__(self, wake: Callable[[], None],
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.replies: deque[str] = deque(maxlen=REPLY_QUEUE)
+        self.replies: deque[Reply] = deque()
+        self.reply_bytes = 0
         self.topics: dict[str, TopicQueue] = {}
         self.replies_dropped = 0
         self._wake = wake
         self._clock = clock
-        self._turn = 0
+        self._ready: deque[TopicQueue] = deque()
+        self._waiting: list[tuple[float, int, TopicQueue]] = []
+        self._order = itertools.count()
 
-    def reply(self, text: str) -> None:
-        if len(self.replies) == self.replies.maxlen:
+    def reply(self, item: Reply) -> None:
+        self.replies.append(item)
+        self.reply_bytes += len(item)
+        while len(self.replies) > 1 and (len(self.replies) > REPLY_QUEUE
+                                         or self.reply_bytes > REPLY_BYTES):
+            self.reply_bytes -= len(self.replies.popleft())
             self.replies_dropped += 1
-        self.replies.append(text)
         self._wake()
 
     def offer(self, topic: str, message: SharedMessage) -> None:
         queue = self.topics.get(topic)
         if queue is not None and queue.offer(message, self._clock()):
+            self._schedule(queue)
             self._wake()
 
-    def next_item(self) -> tuple[str | None, TopicQueue | None, SharedMessage | None,
+    def add_queue(self, queue: TopicQueue) -> None:
+        self.topics[queue.topic] = queue
+
+    def drop_queue(self, topic: str) -> None:
+        queue = self.topics.pop(topic, None)
+        if queue is None:
+            return
+        queue.closed = True
+        if len(self._ready) > 2 * len(self.topics) + 16:
+            self._ready = deque(q for q in self._ready if not q.closed)
+        if len(self._waiting) > 2 * len(self.topics) + 16:
+            self._waiting = [entry for entry in self._waiting if not entry[2].closed]
+            heapq.heapify(self._waiting)
+
+    def clear(self) -> None:
+        """Drop every subscription queue (the client is gone)."""
+        for queue in self.topics.values():
+            queue.closed = True
+        self.topics.clear()
+        self._ready.clear()
+        self._waiting.clear()
+
+    def _schedule(self, queue: TopicQueue) -> None:
+        if not queue.scheduled and not queue.closed:
+            queue.scheduled = True
+            self._ready.append(queue)
+
+    def next_item(self) -> tuple[Reply | None, TopicQueue | None, SharedMessage | None,
                                  float | None]:
         """(reply) or (queue, message) ready now, else the delay until one may be ready."""
         if self.replies:
-            return self.replies.popleft(), None, None, None
+            item = self.replies.popleft()
+            self.reply_bytes -= len(item)
+            return item, None, None, None
         now = self._clock()
-        queues = list(self.topics.values())
-        delay: float | None = None
-        for i in range(len(queues)):
-            queue = queues[(self._turn + i) % len(queues)]
-            message, wait = queue.take(now)
+        while self._waiting and self._waiting[0][0] <= now:
+            self._ready.append(heapq.heappop(self._waiting)[2])
+        while self._ready:
+            queue = self._ready.popleft()
+            message, wait = queue.take(now) if not queue.closed else (None, None)
             if message is not None:
-                self._turn = (self._turn + i + 1) % len(queues)
+                if queue.queue:
+                    self._ready.append(queue)
+                else:
+                    queue.scheduled = False
                 return None, queue, message, None
             if wait is not None:
-                delay = wait if delay is None else min(delay, wait)
+                heapq.heappush(self._waiting, (now + wait, next(self._order), queue))
+            else:
+                queue.scheduled = False
+        delay = self._waiting[0][0] - now if self._waiting else None
         return None, None, None, delay
 
     @property

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -11,6 +13,7 @@ from aiohttp import WSCloseCode, web
 
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
+from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.topics import log_msg, robot_topics
@@ -42,15 +45,21 @@ class RosbridgeServer:
         self.host: str = cfg["host"]
         self.port: int = cfg["port"]
         self.max_clients: int = cfg["max_clients"]
-        self.max_message_bytes: int = cfg["max_message_bytes"]
+        self.reserved_clients: int = cfg["reserved_clients"]
+        self.idle_timeout: float = cfg["idle_timeout"]
+        self.limits = Limits.from_config(cfg)
         self.graph = BridgeGraph(robot_topics(
             sim=ctx.mode == "sim", odom_tf=ctx.config["control"]["enable_odom_tf"]),
             latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
-        self.refused = {"origin": 0, "token": 0, "full": 0}
+        self.refused = {"host": 0, "origin": 0, "token": 0, "full": 0, "idle": 0}
         self.connections = 0
         self.bound_port: int | None = None
+        self.bad_input = RateLimitedLog(log, interval_s=10.0)
+        self.pacer = Pacer(self.limits.fragments_per_second)
+        self._conn_log = RateLimitedLog(log, interval_s=1.0)
         self._runner: web.AppRunner | None = None
+        self._sweeper: asyncio.Task[None] | None = None
         self._bus_unsubscribers: list[Callable[[], None]] = []
         self._log_handler: RosoutHandler | None = None
 
@@ -72,11 +81,19 @@ class RosbridgeServer:
         sockets = getattr(server, "sockets", None) or []
         self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
         self._wire_bus()
+        if self.idle_timeout > 0:
+            self._sweeper = asyncio.create_task(self._close_idle_forever(),
+                                                name="rosbridge-idle")
         self._log_handler = RosoutHandler(self, asyncio.get_running_loop())
         logging.getLogger().addHandler(self._log_handler)
         log.info("rosbridge v2 on ws://%s:%s/", self.host, self.bound_port)
 
     async def stop(self) -> None:
+        if self._sweeper is not None:
+            self._sweeper.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._sweeper
+            self._sweeper = None
         if self._log_handler is not None:
             logging.getLogger().removeHandler(self._log_handler)
             self._log_handler = None
@@ -102,7 +119,7 @@ class RosbridgeServer:
         refusal = self._refusal(request)
         if refusal is not None:
             return refusal
-        ws = web.WebSocketResponse(max_msg_size=self.max_message_bytes)
+        ws = web.WebSocketResponse(max_msg_size=self.limits.max_message_bytes)
         if not ws.can_prepare(request).ok:
             return web.Response(status=426, text="rosbridge v2: connect with a WebSocket\n")
         await ws.prepare(request)
@@ -112,36 +129,63 @@ class RosbridgeServer:
         authority = self._authority(request)
         client = self.clients[client_id] = ClientSession(
             ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
-            max_message_bytes=self.max_message_bytes)
+            limits=self.limits, bad_input=self.bad_input, pacer=self.pacer)
         client.transport = request.transport
-        log.info("rosbridge client %s connected from %s%s", client_id, peer,
-                 "" if authority.may_drive else " (read-only: no valid token)")
+        self._conn_log(logging.INFO, f"rosbridge client {client_id} connected from {peer}"
+                       + ("" if authority.may_drive else " (read-only: no valid token)"))
         try:
             await client.serve()
         finally:
             del self.clients[client_id]
             await client.close()  # brakes first if it was driving
-            log.info("rosbridge client %s disconnected", client_id)
+            self._conn_log(logging.INFO, f"rosbridge client {client_id} disconnected")
         return ws
 
     def _authority(self, request: web.Request) -> Authority:
         has_token = self.security.token_ok(request.headers, request.query)
         return Authority(may_read=has_token or not self.security.read_requires_token,
-                         may_drive=has_token)
+                         may_drive=has_token,
+                         proved=has_token and self.security.token_required)
 
     def _refusal(self, request: web.Request) -> web.Response | None:
-        if not self.security.origin_ok(request.headers.get("Origin"), request.host):
-            self.refused["origin"] += 1
-            return web.Response(status=403, text="rosbridge: Origin not allowed\n")
-        if self.security.read_requires_token and not self.security.token_ok(
-                request.headers, request.query):
-            self.refused["token"] += 1
-            return web.Response(status=401, text="rosbridge: a valid token is required\n")
+        host = request.headers.get("Host")
+        if not self.security.host_ok(host):
+            return self._refuse("host", 403, "Host not allowed; add it to [security] "
+                                "allowed_hosts if this is the robot's name")
+        if not self.security.origin_ok(request.headers.get("Origin"), host):
+            return self._refuse("origin", 403, "Origin not allowed")
+        has_token = self.security.token_ok(request.headers, request.query)
+        if self.security.read_requires_token and not has_token:
+            return self._refuse("token", 401, "a valid token is required")
         if len(self.clients) >= self.max_clients:
-            self.refused["full"] += 1
-            return web.Response(status=503, text=f"rosbridge: {self.max_clients} clients "
-                                "already connected\n")
+            return self._refuse("full", 503, f"{self.max_clients} clients already connected")
+        if self.security.token_required and not has_token and self._tokenless_full():
+            return self._refuse("full", 503, f"the slots open to clients without the token are "
+                                f"taken ([rosbridge] reserved_clients = "
+                                f"{self.reserved_clients} are kept for clients with it)")
         return None
+
+    def _refuse(self, reason: str, status: int, text: str) -> web.Response:
+        self.refused[reason] += 1
+        return web.Response(status=status, text=f"rosbridge: {text}\n")
+
+    def _tokenless_full(self) -> bool:
+        tokenless = sum(1 for c in self.clients.values() if not c.authority.proved)
+        return tokenless >= self.max_clients - self.reserved_clients
+
+    async def _close_idle_forever(self) -> None:
+        """Connections without the token that hold nothing and say nothing are closed."""
+        while True:
+            await asyncio.sleep(min(1.0, self.idle_timeout / 4))
+            now = time.monotonic()
+            for client in list(self.clients.values()):
+                since = client.idle_since()
+                if not client.authority.proved and since is not None \
+                        and now - since > self.idle_timeout:
+                    self.refused["idle"] += 1
+                    await client.ws.close(code=WSCloseCode.POLICY_VIOLATION,
+                                          message=b"idle without a token ([rosbridge] "
+                                          b"idle_timeout)")
 
     # -- telemetry fan-out ------------------------------------------------------------------------
 

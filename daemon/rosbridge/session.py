@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Awaitable, Callable
@@ -23,20 +22,29 @@ from daemon.rosbridge.codec import (
     ProtocolError,
     check_frame,
     encode,
-    fragments,
+    fragment_count,
     get_bool,
     get_int,
     get_number,
     level_allows,
+    over_limit,
     parse_json,
     request_id,
     status_frame,
     topic_name,
 )
 from daemon.rosbridge.graph import BridgeGraph, Topic
+from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog, TokenBucket
 from daemon.rosbridge.msgtypes import MessageError, check_message, has_type, normalize_type
-from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
+from daemon.rosbridge.outbox import (
+    FragmentedReply,
+    Outbox,
+    SharedMessage,
+    SubscribeOptions,
+    TopicQueue,
+)
 from daemon.rosbridge.topics import COMMAND_TOPICS, TWIST, TWIST_STAMPED
+from daemon.rosbridge.writer import Writer
 
 if TYPE_CHECKING:
     from daemon.control.loop import ControlLoop
@@ -44,8 +52,8 @@ if TYPE_CHECKING:
 log = logging.getLogger("arbiterd.rosbridge")
 
 COMPRESSIONS = ("none", "png", "cbor", "cbor-raw")
-INLINE_SENDS = 4  # most messages the reader sends itself after one request
 REFUSAL_REPEAT_S = 0.5  # the same refused-command status at most this often per client
+SLICE_DROPPED = 64  # frames dropped over the request rate between yields to the loop
 
 Clock = Callable[[], float]
 
@@ -86,26 +94,32 @@ class ClientSession:
 
     def __init__(self, ws: web.WebSocketResponse, client_id: int, peer: str, *,
                  graph: BridgeGraph, control: ControlLoop, authority: Authority,
-                 max_message_bytes: int, clock: Clock = time.monotonic) -> None:
+                 limits: Limits, clock: Clock = time.monotonic,
+                 bad_input: RateLimitedLog | None = None, pacer: Pacer | None = None) -> None:
         self.ws = ws
         self.id = client_id
         self.peer = peer
         self.graph = graph
         self.control = control
         self.authority = authority
+        self.limits = limits
         self.clock = clock
+        self.bad_input = bad_input or RateLimitedLog(log, clock=clock)
         self.source = f"ws:{client_id}"
         self.transport: asyncio.BaseTransport | None = None
         self.level = "error"
         self.advertised: dict[str, set[Id]] = {}
         self.latching: set[str] = set()
-        self.outbox = Outbox(self._wake, clock)
-        self.defrag = Defragmenter(max_message_bytes)
+        self.subscriptions = 0  # subscribe ids held, over all topics
+        self.outbox = Outbox(lambda: self.writer.wake(), clock)
+        self.writer = Writer(ws, self.outbox, limits, pacer or Pacer(limits.fragments_per_second,
+                                                                     clock), self._say_once)
+        self.defrag = Defragmenter(limits.fragments())
         self.frames_in = 0
         self.errors = 0
-        self._wakeup = asyncio.Event()
-        self._writer_idle = False
-        self._next_delay: float | None = None
+        self.last_received = clock()
+        self._bucket = TokenBucket(limits.ops_per_second, limits.ops_burst, clock)
+        self.over_rate = 0  # frames dropped for the request rate
         self._refusals: dict[str, float] = {}
         self._ops: dict[str, OpHandler] = {op: getattr(self, f"op_{op}") for op in OPS}
 
@@ -116,23 +130,46 @@ class ClientSession:
     def may_drive(self) -> bool:
         return self.authority.may_drive
 
+    def idle_since(self) -> float | None:
+        """When it last sent anything, if it holds nothing (no subscription, topic, service or
+        call): an idle connection only takes a slot. None when it holds something."""
+        if self.outbox.topics or self.advertised or self.graph.services_of(self) \
+                or self.graph.calls_of(self) or self.defrag.pending:
+            return None
+        return self.last_received
+
     # -- reading ----------------------------------------------------------------------------
 
     async def serve(self) -> None:
         """Read frames until the socket closes; the writer runs beside it."""
-        writer = asyncio.create_task(self._write_forever(), name=f"rosbridge-writer-{self.id}")
+        writer = asyncio.create_task(self.writer.run(), name=f"rosbridge-writer-{self.id}")
         try:
             async for message in self.ws:
-                t_recv = self.clock()
+                t_recv = self.last_received = self.clock()
                 if message.type in (WSMsgType.TEXT, WSMsgType.BINARY):
-                    await self.handle_text(message.data, t_recv)
-                    if self._writer_idle:
-                        await self._send_inline()
+                    await self._take(message.data, t_recv)
                 elif message.type == WSMsgType.ERROR:
-                    log.info("client %s: socket error: %s", self.id, self.ws.exception())
+                    self.bad_input(logging.INFO, f"rosbridge client {self.id} ({self.peer}): "
+                                   f"refused frame: {self.ws.exception()}; closed")
                     break
         finally:
             writer.cancel()
+
+    async def _take(self, data: str | bytes, t_recv: float) -> None:
+        """One frame from the socket, within the client's request rate (over it, the frame
+        is dropped unread, and told once a while). Frames already buffered are read without
+        suspending, so the loop gets a turn after each one handled."""
+        if not self._bucket.take():
+            self.over_rate += 1
+            self._say_once("ops_per_second", over_limit(
+                f"too many requests: {self.over_rate} dropped so far",
+                self.limits.ops_per_second, "ops_per_second").message, None)
+            if self.over_rate % SLICE_DROPPED == 0:
+                await asyncio.sleep(0)
+            return
+        await self.handle_text(data, t_recv)
+        await self.writer.send_inline(self.transport)
+        await asyncio.sleep(0)
 
     async def handle_text(self, text: str | bytes, t_recv: float, nested: bool = False) -> None:
         """Handle one frame; every refusal is answered here, with the request's ``id``."""
@@ -143,12 +180,20 @@ class ClientSession:
             request = self._request(check_frame(payload), t_recv, nested)
             await self._ops[request.op](request)
         except ProtocolError as exc:
+            self._refuse(exc.message, request_id(payload))
+        except Exception as exc:  # a bug: one line in the log, the details at debug level
             self.errors += 1
-            self.status("error", exc.message, request_id(payload))
-        except Exception:
-            log.exception("client %s: request failed", self.id)
-            self.errors += 1
-            self.status("error", "internal error handling the request; see the daemon log")
+            self.bad_input(logging.WARNING, f"rosbridge client {self.id} ({self.peer}): request "
+                           f"failed: {type(exc).__name__}: {exc}"[:300])
+            log.debug("client %s: request failed", self.id, exc_info=True)
+            self.status("error", "internal error handling the request; see the daemon log",
+                        request_id(payload))
+
+    def _refuse(self, message: str, rid: Id) -> None:
+        self.errors += 1
+        self.status("error", message, rid)
+        self.bad_input(logging.INFO, f"rosbridge client {self.id} ({self.peer}): refused "
+                       f"request: {message[:200]}")
 
     def _request(self, frame: dict[str, Any], t_recv: float, nested: bool) -> Request:
         """The request context: a known op, its target parsed, its access checked."""
@@ -163,10 +208,7 @@ class ClientSession:
         access.check(op, request.target, self.authority)
         return request
 
-    # -- writing ----------------------------------------------------------------------------
-
-    def _wake(self) -> None:
-        self._wakeup.set()
+    # -- replies ----------------------------------------------------------------------------
 
     def status(self, level: str, message: str, rid: Id = None) -> None:
         if level_allows(self.level, level):
@@ -178,54 +220,6 @@ class ClientSession:
     def deliver(self, topic: str, message: SharedMessage) -> None:
         self.outbox.offer(topic, message)
 
-    async def _write_forever(self) -> None:
-        try:
-            while True:
-                if not await self._send_next():
-                    self._wakeup.clear()
-                    self._writer_idle = True
-                    await self._sleep_until_woken(self._next_delay)
-                    self._writer_idle = False
-        except (ConnectionError, RuntimeError) as exc:
-            log.debug("client %s: writer stopped: %s", self.id, exc)
-
-    async def _send_next(self) -> bool:
-        """Send one queued reply or message; False when nothing is ready now."""
-        text, queue, message, self._next_delay = self.outbox.next_item()
-        if text is not None:
-            await self.ws.send_str(text)
-        elif queue is not None and message is not None:
-            await self._send_topic(queue, message)
-        else:
-            return False
-        return True
-
-    async def _send_inline(self) -> None:
-        """Answer from the reader while the writer sleeps and the socket takes data at once:
-        saves the hop to the writer task on the command -> report path."""
-        transport = self.transport
-        if transport is None or getattr(transport, "get_write_buffer_size", lambda: 1)():
-            return
-        try:
-            for _ in range(INLINE_SENDS):
-                if not await self._send_next():
-                    break
-        except (ConnectionError, RuntimeError) as exc:
-            log.debug("client %s: inline send failed: %s", self.id, exc)
-
-    async def _sleep_until_woken(self, delay: float | None) -> None:
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._wakeup.wait(), delay)
-
-    async def _send_topic(self, queue: TopicQueue, message: SharedMessage) -> None:
-        text = message.frame(queue.spelling)
-        size = queue.options.fragment_size
-        if size and len(text) > size:
-            for piece in fragments(text, size, f"publish:{queue.spelling}:{id(message)}"):
-                await self.ws.send_str(piece)
-        else:
-            await self.ws.send_str(text)
-
     # -- advertise / publish ------------------------------------------------------------------
 
     async def op_advertise(self, req: Request) -> None:
@@ -236,6 +230,10 @@ class ClientSession:
         if topic is not None and not topic.accepts(type_name):
             raise ProtocolError(f"advertise: type conflict on {name}: it is {topic.type}, "
                                 f"not {type_name}")
+        if name not in self.advertised and len(self.advertised) >= \
+                self.limits.max_topics_per_client:
+            raise over_limit(f"advertise {name}: this client advertises too many topics",
+                             self.limits.max_topics_per_client, "max_topics_per_client")
         topic = self.graph.add_publisher(self, name, type_name)
         self.advertised.setdefault(name, set()).add(req.id)
         if get_bool(req.frame, "latch", False) and topic.robot is None:
@@ -323,7 +321,8 @@ class ClientSession:
         applied = await self.control.submit(self.source, twist, t_recv=req.t_recv,
                                             cmd_id=cmd_id, t_sent_ms=t_sent)
         if not applied.accepted:
-            self._refused(name, applied.error or "command not applied", req.id)
+            reason = applied.error or "command not applied"
+            self._say_once(reason, f"publish {name}: command refused: {reason}", req.id)
 
     def _parse_command(self, name: str, type_name: str,
                        msg: dict[str, Any]) -> tuple[Any, Id, float | None]:
@@ -347,11 +346,14 @@ class ClientSession:
         else:
             self.control.release_estop()
 
-    def _refused(self, name: str, reason: str, rid: Id) -> None:
+    def _say_once(self, key: str, message: str, rid: Id) -> None:
+        """A status error repeated at most every REFUSAL_REPEAT_S per ``key``."""
         now = self.clock()
-        if now - self._refusals.get(reason, -1e9) >= REFUSAL_REPEAT_S:
-            self._refusals[reason] = now
-            self.status("error", f"publish {name}: command refused: {reason}", rid)
+        if now - self._refusals.get(key, -1e9) >= REFUSAL_REPEAT_S:
+            if len(self._refusals) > 64:
+                self._refusals.clear()
+            self._refusals[key] = now
+            self.status("error", message, rid)
 
     # -- subscribe ----------------------------------------------------------------------------
 
@@ -367,9 +369,16 @@ class ClientSession:
             raise ProtocolError(f"subscribe: type conflict on {name}: it is {topic.type}, "
                                 f"not {type_name}")
         queue = self.outbox.topics.get(name)
+        if (queue is None or req.id not in queue.entries) and \
+                self.subscriptions >= self.limits.max_subscriptions_per_client:
+            raise over_limit(f"subscribe {name}: this client holds too many subscriptions",
+                             self.limits.max_subscriptions_per_client,
+                             "max_subscriptions_per_client")
         if queue is None:
             state = topic.robot.state if topic is not None and topic.robot is not None else False
-            queue = self.outbox.topics[name] = TopicQueue(name, req.spelling, state)
+            queue = TopicQueue(name, req.spelling, state)
+            self.outbox.add_queue(queue)
+        self.subscriptions += req.id not in queue.entries
         queue.set_entry(req.id, options)
         self.graph.add_subscriber(self, name, type_name)
 
@@ -386,6 +395,9 @@ class ClientSession:
                                 "this server; use 'none'")
         if fragment_size == 0:
             raise ProtocolError("subscribe: field 'fragment_size': must be positive")
+        if queue_length > self.limits.max_queue_length:
+            raise over_limit(f"subscribe: field 'queue_length': {queue_length} is too large",
+                             self.limits.max_queue_length, "max_queue_length")
         return SubscribeOptions(throttle_ms / 1e3, queue_length, fragment_size)
 
     async def op_unsubscribe(self, req: Request) -> None:
@@ -394,13 +406,16 @@ class ClientSession:
             return
         if req.id is not None and req.id in queue.entries:
             queue.remove_entry(req.id)
-        else:
-            queue.entries.clear()
-        if not queue.entries:
-            self.drop_subscription(req.target)
+            self.subscriptions -= 1
+            if queue.entries:
+                return
+        self.drop_subscription(req.target)  # its last subscription, or all of them
 
     def drop_subscription(self, name: str) -> None:
-        self.outbox.topics.pop(name, None)
+        queue = self.outbox.topics.get(name)
+        if queue is not None:
+            self.subscriptions -= len(queue.entries)
+            self.outbox.drop_queue(name)
         self.graph.remove_subscriber(self, name)
 
     # -- services -----------------------------------------------------------------------------
@@ -424,7 +439,17 @@ class ClientSession:
         args = frame.get("args", {})
         if not isinstance(args, dict | list):
             raise ProtocolError("call_service: field 'args': expected an object or a list")
-        self.graph.forward_call(self, req.id, spelling, provided, args, timeout)
+        if self.graph.calls_of(self) >= self.limits.max_pending_calls_per_client:
+            raise over_limit(f"call_service {name}: too many of this client's calls are "
+                             "waiting for an answer", self.limits.max_pending_calls_per_client,
+                             "max_pending_calls_per_client")
+        limit = self.limits.call_timeout
+        if timeout and timeout < limit:
+            seconds, why = timeout, "the call's timeout"
+        else:
+            seconds, why = limit, "[rosbridge] call_timeout"
+        self.graph.forward_call(self, req.id, spelling, provided, args, seconds,
+                                f"Service {name} timed out after {seconds:g} s ({why})")
 
     def service_response(self, spelling: str, values: Any, result: bool, rid: Id,
                          fragment_size: int | None = None) -> None:
@@ -433,11 +458,17 @@ class ClientSession:
         if rid is not None:
             body["id"] = rid
         text = encode(body)
-        if fragment_size and len(text) > fragment_size:
-            for piece in fragments(text, fragment_size, rid if rid is not None else spelling):
-                self.outbox.reply(piece)
-        else:
+        if not fragment_size or len(text) <= fragment_size:
             self.outbox.reply(text)
+        elif fragment_count(text, fragment_size) > self.limits.max_fragments_per_message:
+            refusal = over_limit(f"the answer would need {fragment_count(text, fragment_size)} "
+                                 f"fragments of {fragment_size}; ask with a larger "
+                                 "fragment_size", self.limits.max_fragments_per_message,
+                                 "max_fragments_per_message")
+            self.service_response(spelling, refusal.message, False, rid)
+        else:
+            self.outbox.reply(FragmentedReply(text, fragment_size,
+                                              rid if rid is not None else spelling))
 
     async def op_service_response(self, req: Request) -> None:
         result = get_bool(req.frame, "result", False) if "result" in req.frame else None
@@ -455,6 +486,12 @@ class ClientSession:
             raise ProtocolError(f"advertise_service: {exc}") from None
         if req.target in rosapi.SERVICES:
             raise ProtocolError(f"advertise_service: {req.target} is provided by the daemon")
+        current = self.graph.service(req.target)
+        if (current is None or current.provider is not self) and \
+                self.graph.services_of(self) >= self.limits.max_services_per_client:
+            raise over_limit(f"advertise_service {req.target}: this client provides too many "
+                             "services", self.limits.max_services_per_client,
+                             "max_services_per_client")
         self.graph.advertise_service(self, req.target, type_name)
 
     async def op_unadvertise_service(self, req: Request) -> None:
@@ -481,7 +518,8 @@ class ClientSession:
     async def close(self) -> None:
         """Brake if this client was driving, then forget everything it set up."""
         await self.control.drop_source(self.source)
-        self.outbox.topics.clear()
+        self.outbox.clear()
+        self.subscriptions = 0
         self.advertised.clear()
         self.latching.clear()
         self.graph.forget(self)

@@ -1,0 +1,108 @@
+# One client's outgoing side: drains its outbox to the socket, fragments in paced slices.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable, Iterator
+
+from aiohttp import web
+
+from daemon.rosbridge.codec import Id, fragment_count, fragments, over_limit
+from daemon.rosbridge.limits import Limits, Pacer
+from daemon.rosbridge.outbox import FragmentedReply, Outbox, SharedMessage, TopicQueue
+
+log = logging.getLogger("arbiterd.rosbridge")
+
+INLINE_SENDS = 4  # most messages the reader sends itself after one request
+SLICE = 32  # fragments sent between yields to the event loop
+
+Warn = Callable[[str, str, Id], None]  # (key, message, id): a status error, once per key
+
+
+class Writer:
+    """Sends what the outbox holds: replies first, then topic messages in turn. One sender
+    at a time (its own task, or the reader inline), so fragments never interleave."""
+
+    def __init__(self, ws: web.WebSocketResponse, outbox: Outbox, limits: Limits,
+                 pacer: Pacer, warn: Warn) -> None:
+        self.ws = ws
+        self.outbox = outbox
+        self.limits = limits
+        self.pacer = pacer
+        self.warn = warn
+        self._sending = asyncio.Lock()
+        self._wakeup = asyncio.Event()
+        self._idle = False
+        self._next_delay: float | None = None
+
+    def wake(self) -> None:
+        self._wakeup.set()
+
+    async def run(self) -> None:
+        """Send until the socket fails; sleep while nothing is ready."""
+        try:
+            while True:
+                if not await self._send_next():
+                    self._wakeup.clear()
+                    self._idle = True
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(self._wakeup.wait(), self._next_delay)
+                    self._idle = False
+        except (ConnectionError, RuntimeError) as exc:
+            log.debug("rosbridge writer stopped: %s", exc)
+
+    async def send_inline(self, transport: asyncio.BaseTransport | None) -> None:
+        """Answer from the reader while the writer sleeps and the socket takes data at once:
+        saves the hop to the writer task on the command -> report path."""
+        if not self._idle or self._sending.locked() or transport is None:
+            return
+        if getattr(transport, "get_write_buffer_size", lambda: 1)():
+            return
+        try:
+            for _ in range(INLINE_SENDS):
+                if not await self._send_next():
+                    break
+        except (ConnectionError, RuntimeError) as exc:
+            log.debug("rosbridge inline send failed: %s", exc)
+
+    async def _send_next(self) -> bool:
+        """Send one queued reply or message; False when nothing is ready now."""
+        async with self._sending:
+            item, queue, message, self._next_delay = self.outbox.next_item()
+            if isinstance(item, FragmentedReply):
+                await self.send_pieces(item.pieces())
+            elif item is not None:
+                await self.ws.send_str(item)
+            elif queue is not None and message is not None:
+                await self._send_topic(queue, message)
+            else:
+                return False
+            return True
+
+    async def send_pieces(self, pieces: Iterator[str]) -> None:
+        """Fragments in slices paced by the shared fragment rate, yielding to the event loop
+        between them: a message cut into a million pieces costs the loop short slices."""
+        for count, piece in enumerate(pieces):
+            if count % SLICE == 0:
+                await self.pacer.take(SLICE)
+                await asyncio.sleep(0)
+            await self.ws.send_str(piece)
+
+    async def _send_topic(self, queue: TopicQueue, message: SharedMessage) -> None:
+        text = message.frame(queue.spelling)
+        size = queue.options.fragment_size
+        if not size or len(text) <= size:
+            await self.ws.send_str(text)
+            return
+        count = fragment_count(text, size)
+        if count > self.limits.max_fragments_per_message:
+            queue.dropped += 1
+            refusal = over_limit(f"subscribe {queue.topic}: a message needs {count} fragments "
+                                 f"of {size}; dropped", self.limits.max_fragments_per_message,
+                                 "max_fragments_per_message")
+            self.warn(f"fragments:{queue.topic}", refusal.message, None)
+            return
+        await self.send_pieces(fragments(text, size, f"publish:{queue.spelling}:{id(message)}"))
+
+

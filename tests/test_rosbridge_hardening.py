@@ -1,0 +1,392 @@
+# What a hostile or careless rosbridge client found, each reproduced: bounded work, budgets, trust.
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import json
+import logging
+import math
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+import pytest
+
+from daemon.bench.rosbridge_attacks import run_attack
+from daemon.bench.rosbridge_flood import Window, measure
+from daemon.config import env_name
+from daemon.rosbridge import limits as limits_module
+from daemon.rosbridge.access import Authority
+from daemon.rosbridge.codec import fragments
+from daemon.rosbridge.graph import BridgeGraph
+from daemon.rosbridge.limits import Limits, Pacer
+from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
+from daemon.rosbridge.session import ClientSession
+from daemon.rosbridge.writer import SLICE
+from sensors.scan import LaserScan
+from tests.conftest import Robot, eventually, running_robot
+from tests.test_rosbridge_server import Client, _upgrade_status, connect
+
+TOKEN = "s3cret"
+WITH_TOKEN = f'[security]\ntoken = "{TOKEN}"\n'
+OWNER = {"Authorization": f"Bearer {TOKEN}"}
+# the deadman (cmd_vel_timeout, 0.5 s) must be able to fire; on a shared 2-core box garbage
+# collection and scheduling alone stall a loop for up to ~150 ms, the bugs did for seconds
+STALL_LIMIT_MS = 400.0
+
+
+def set_limits(monkeypatch: pytest.MonkeyPatch, **values: float) -> None:
+    """``[rosbridge]`` keys for the next daemon (the environment overrides the config file)."""
+    for key, value in values.items():
+        monkeypatch.setenv(env_name("rosbridge", key), str(value))
+
+
+def bridge(robot: Robot) -> Any:
+    return robot.component("rosbridge")
+
+
+async def under_attack(robot: Robot, *args: str) -> tuple[dict[str, Any], Window]:
+    window = await measure(robot.daemon, run_attack(robot.ws_url, *args), 0)
+    return window.detail, window
+
+
+def assert_no_stall(window: Window) -> None:
+    assert window.longest_stall_ms < STALL_LIMIT_MS, (
+        f"the event loop stalled for {window.longest_stall_ms:.0f} ms")
+
+
+# -- no request does unbounded work on the loop -------------------------------------------------
+
+
+async def test_rosapi_over_1500_topics_in_1_byte_fragments_does_not_stall(robot: Robot) -> None:
+    report, window = await under_attack(robot, "advertise-many", "--topics", "1500",
+                                        "--per-client", "100", "--fragment-size", "1")
+    assert report["statuses"] == {}, report
+    assert report["answer_topics"] >= 1500 and report["result"] is True, report
+    assert report["fragments"] > 50_000
+    assert_no_stall(window)
+
+
+async def test_ten_thousand_subscribes_do_not_stall(robot: Robot) -> None:
+    report, window = await under_attack(robot, "subscribe-flood", "--count", "10000")
+    assert_no_stall(window)
+    # what the budgets refused, they refused by name
+    assert set(report["statuses"]) <= {"max_subscriptions_per_client", "ops_per_second"}, report
+
+
+async def test_subscribe_bookkeeping_is_cheap_with_the_budgets_raised(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, ops_per_second=1e6, ops_burst=10**6,
+               max_subscriptions_per_client=20_000)
+    async with running_robot(tmp_path) as robot:
+        report, window = await under_attack(robot, "subscribe-flood", "--count", "10000")
+    assert report["statuses"] == {}, report
+    assert_no_stall(window)
+
+
+def synthetic_scan(rays: int = 720) -> LaserScan:
+    ranges = np.random.default_rng(3).uniform(0.2, 10.0, rays).astype(np.float32)
+    return LaserScan(time.time(), "laser", -math.pi, math.pi, 2 * math.pi / rays, 0.0, 0.1,
+                     0.1, 12.0, ranges, np.full(rays, 47, dtype=np.float32))
+
+
+@contextlib.asynccontextmanager
+async def scans_at_10_hz(robot: Robot) -> AsyncIterator[None]:
+    async def publish() -> None:
+        while True:
+            robot.ctx.bus.publish("scan", synthetic_scan())
+            await asyncio.sleep(0.1)
+
+    task = asyncio.create_task(publish())
+    try:
+        yield
+    finally:
+        task.cancel()
+
+
+async def test_scan_subscribers_in_1_byte_fragments_leave_the_ticks_on_time(
+        robot: Robot) -> None:
+    latency = robot.daemon.latency
+    async with scans_at_10_hz(robot):
+        late_before = latency.late_ticks
+        report, window = await under_attack(robot, "scan-subscribers", "--clients", "3",
+                                            "--seconds", "3", "--fragment-size", "1")
+        late = latency.late_ticks - late_before
+    assert all(n >= 1 for n in report["scans"]), report  # they are served, whole
+    assert_no_stall(window)
+    assert late <= window.ticks // 4, f"{late} of {window.ticks} ticks were late"
+
+
+async def test_a_service_answer_of_many_fragments_arrives_whole(robot: Robot) -> None:
+    async with connect(robot.ws_url) as client:
+        await client.send(op="call_service", service="/rosapi/topics_and_raw_types",
+                          id="raw", fragment_size=1)
+        parts: dict[int, str] = {}
+        total = 1
+        while len(parts) < total:
+            frame = json.loads((await client.ws.receive(timeout=10)).data)
+            assert frame["op"] == "fragment" and frame["id"] == "raw", frame
+            parts[frame["num"]] = frame["data"]
+            total = frame["total"]
+        assert total > 2048
+        answer = json.loads("".join(parts[i] for i in range(total)))
+        assert answer["result"] is True and "/odom" in answer["values"]["topics"]
+
+
+async def test_queue_length_out_of_range_is_a_clear_error(robot: Robot) -> None:
+    async with connect(robot.ws_url) as client:
+        await client.send(op="subscribe", topic="/odom", id="q", queue_length=2**63)
+        status = await client.op("status", id="q")
+        assert "queue_length" in status["msg"] and "max_queue_length" in status["msg"]
+        assert "internal error" not in status["msg"]
+
+
+# -- budgets --------------------------------------------------------------------------------------
+
+async def refusal(client: Client, rid: str) -> str:
+    return str((await client.op("status", id=rid))["msg"])
+
+
+async def test_per_client_budgets_name_their_config_key(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, max_topics_per_client=2, max_subscriptions_per_client=2,
+               max_services_per_client=1, max_fragment_sets_per_client=1, ops_per_second=20,
+               ops_burst=40)
+    async with running_robot(tmp_path) as robot:
+        async with connect(robot.ws_url) as client:
+            for i in range(3):
+                await client.send(op="advertise", topic=f"/t{i}", type="std_msgs/String",
+                                  id=f"adv{i}")
+                await client.send(op="subscribe", topic="/odom", id=f"sub{i}")
+            for i in range(2):
+                await client.send(op="advertise_service", service=f"/s{i}", type="x/Y",
+                                  id=f"srv{i}")
+                await client.send(op="fragment", id=f"frag{i}", data="{", num=0, total=2)
+            assert "max_topics_per_client" in await refusal(client, "adv2")
+            assert "max_subscriptions_per_client" in await refusal(client, "sub2")
+            assert "max_services_per_client" in await refusal(client, "srv1")
+            assert "max_fragment_sets_per_client" in await refusal(client, "frag1")
+        async with connect(robot.ws_url) as flooder:
+            for i in range(60):  # a burst of 40, then 20 a second
+                await flooder.send(op="set_level", level="error", id=f"op{i}")
+            refused = await flooder.expect(lambda m: "ops_per_second" in m.get("msg", ""),
+                                           what="a refusal for the request rate")
+            assert "too many requests" in refused["msg"]
+            session = next(c for c in bridge(robot).clients.values() if c.over_rate)
+            assert 0 < session.over_rate <= 20
+
+
+async def test_calls_to_a_silent_provider_time_out(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, call_timeout=0.3, max_pending_calls_per_client=2)
+    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as provider, \
+            connect(robot.ws_url) as caller:
+        await provider.send(op="advertise_service", service="/silent", type="x/Y")
+        await provider.call("/rosapi/get_time")
+        await caller.send(op="call_service", service="/silent", id="c0")
+        for i in (1, 2):
+            await caller.send(op="call_service", service="/silent", id=f"c{i}", timeout=1e9)
+        assert "max_pending_calls_per_client" in await refusal(caller, "c2")
+        for i in range(2):
+            answer = await caller.op("service_response", id=f"c{i}")
+            assert answer["result"] is False and "call_timeout" in answer["values"]
+            assert "timed out" in await refusal(caller, f"c{i}")
+        await eventually(lambda: not bridge(robot).graph.pending, "the calls to be forgotten")
+
+
+# -- fragments: bytes, not characters -----------------------------------------------------------
+
+
+async def send_fragment(client: Client, rid: str, data: str, num: int, total: int) -> None:
+    await client.ws.send_str(json.dumps({"op": "fragment", "id": rid, "data": data, "num": num,
+                                         "total": total}, ensure_ascii=False))
+
+
+async def test_fragment_limits_count_bytes_not_characters(robot: Robot) -> None:
+    emoji = "😀" * 100_000  # 100 000 characters, 400 000 bytes of UTF-8
+    async with connect(robot.ws_url) as client:
+        for num in range(3):  # 1.2 MB in 300 000 characters: over 1 MiB
+            await send_fragment(client, "big", emoji, num, 4)
+        assert "max_message_bytes" in await refusal(client, "big")
+        for n in range(8):  # 800 kB each: after two sets, a third does not fit in 2 MiB
+            for num in range(2):
+                await send_fragment(client, f"set{n}", emoji, num, 3)
+        assert "max_fragment_bytes_per_client" in await refusal(client, "set2")
+        session = next(iter(bridge(robot).clients.values()))
+        assert session.defrag.held_bytes <= 2 * 1024 * 1024
+
+
+async def test_empty_fragments_count(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, ops_per_second=1e6, ops_burst=10**6)
+    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as client:
+        await send_fragment(client, "huge", "", 0, 10**6)
+        assert "max_fragments_per_message" in await refusal(client, "huge")
+        for num in range(17_000):  # 64 bytes each: 1 MiB after 16 384 of them
+            await send_fragment(client, "empty", "", num, 50_000)
+        assert "max_message_bytes" in await refusal(client, "empty")
+        session = next(iter(bridge(robot).clients.values()))
+        assert session.defrag.held_bytes <= 1024 * 1024
+
+
+# -- who may connect, who may act -----------------------------------------------------------------
+
+
+async def test_idle_tokenless_clients_cannot_lock_out_the_token_holder(tmp_path: Path) -> None:
+    async with running_robot(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http, \
+            contextlib.AsyncExitStack() as stack:
+        opened = 0
+        for _ in range(40):
+            try:
+                await stack.enter_async_context(http.ws_connect(robot.ws_url))
+                opened += 1
+            except aiohttp.WSServerHandshakeError as exc:
+                assert exc.status == 503
+        assert opened == 32 - 4  # reserved_clients
+        assert await _upgrade_status(robot.ws_url, **OWNER) == 101
+
+
+async def test_idle_unauthenticated_connections_time_out(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, idle_timeout=0.5)
+    async with running_robot(tmp_path, WITH_TOKEN) as robot, connect(robot.ws_url) as idle, \
+            connect(robot.ws_url) as reader, connect(robot.ws_url, headers=OWNER) as owner:
+        await reader.send(op="subscribe", topic="/odom")
+        closed = await idle.ws.receive(timeout=10)
+        assert closed.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+        assert idle.ws.close_code == 1008
+        await reader.op("publish", topic="/odom")
+        assert not reader.ws.closed and not owner.ws.closed
+        await owner.call("/rosapi/get_time")
+
+
+async def test_tokenless_clients_cannot_take_over_services_or_publish(tmp_path: Path) -> None:
+    async with running_robot(tmp_path, WITH_TOKEN) as robot, \
+            connect(robot.ws_url, headers=OWNER) as owner, connect(robot.ws_url) as anonymous:
+        await owner.send(op="advertise_service", service="/plan", type="x/Plan")
+        await owner.send(op="advertise", topic="/chatter", type="std_msgs/String")
+        await owner.send(op="subscribe", topic="/chatter")
+        await owner.call("/rosapi/get_time")
+        for rid, frame in [("take", {"op": "advertise_service", "service": "/plan",
+                                     "type": "x/Plan"}),
+                           ("pub", {"op": "publish", "topic": "/chatter",
+                                    "msg": {"data": "spoofed"}}),
+                           ("adv", {"op": "advertise", "topic": "/mine",
+                                    "type": "std_msgs/String"}),
+                           ("call", {"op": "call_service", "service": "/plan"})]:
+            await anonymous.send(id=rid, **frame)
+            assert "needs a valid token" in await refusal(anonymous, rid)
+        assert bridge(robot).graph.services["/plan"].provider.authority.may_drive
+        await owner.call("/rosapi/get_time", rid="after")
+        assert owner.published("/chatter") == []
+
+
+async def test_host_and_origin_are_checked_on_the_websocket(tmp_path: Path) -> None:
+    config = '[security]\nallowed_hosts = ["robot.example"]\n'
+    async with running_robot(tmp_path, config) as robot:
+        url = robot.ws_url
+        assert await _upgrade_status(url, Host="evil.example") == 403
+        assert await _upgrade_status(url, Host="evil.example",
+                                     Origin="http://evil.example") == 403
+        assert await _upgrade_status(url, Host="localhost:9090",
+                                     Origin="http://evil.example") == 403
+        assert await _upgrade_status(url, Host="robot.example",
+                                     Origin="http://robot.example") == 101
+        assert await _upgrade_status(url, Host="127.0.0.1") == 101
+        assert bridge(robot).refused["host"] == 2
+
+
+# -- logging ----------------------------------------------------------------------------------
+
+
+async def test_malformed_input_is_one_rate_limited_line_without_traceback(
+        robot: Robot, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO)
+    async with connect(robot.ws_url) as listener, connect(robot.ws_url) as client:
+        await listener.send(op="subscribe", topic="/rosout")
+        await listener.call("/rosapi/get_time")
+        for i in range(100):
+            await client.send(op="subscribe", topic="/odom", id=f"q{i}", queue_length=2**63)
+            await client.ws.send_str("{not json")
+        await client.count("status", 200)
+        await listener.call("/rosapi/get_time", rid="after")
+    bridge_lines = [r for r in caplog.records if r.name == "arbiterd.rosbridge"
+                    and "refused" in r.getMessage()]
+    assert not [r for r in caplog.records if r.exc_info and r.levelno >= logging.INFO]
+    assert 1 <= len(bridge_lines) <= 3, [r.getMessage() for r in bridge_lines]
+    assert all("Traceback" not in json.dumps(m) for m in listener.published("/rosout"))
+
+
+# -- the pieces, deterministically ------------------------------------------------------------
+
+
+class Recorder:
+    """Stands in for the WebSocket: records, per frame sent, how often another task ran."""
+
+    def __init__(self, turns: list[int]) -> None:
+        self.turns = turns
+        self.sent: list[int] = []
+
+    async def send_str(self, text: str) -> None:
+        self.sent.append(self.turns[0])
+
+
+def bare_session(ws: Any, limits: Limits, clock: Any = time.monotonic) -> ClientSession:
+    return ClientSession(ws, 1, "test", graph=BridgeGraph({}), control=None,  # type: ignore
+                         authority=Authority(True, True), limits=limits, clock=clock)
+
+
+async def test_fragments_go_out_in_slices_that_let_other_tasks_run() -> None:
+    turns = [0]
+
+    async def other_task() -> None:
+        while True:
+            turns[0] += 1
+            await asyncio.sleep(0)
+
+    ws = Recorder(turns)
+    session = bare_session(ws, Limits(fragments_per_second=1e9))
+    task = asyncio.create_task(other_task())
+    await asyncio.sleep(0)
+    await session.writer.send_pieces(fragments("x" * 1000, 1, "f"))
+    task.cancel()
+    runs = [len(list(run)) for _, run in itertools.groupby(ws.sent)]
+    assert len(ws.sent) == 1000 and max(runs) <= SLICE
+
+
+async def test_fragments_are_paced_at_the_shared_rate(monkeypatch: pytest.MonkeyPatch) -> None:
+    now = [0.0]
+
+    async def fake_sleep(seconds: float) -> None:
+        now[0] += seconds
+
+    monkeypatch.setattr(limits_module.asyncio, "sleep", fake_sleep)
+    pacer = Pacer(1000.0, clock=lambda: now[0])
+    for _ in range(100):
+        await pacer.take(32)  # 3 200 fragments at 1 000 a second, 50 at once
+    assert now[0] == pytest.approx(3.2 - 0.05, abs=0.04)
+
+
+def test_the_next_message_is_found_without_looking_at_idle_queues(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    looked = []
+    take = TopicQueue.take
+
+    def counting_take(self: TopicQueue, now: float) -> Any:
+        looked.append(self.topic)
+        return take(self, now)
+
+    monkeypatch.setattr(TopicQueue, "take", counting_take)
+    outbox = Outbox(lambda: None, clock=lambda: 0.0)
+    for i in range(10_000):
+        queue = TopicQueue(f"/t{i}", f"/t{i}", state=True)
+        queue.set_entry(None, SubscribeOptions())
+        outbox.add_queue(queue)
+    outbox.offer("/t9999", SharedMessage("/t9999", {"data": "x"}))
+    _, queue, message, _ = outbox.next_item()
+    assert queue is not None and queue.topic == "/t9999" and message is not None
+    assert outbox.next_item()[1] is None
+    assert looked == ["/t9999"]
