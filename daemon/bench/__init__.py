@@ -1,8 +1,13 @@
 # Benchmark suite registry: suite name -> module with `run(quick) -> list[BenchResult]`.
 from __future__ import annotations
 
+import asyncio
+import logging
+from collections.abc import Coroutine
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -33,6 +38,17 @@ def percentile_ms(samples_s: list[float], pct: float) -> float:
 def ms_result(suite: str, name: str, value_ms: float, note: str = "") -> BenchResult:
     """A millisecond figure without a target."""
     return BenchResult(suite, name, round(value_ms, 4), "ms", note=note)
+
+
+def run_quietly(main: Coroutine[Any, Any, T]) -> T:
+    """Run a suite's coroutine with the daemon's own log quiet (errors only)."""
+    arbiterd_log = logging.getLogger("arbiterd")
+    level = arbiterd_log.level
+    arbiterd_log.setLevel(logging.ERROR)
+    try:
+        return asyncio.run(main)
+    finally:
+        arbiterd_log.setLevel(level)
 
 
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`

@@ -6,7 +6,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import logging
 import os
 import shutil
 import socket
@@ -19,7 +18,7 @@ from typing import Any
 
 import aiohttp
 
-from daemon.bench import BenchResult
+from daemon.bench import BenchResult, run_quietly
 from daemon.latency import LatencyTracker, summarize
 
 SUITE = "console"
@@ -270,13 +269,7 @@ def _results(idle: list[float], driving: list[float], replayed: dict[str, Any],
 
 
 def run(quick: bool) -> list[BenchResult]:
-    arbiterd_log = logging.getLogger("arbiterd")
-    level = arbiterd_log.level
-    arbiterd_log.setLevel(logging.ERROR)
-    try:
-        return asyncio.run(_run(quick))
-    finally:
-        arbiterd_log.setLevel(level)
+    return run_quietly(_run(quick))
 
 
 if __name__ == "__main__":

@@ -5,7 +5,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import logging
 import math
 import socket
 import sys
@@ -19,7 +18,7 @@ import aiohttp
 import numpy as np
 from aiohttp import web
 
-from daemon.bench import BenchResult
+from daemon.bench import BenchResult, run_quietly
 
 SUITE = "rosbridge"
 SCAN_RAYS = 720
@@ -263,13 +262,7 @@ def _results(rtt: dict[str, Any], exec_ms: list[float], tick_ms: list[float],
 
 
 def run(quick: bool) -> list[BenchResult]:
-    arbiterd_log = logging.getLogger("arbiterd")
-    level = arbiterd_log.level
-    arbiterd_log.setLevel(logging.ERROR)
-    try:
-        return asyncio.run(_run(quick))
-    finally:
-        arbiterd_log.setLevel(level)
+    return run_quietly(_run(quick))
 
 
 if __name__ == "__main__":
