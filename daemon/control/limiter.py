@@ -18,7 +18,8 @@ class AxisLimiter:
     """Moves one axis's velocity toward a target within its limits, one step at a time.
 
     Slowing toward zero (or reversing) uses the deceleration limit, speeding up the
-    acceleration limit; ``emergency=True`` uses the emergency deceleration. With a jerk limit
+    acceleration limit; ``emergency=True`` slows with the emergency deceleration (speeding up
+    still uses the acceleration limit). With a jerk limit
     the acceleration itself changes at most ``max_jerk`` per second.
     """
 
@@ -51,11 +52,11 @@ class AxisLimiter:
         return new
 
     def _rate_limit(self, target: float, emergency: bool) -> float:
-        if emergency:
-            return self.limits.emergency_deceleration
         slowing = abs(target) < abs(self.velocity) or (math.copysign(1, target) != math.copysign(
             1, self.velocity) and self.velocity != 0.0)
-        return self.limits.max_deceleration if slowing else self.limits.max_acceleration
+        if not slowing:
+            return self.limits.max_acceleration
+        return self.limits.emergency_deceleration if emergency else self.limits.max_deceleration
 
     def reset(self) -> None:
         self.velocity = 0.0

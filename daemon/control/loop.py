@@ -12,7 +12,9 @@ from typing import Any
 from daemon.bus import Bus
 from daemon.config import Config
 from daemon.control.arbiter import Arbiter, Decision
+from daemon.control.clock import MONOTONIC, Clock
 from daemon.control.commands import Twist
+from daemon.control.guard import MotionGuard
 from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.metronome import Metronome
@@ -50,9 +52,11 @@ class ControlLoop:
     core = True
 
     def __init__(self, config: Config, driver: MotorDriver, bus: Bus,
-                 latency: LatencyTracker) -> None:
+                 latency: LatencyTracker, clock: Clock = MONOTONIC) -> None:
         control = config["control"]
         self.config = config
+        #: the one clock of the control code (virtual in ``arbiterd simulate``)
+        self.clock = clock
         self.driver = driver
         self.bus = bus
         self.latency = latency
@@ -66,6 +70,14 @@ class ControlLoop:
         self.publish_every = max(1, round(control["update_rate"] / control["publish_rate"]))
         self.open_loop = control["open_loop"]
         self.on_tick: list[Callable[[float, bool], None]] = []
+        #: called at the start of every tick, before the step (internal command sources)
+        self.tick_sources: list[Callable[[float], None]] = []
+        #: called with the source name after every accepted external command
+        self.on_command: list[Callable[[str], None]] = []
+        #: between the arbiter and the limiter for every source (the collision monitor)
+        self.guard: MotionGuard | None = None
+        #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
+        self.invalidations = 0
         #: extra fields of /api/status supplied by other components (the simulator's truth)
         self.status_extras: dict[str, Callable[[], Any]] = {}
         self.fault: str | None = None
@@ -76,7 +88,7 @@ class ControlLoop:
         self.wheels = (0.0, 0.0)
         self.decision = Decision(Twist(), None, False, "idle")
         self._lock = asyncio.Lock()
-        self._last_step = time.monotonic()
+        self._last_step = clock()
         self._tick_task: asyncio.Task[None] | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
         self._metronome: Metronome | None = None
@@ -87,9 +99,13 @@ class ControlLoop:
 
     # -- lifecycle -----------------------------------------------------------------------
 
-    async def start(self) -> None:
+    async def start(self, *, realtime: bool = True) -> None:
+        """Open the driver and start ticking in real time; with ``realtime=False`` nobody
+        ticks but the caller (:meth:`tick`, the lockstep runner of ``arbiterd simulate``)."""
         await self.driver.open()
-        self._last_step = time.monotonic()
+        self._last_step = self.clock()
+        if not realtime:
+            return
         self._metronome = Metronome(asyncio.get_running_loop(), self.period_s)
         self._metronome.start()
         self._tick_task = asyncio.create_task(self._tick_forever(), name="control-tick")
@@ -124,10 +140,12 @@ class ControlLoop:
         if refusal:
             return Applied(False, self.decision.source, self.wheels, [], None, refusal)
         self._forget_after_stall()  # older commands are stale, this one is fresh
-        self.arbiter.submit(source, twist, time.monotonic(), priority)
+        self.arbiter.submit(source, twist, self.clock(), priority)
+        for callback in self.on_command:
+            callback(source)
         async with self._lock:
-            written = await self._step(time.monotonic())
-        t_exec = time.monotonic()
+            written = await self._step(self.clock())
+        t_exec = self.clock()
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)
@@ -150,18 +168,20 @@ class ControlLoop:
         """A command source went away (WebSocket closed): brake now if it was in charge."""
         self.arbiter.drop(source)
         async with self._lock:
-            await self._step(time.monotonic())
+            await self._step(self.clock())
 
     async def engage_estop(self, reason: str) -> None:
         self.arbiter.engage_estop(reason)
+        self.invalidations += 1
         log.warning("e-stop engaged: %s", reason)
         async with self._lock:
-            await self._step(time.monotonic())
+            await self._step(self.clock())
 
     def release_estop(self) -> None:
         if self.arbiter.estop_engaged:
             log.warning("e-stop released; waiting for a fresh command")
         self.arbiter.release_estop()
+        self.invalidations += 1
 
     # -- tick path -----------------------------------------------------------------------
 
@@ -170,25 +190,35 @@ class ControlLoop:
         while True:
             deadline = await self._metronome.wait()
             self.supervisor.beat()
-            now = time.monotonic()
-            lateness = now - deadline
-            on_time = lateness <= self.late_s
-            self.latency.record_tick(lateness, not on_time)
             self.latency.missed_ticks = self._metronome.missed
-            try:
-                await self._tick(now)
-            except Exception:
-                log.exception("control tick failed")
-                on_time = False
-            for callback in self.on_tick:
-                callback(now, on_time)
+            await self.tick(deadline)
+
+    async def tick(self, deadline: float) -> None:
+        """One tick that was due at ``deadline`` (clock seconds): record its lateness, run
+        the internal sources, step, integrate odometry, publish, then the tick callbacks."""
+        now = self.clock()
+        lateness = now - deadline
+        on_time = lateness <= self.late_s
+        self.latency.record_tick(lateness, not on_time)
+        try:
+            await self._tick(now)
+        except Exception:
+            log.exception("control tick failed")
+            on_time = False
+        for callback in self.on_tick:
+            callback(now, on_time)
 
     async def _tick(self, now: float) -> None:
         if self.driver.fault and not self.fault:
             await self._on_fault(self.driver.fault)
+        for source in self.tick_sources:
+            source(now)
         async with self._lock:
             await self._step(now)
         await self._update_odometry(now)
+        if self.guard is not None:
+            odo = self.odometry
+            self.guard.observe(now, odo.x, odo.y, odo.theta)
         self._ticks += 1
         if self._ticks % self.publish_every == 0:
             self.bus.publish("odom", self.odom_sample())
@@ -202,8 +232,16 @@ class ControlLoop:
         dt = now - self._last_step
         self._last_step = now
         self.last_clamped = self._target_clamps(decision.twist)
-        v = self.linear.step(decision.twist.linear_x, dt, decision.emergency)
-        w = self.angular.step(decision.twist.angular_z, dt, decision.emergency)
+        target_v, _ = self.linear.clamp_target(decision.twist.linear_x)
+        target_w, _ = self.angular.clamp_target(decision.twist.angular_z)
+        brake = decision.emergency
+        if self.guard is not None:
+            guarded = self.guard.limit(target_v, target_w, self.linear.velocity,
+                                       self.angular.velocity, now)
+            target_v, target_w = guarded.linear, guarded.angular
+            brake = brake or guarded.brake
+        v = self.linear.step(target_v, dt, brake)
+        w = self.angular.step(target_w, dt, brake)
         if decision.source is None and v == 0.0 and w == 0.0:
             self.arbiter.idle()
         left, right = self.geometry.wheel_speeds(v, w)
@@ -267,6 +305,7 @@ class ControlLoop:
         if not self.supervisor.take_stop():
             return
         self.arbiter.invalidate_all()
+        self.invalidations += 1
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)
@@ -280,6 +319,7 @@ class ControlLoop:
         self.faults += 1
         log.error("driver fault: %s; motors stopped, reconnecting", reason)
         self.arbiter.invalidate_all()
+        self.invalidations += 1
         self.linear.reset()
         self.angular.reset()
         self.driver.report_fault(reason)
@@ -302,6 +342,7 @@ class ControlLoop:
             self.reconnects += 1
             self.odometry.reset_encoder_reference()
             self.arbiter.invalidate_all()
+            self.invalidations += 1
             self.fault = None
             log.warning("driver reconnected; wheels stay still until a fresh command")
             return
