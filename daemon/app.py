@@ -21,6 +21,7 @@ from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
 from daemon.rosbridge import server as rosbridge_server
+from daemon.safety import component as safety
 from daemon.security import Security
 from drivers import DriverError
 
@@ -32,6 +33,7 @@ EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 # its config section disables it. Started in this order.
 COMPONENTS: dict[str, Callable[[DaemonContext], Component | None]] = {
     "lidar": lidar.create,
+    "collision_monitor": safety.create,
     "rosbridge": rosbridge_server.create,
 }
 

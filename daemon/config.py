@@ -26,6 +26,7 @@ SECTIONS: dict[str, Options] = {
     "limits": settings.LIMITS_OPTIONS,
     "driver": settings.DRIVER_OPTIONS,
     "lidar": LIDAR_OPTIONS,
+    "collision_monitor": settings.COLLISION_MONITOR_OPTIONS,
     "http": settings.HTTP_OPTIONS,
     "rosbridge": settings.ROSBRIDGE_OPTIONS,
     "security": settings.SECURITY_OPTIONS,

@@ -1,6 +1,9 @@
 # Option tables of the daemon's own config sections ([robot], [control], [limits], [driver], ...).
 from __future__ import annotations
 
+import math
+from typing import Any
+
 from base.options import Option, Options
 from drivers.registry import DRIVERS
 
@@ -158,4 +161,47 @@ ROSBRIDGE_OPTIONS: Options = {
     "fragments_per_second": Option(float, 20_000.0, "outgoing fragments per second, all clients "
                                    "together (each costs CPU on the robot's event loop)",
                                    above=0.0, maxval=1e9),
+}
+
+
+def _footprint_check(value: list[Any]) -> str | None:
+    """``[]`` or ``[[x, y], ...]`` with at least 3 corners (each item is checked alone too)."""
+    if value and all(isinstance(item, list) for item in value):
+        if len(value) < 3:
+            return f"a polygon needs at least 3 [x, y] corners, got {len(value)}"
+        return None
+    if len(value) != 2 or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                  and math.isfinite(v) for v in value):
+        return f"expected a corner [x, y] of two finite numbers, got {value!r}"
+    return None
+
+
+COLLISION_MONITOR_OPTIONS: Options = {
+    "enabled": Option(bool, True, "keep the robot out of what the lidar sees (acts only when "
+                      "[lidar] is enabled; false disables it, with a warning)"),
+    "footprint_radius": Option(float, 0.2, "radius of the robot's round footprint, m (used "
+                               "when footprint is empty)", above=0.0, maxval=5.0),
+    "footprint": Option(list, [], "polygon footprint [[x, y], ...] in the robot frame, m "
+                        "(x forward, y left; the origin inside); [] = the round footprint",
+                        item=list, check=_footprint_check),
+    "stop_margin_m": Option(float, 0.10, "stop zone: obstacles this close to the footprint "
+                            "stop any motion toward them, m", minval=0.0, maxval=2.0),
+    "slowdown_margin_m": Option(float, 0.35, "slowdown zone: obstacles this close to the "
+                                "footprint slow motion toward them, m", minval=0.0, maxval=5.0),
+    "slowdown_ratio": Option(float, 0.5, "speed factor in the slowdown zone", above=0.0,
+                             maxval=1.0),
+    "time_before_collision_s": Option(float, 1.0, "approach: project the commanded motion "
+                                      "this far ahead and limit speed so the robot can stop "
+                                      "before the stop zone", above=0.0, maxval=10.0),
+    "reaction_time_s": Option(float, 0.1, "approach: delay from a lower target to the wheels "
+                              "slowing (motor and driver response), s; one control period "
+                              "is added", minval=0.0, maxval=2.0),
+    "min_points": Option(int, 1, "lidar points needed inside a zone before it counts (noise "
+                         "filter)", minval=1, maxval=100),
+    "source_timeout_s": Option(float, 0.5, "a scan older than this is stale: stale_action "
+                               "applies, it never counts as no obstacle", above=0.0,
+                               maxval=10.0),
+    "stale_action": Option(str, "stop", "what a stale or missing scan does: stop, or slowdown "
+                           "(slowdown_ratio, still limited by the last scan)",
+                           choices=("stop", "slowdown")),
 }

@@ -86,6 +86,12 @@ class Robot:
             abs(v) > 1e-6 for v in (commands[-1].left_rad_s, commands[-1].right_rad_s))
 
 
+def may_drive(daemon: Daemon) -> bool:
+    """The collision monitor, when there is one, has a fresh scan to judge commands by."""
+    safety = daemon.ctx.control.status().get("safety", {}) if daemon.ctx else {}
+    return not safety.get("enabled") or safety.get("zone") != "unknown"
+
+
 @asynccontextmanager
 async def running_robot(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[Robot]:
     """``arbiterd run --sim`` with the mock driver, in-process, on free ports."""
@@ -99,6 +105,8 @@ async def running_robot(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[R
     task = asyncio.create_task(daemon.run())
     await eventually(lambda: daemon.state != "startup" or task.done(), "the daemon to start")
     assert not task.done(), f"daemon exited early: {task.result()}"
+    await eventually(lambda: may_drive(daemon), "the lidar's first revolution (the collision "
+                     "monitor holds the robot still until it has one)")
     try:
         yield Robot(daemon, ws_port, http_port)
     finally:

@@ -15,6 +15,12 @@ LIDAR_OPTIONS: Options = {
     "inverted": Option(bool, False, "the lidar is mounted upside down"),
     "angle_offset_deg": Option(float, 0.0, "angle of the lidar's 0° in the laser frame "
                                "(counter-clockwise)", minval=-360.0, maxval=360.0),
+    "mount_x": Option(float, 0.0, "lidar position in the robot frame (base_link), metres "
+                      "forward of the robot's origin", minval=-10.0, maxval=10.0),
+    "mount_y": Option(float, 0.0, "lidar position in the robot frame, metres to the left",
+                      minval=-10.0, maxval=10.0),
+    "mount_yaw_deg": Option(float, 0.0, "direction of the laser frame's x axis in the robot "
+                            "frame (counter-clockwise)", minval=-360.0, maxval=360.0),
     "angle_bins": Option(int, 0, "0 = one ray per sample; N = N fixed rays over 360° "
                          "(angle compensation)", minval=0, maxval=8192),
     "range_min": Option(float, 0.15, "LaserScan range_min in metres", minval=0.0),

@@ -1,0 +1,1 @@
+# The collision monitor: the lidar keeps the robot out of obstacles.

@@ -1,0 +1,254 @@
+# The "collision_monitor" component: scans in, a guard on every control step, its state out.
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+from prometheus_client import CollectorRegistry, Counter
+
+from daemon.bus import Bus
+from daemon.config import Config
+from daemon.control.clock import Clock
+from daemon.control.guard import Guarded
+from daemon.control.loop import ControlLoop
+from daemon.safety.footprint import Footprint
+from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings, severity
+from sensors.scan import LaserScan
+
+log = logging.getLogger("arbiterd.safety")
+
+#: a less severe action is reported only after the more severe one is this long gone (s)
+HOLD_S = 0.25
+#: the state is published on change and at least this often (s)
+PUBLISH_EVERY_S = 1.0
+STATE_TOPIC = "collision_monitor_state"
+
+
+def monitor_settings(config: Config) -> MonitorSettings:
+    """The monitor's settings from ``[collision_monitor]``, ``[limits]`` and ``[control]``."""
+    cm, limits = config["collision_monitor"], config["limits"]
+    footprint = (Footprint.from_points(cm["footprint"]) if cm["footprint"]
+                 else Footprint.circle(cm["footprint_radius"]))
+    return MonitorSettings(
+        footprint=footprint, stop_margin=cm["stop_margin_m"],
+        slowdown_margin=max(cm["slowdown_margin_m"], cm["stop_margin_m"]),
+        slowdown_ratio=cm["slowdown_ratio"],
+        time_before_collision=cm["time_before_collision_s"],
+        reaction_time=cm["reaction_time_s"] + 1.0 / config["control"]["update_rate"],
+        min_points=cm["min_points"], source_timeout=cm["source_timeout_s"],
+        stale_action=cm["stale_action"],
+        linear_deceleration=limits["linear.x.emergency_deceleration"],
+        angular_deceleration=limits["angular.z.emergency_deceleration"],
+        max_linear=limits["linear.x.max_velocity"], max_angular=limits["angular.z.max_velocity"])
+
+
+def horizon_warning(settings: MonitorSettings) -> str | None:
+    """A warning when the approach check cannot see far enough to stop from full speed."""
+    v, a = settings.max_linear, settings.linear_deceleration
+    needed = settings.reaction_time + v / (2.0 * a)
+    if settings.time_before_collision >= needed:
+        return None
+    return (f"[collision_monitor] time_before_collision_s = {settings.time_before_collision:g} "
+            f"is shorter than the {needed:.2f} s the robot needs to stop from "
+            f"{v:g} m/s: obstacles may be seen too late; raise it")
+
+
+class ScanPoints:
+    """LaserScan -> points in the robot frame, through the lidar's mounting pose."""
+
+    def __init__(self, mount_x: float, mount_y: float, mount_yaw_deg: float) -> None:
+        self.x, self.y, self.yaw = mount_x, mount_y, math.radians(mount_yaw_deg)
+        self._key: tuple[float, float, int] | None = None
+        self._cos = self._sin = np.zeros(0)
+        self._last: tuple[LaserScan, tuple[np.ndarray, np.ndarray]] | None = None
+
+    def __call__(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        """The scan's valid returns as (x, y) arrays; the same scan is converted once."""
+        if self._last is not None and self._last[0] is scan:
+            return self._last[1]
+        points = self._convert(scan)
+        self._last = (scan, points)
+        return points
+
+    def _convert(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        ranges = np.asarray(scan.ranges, dtype=np.float64)
+        key = (float(scan.angle_min), float(scan.angle_increment), len(ranges))
+        if key != self._key:
+            angles = scan.angle_min + scan.angle_increment * np.arange(len(ranges)) + self.yaw
+            self._cos, self._sin, self._key = np.cos(angles), np.sin(angles), key
+        valid = np.isfinite(ranges) & (ranges >= scan.range_min)
+        if scan.range_max > 0:
+            valid &= ranges <= scan.range_max
+        r = ranges[valid]
+        return self.x + r * self._cos[valid], self.y + r * self._sin[valid]
+
+
+def scan_points(config: Config) -> ScanPoints:
+    """The scan converter for the ``[lidar]`` mounting pose."""
+    lidar = config["lidar"]
+    return ScanPoints(lidar["mount_x"], lidar["mount_y"], lidar["mount_yaw_deg"])
+
+
+class SafetyMetrics:
+    """Prometheus counters of the monitor's interventions."""
+
+    def __init__(self, registry: CollectorRegistry) -> None:
+        self.changes = Counter("arbiterd_collision_monitor_actions", "times the collision "
+                               "monitor's action changed to this one", ["action"],
+                               registry=registry)
+        self.steps = Counter("arbiterd_collision_monitor_interventions", "control steps in "
+                             "which the collision monitor changed the target", ["action"],
+                             registry=registry)
+        self.changes_by_action = {a: self.changes.labels(a) for a in ACTIONS}
+        self.steps_by_action = {a: self.steps.labels(a) for a in ACTIONS if a != "none"}
+
+
+class SafetyComponent:
+    """The collision monitor in the daemon: the control loop's guard (component
+    ``collision_monitor``, non-core). Reports ``safety`` in ``/api/status``, logs every change
+    of action, counts, and publishes its state on the bus (``collision_monitor_state``)."""
+
+    name = "collision_monitor"
+    core = False
+
+    def __init__(self, config: Config, control: ControlLoop, bus: Bus,
+                 registry: CollectorRegistry, *, wall_clock: Clock = time.time,
+                 points: ScanPoints | None = None) -> None:
+        self.settings = monitor_settings(config)
+        self.monitor = CollisionMonitor(self.settings)
+        self.points = points or scan_points(config)
+        self.clock = control.clock
+        self.wall_clock = wall_clock
+        self.bus = bus
+        self.control = control
+        self.metrics = SafetyMetrics(registry)
+        self.action = "stop"  # until the first revolution arrives (not logged as a change)
+        self.reason = "no lidar revolution yet"
+        self.changes = 0
+        self.time_in: dict[str, float] = dict.fromkeys(ACTIONS, 0.0)
+        self.entries: dict[str, int] = dict.fromkeys(ACTIONS, 0)
+        self._seen: dict[str, float] = dict.fromkeys(ACTIONS, -math.inf)
+        self._last_target = (0.0, 0.0)
+        self._last_report = -math.inf
+        self._last_published = -math.inf
+        control.guard = self
+        control.status_extras["safety"] = self.status
+        control.on_tick.append(self._on_tick)
+        bus.subscribe("scan", self.on_scan)
+
+    # -- the guard -----------------------------------------------------------------------------
+
+    def limit(self, linear: float, angular: float, current_linear: float,
+              current_angular: float, now: float) -> Guarded:
+        verdict = self.monitor.limit(linear, angular, current_linear, current_angular, now)
+        self._last_target = (linear, angular)
+        if verdict.action != "none":
+            self.metrics.steps_by_action[verdict.action].inc()
+        self._report(verdict.action, verdict.reason, now)
+        return Guarded(verdict.linear, verdict.angular, verdict.brake)
+
+    def observe(self, now: float, x: float, y: float, theta: float) -> None:
+        self.monitor.observe(now, x, y, theta)
+
+    def on_scan(self, scan: LaserScan) -> None:
+        """A revolution from the bus; its stamp (wall clock of the first ray) is turned into
+        control-clock time."""
+        now = self.clock()
+        age = min(max(0.0, self.wall_clock() - scan.stamp), 60.0)
+        px, py = self.points(scan)
+        t_first = now - age
+        self.monitor.on_scan(px, py, t_first, t_first + max(0.0, scan.scan_time))
+        self.monitor.warm(self._last_target,
+                          (self.control.linear.velocity, self.control.angular.velocity))
+
+    # -- reporting -----------------------------------------------------------------------------
+
+    def _report(self, action: str, reason: str, now: float) -> None:
+        """The reported action is the most severe one seen within ``HOLD_S``."""
+        self._seen[action] = now
+        held = max((a for a in ACTIONS if now - self._seen[a] <= HOLD_S), key=severity)
+        elapsed = now - self._last_report if self._last_report > -math.inf else 0.0
+        self.time_in[self.action] += max(0.0, elapsed)
+        self._last_report = now
+        if held == action:
+            self.reason = reason
+        if held != self.action:
+            self._change(held, now)
+
+    def _change(self, action: str, now: float) -> None:
+        previous, self.action = self.action, action
+        self.changes += 1
+        self.entries[action] += 1
+        self.metrics.changes_by_action[action].inc()
+        level = logging.WARNING if action == "stop" else logging.INFO
+        nearest = self.monitor.nearest()
+        log.log(level, "collision monitor: %s -> %s (%s; nearest obstacle %s)", previous,
+                action, self.reason or "clear", f"{nearest:.2f} m" if nearest is not None
+                else "unknown")
+        self._publish(now)
+
+    def _on_tick(self, now: float, on_time: bool) -> None:
+        if now - self._last_published >= PUBLISH_EVERY_S:
+            self._publish(now)
+
+    def _publish(self, now: float) -> None:
+        self._last_published = now
+        self.bus.publish(STATE_TOPIC, self.status())
+
+    def status(self) -> dict[str, Any]:
+        now = self.clock()
+        age = self.monitor.scan_age(now)
+        nearest = self.monitor.nearest()
+        return {"enabled": True, "action": self.action, "zone": self.monitor.zone(now),
+                "nearest_m": None if nearest is None else round(nearest, 3),
+                "scan_age_s": None if age is None else round(age, 3), "reason": self.reason}
+
+    # -- component -----------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        pass
+
+    async def stop(self) -> None:
+        pass
+
+    def health(self) -> dict[str, Any]:
+        now = self.clock()
+        stale = self.monitor.stale(now)
+        return {"status": "degraded" if stale else "ok", **self.status(),
+                "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
+                "entries": dict(self.entries)}
+
+
+def shared_points(ctx: Any) -> ScanPoints:
+    """One scan converter per daemon, so each revolution is converted once."""
+    points: ScanPoints = ctx.extras.setdefault("scan_points", scan_points(ctx.config))
+    return points
+
+
+def disabled_status() -> dict[str, Any]:
+    return {"enabled": False, "action": "none", "zone": "unknown", "nearest_m": None,
+            "scan_age_s": None, "reason": "collision monitor disabled"}
+
+
+def create(ctx: Any) -> SafetyComponent | None:
+    """Build the monitor when ``[lidar]`` and ``[collision_monitor]`` are enabled."""
+    config = ctx.config
+    if not config["lidar"]["enabled"]:
+        ctx.control.status_extras["safety"] = lambda: {
+            **disabled_status(), "reason": "no lidar: nothing keeps the robot out of obstacles"}
+        return None
+    if not config["collision_monitor"]["enabled"]:
+        log.warning("[collision_monitor] enabled = false: the lidar does NOT keep the robot "
+                    "out of obstacles")
+        ctx.control.status_extras["safety"] = disabled_status
+        return None
+    component = SafetyComponent(config, ctx.control, ctx.bus, ctx.latency.metrics.registry,
+                                points=shared_points(ctx))
+    warning = horizon_warning(component.settings)
+    if warning:
+        log.warning("%s", warning)
+    return component
+
