@@ -11,6 +11,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon import __version__, console, lidar
+from daemon.autonomy import component as autonomy
 from daemon.bus import Bus
 from daemon.component import Component, DaemonContext, worst
 from daemon.config import Config, ConfigError, build_driver
@@ -34,6 +35,7 @@ EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 COMPONENTS: dict[str, Callable[[DaemonContext], Component | None]] = {
     "lidar": lidar.create,
     "collision_monitor": safety.create,
+    "autonomy": autonomy.create,
     "rosbridge": rosbridge_server.create,
 }
 

@@ -27,6 +27,7 @@ SECTIONS: dict[str, Options] = {
     "driver": settings.DRIVER_OPTIONS,
     "lidar": LIDAR_OPTIONS,
     "collision_monitor": settings.COLLISION_MONITOR_OPTIONS,
+    "autonomy": settings.AUTONOMY_OPTIONS,
     "http": settings.HTTP_OPTIONS,
     "rosbridge": settings.ROSBRIDGE_OPTIONS,
     "security": settings.SECURITY_OPTIONS,

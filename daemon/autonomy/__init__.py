@@ -1,0 +1,1 @@
+# Autonomous behaviours: a low-priority command source (wander).
