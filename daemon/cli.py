@@ -1,4 +1,4 @@
-# The `arbiterd` command line: run, check, status, safe-stop, bench, lidar.
+# The `arbiterd` command line: run, check, status, safe-stop, bench, simulate, lidar.
 from __future__ import annotations
 
 import argparse
@@ -257,6 +257,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return run_suites(args.only, quick=args.quick, as_json=args.json)
 
 
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from daemon.lockstep import command
+
+    setup_logging("warning")
+    return command.run(args)
+
+
 def cmd_lidar(args: argparse.Namespace) -> int:
     result: int = lidar_cli.run(args)
     return result
@@ -295,8 +302,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="shorter runs")
     bench.add_argument("--only", action="append", help="run only this suite (repeatable)")
     bench.set_defaults(func=cmd_bench)
+    _add_simulate(sub)
     _add_lidar(sub)
     return parser
+
+
+def _add_simulate(sub: Any) -> None:
+    from daemon.lockstep.command import add_parser
+
+    add_parser(sub).set_defaults(func=cmd_simulate)
 
 
 def _add_lidar(sub: Any) -> None:

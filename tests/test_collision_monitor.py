@@ -81,7 +81,7 @@ def brute_contact(psi: float, px: float, py: float, disc: tuple[float, float, fl
                        py - (y + cx * math.sin(th) + cy * math.cos(th)))
         if start < r:
             return 0.0 if d < start else None
-        if d <= r:
+        if d < r - 1e-9:  # grazing a point side-on (d == r) is no contact
             return t
     return math.inf
 

@@ -27,6 +27,8 @@ MODES = ("off", "wander")
 STATE_TOPIC = "autonomy_state"
 PUBLISH_EVERY_S = 1.0
 SECTORS = 48
+#: the tight corridor is the footprint grown by the stop margin and this much (m)
+TIGHT_EXTRA_M = 0.05
 #: a scan older than this stops the behaviour (s)
 SCAN_TIMEOUT_S = 0.5
 
@@ -64,7 +66,8 @@ class AutonomyComponent:
         radius = _footprint_reach(cm)
         autonomy = config["autonomy"]
         self.sectors = Sectors(SECTORS, radius + autonomy["clearance_m"],
-                               1.5 * autonomy["look_ahead_m"])
+                               1.5 * autonomy["look_ahead_m"],
+                               tight_width=radius + cm["stop_margin_m"] + TIGHT_EXTRA_M)
         self.points = points or scan_points(config)
         seed = autonomy["seed"] if seed is None else seed
         self.wander = Wander(wander_settings(config), random.Random(seed or None))
@@ -150,9 +153,9 @@ class AutonomyComponent:
         if blocked is None and self._latched:
             self.set_mode("off", "e-stop, fault or stall cleared: ask again to resume")
             return
-        free = self.free if self.free is not None else np.zeros(self.sectors.count)
-        seen = Perception(free, self.sectors.angles, self.control.odometry.theta, blocked,
-                          self._held())
+        free = self.free if self.free is not None else np.zeros((2, self.sectors.count))
+        seen = Perception(free[0], self.sectors.angles, self.control.odometry.theta, blocked,
+                          self._held(), free[1])
         previous = self.wander.state
         v, w = self.wander.decide(now, seen)
         self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)

@@ -36,9 +36,10 @@ class Perception:
     """What the behaviour sees at one decision.
 
     ``free`` (per sector, counter-clockwise from straight ahead, angles in ``angles``) is the
-    straight-line free travel; ``heading`` the odometry heading; ``blocked`` why the robot
-    may not move (e-stop, fault, stale scan), else None; ``held`` True when the collision
-    monitor is stopping the robot.
+    straight-line free travel with the clearance the behaviour likes to keep, ``tight`` the
+    same with only what the robot needs at the least (None: same as ``free``); ``heading``
+    the odometry heading; ``blocked`` why the robot may not move (e-stop, fault, stale scan),
+    else None; ``held`` True when the collision monitor is stopping the robot.
     """
 
     free: Array
@@ -46,6 +47,12 @@ class Perception:
     heading: float
     blocked: str | None = None
     held: bool = False
+    tight: Array | None = None
+
+    @property
+    def room(self) -> Array:
+        """The tight histogram (where the robot can go at all)."""
+        return self.free if self.tight is None else self.tight
 
 
 class Wander:
@@ -128,7 +135,7 @@ class Wander:
     def _cruise(self, now: float, seen: Perception) -> tuple[float, float]:
         s = self.settings
         ahead = _ahead(seen)
-        if seen.held or ahead < s.rotate_distance:
+        if seen.held or float(seen.room[0]) < s.rotate_distance:
             return self._enter_rotate(now, seen, "blocked ahead")
         if ahead < s.look_ahead:
             self._side = math.copysign(1.0, self._best(seen, 150.0, goal_weight=0.3))
@@ -140,8 +147,8 @@ class Wander:
     def _avoid(self, now: float, seen: Perception) -> tuple[float, float]:
         s = self.settings
         ahead = _ahead(seen)
-        if seen.held or ahead < s.rotate_distance:
-            return self._enter_rotate(now, seen, f"obstacle {ahead:.2f} m ahead")
+        if seen.held or float(seen.room[0]) < s.rotate_distance:
+            return self._enter_rotate(now, seen, f"obstacle {float(seen.room[0]):.2f} m ahead")
         if ahead >= s.look_ahead * 1.25:
             self._go("CRUISE", now, "way ahead is clear")
             return self._cruise(now, seen)
@@ -174,12 +181,12 @@ class Wander:
     def _rotate(self, now: float, seen: Perception) -> tuple[float, float]:
         s = self.settings
         error = _wrap(self._rotate_target - seen.heading)
-        if abs(error) < math.radians(12.0) and _ahead(seen) >= s.rotate_distance * 1.5:
+        if abs(error) < math.radians(12.0) and float(seen.room[0]) >= s.rotate_distance * 1.5:
             self._go("CRUISE", now, "facing free space")
             return 0.0, 0.0
         if self._rotated > s.rotate_limit_rad:
             return self._enter_backup(now, seen, "no way out found turning")
-        if np.max(seen.free) < s.rotate_distance:
+        if np.max(seen.room) < s.rotate_distance * 1.5:
             return self._enter_backup(now, seen, "boxed in")
         rate = min(s.turn_speed, 2.5 * abs(error) + 0.3)
         return 0.0, self._side * rate
@@ -191,7 +198,7 @@ class Wander:
         return self._backup(now, seen)
 
     def _backup(self, now: float, seen: Perception) -> tuple[float, float]:
-        behind = float(seen.free[len(seen.free) // 2])
+        behind = float(seen.room[len(seen.room) // 2])
         if now >= self._backup_until or behind < 0.05:
             target = self._freest(seen)
             self._rotate_target = seen.heading + target
@@ -215,16 +222,19 @@ class Wander:
         allowed = np.abs(angles) <= math.radians(within_deg)
         if side:
             allowed &= (angles * side >= 0)
-        allowed &= seen.free >= self.settings.rotate_distance
-        if not allowed.any():
-            return 0.0
-        return float(angles[np.argmax(np.where(allowed, score, -np.inf))])
+        for room in (seen.free, seen.room):  # comfortable first, else wherever it fits
+            fits = allowed & (room >= self.settings.rotate_distance)
+            if fits.any():
+                return float(angles[np.argmax(np.where(fits, score, -np.inf))])
+        return 0.0
 
     def _freest(self, seen: Perception) -> float:
-        """Where to turn in place: the most open direction, nearer ones and the committed
-        side preferred on ties."""
+        """Where to turn in place: the most open direction (comfortably if there is such
+        room, else where the robot fits), nearer ones and the committed side preferred."""
         angles = seen.angles
-        score = seen.free - 0.15 * np.abs(angles) - 0.05 * (angles * self._side < 0)
+        room = seen.free if np.max(seen.free) >= 1.5 * self.settings.rotate_distance else \
+            seen.room
+        score = room - 0.15 * np.abs(angles) - 0.05 * (angles * self._side < 0)
         best = float(angles[int(np.argmax(score))])
         return best if abs(best) > 1e-6 else math.pi * self._side
 

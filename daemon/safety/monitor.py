@@ -79,6 +79,8 @@ class Table:
     nearest: float
     zone: str
     bins: dict[int, tuple[float, float]]
+    #: no path can bring any disc into the slowdown zone within this much travel
+    open_travel: float = 0.0
 
 
 class CollisionMonitor:
@@ -102,7 +104,8 @@ class CollisionMonitor:
                                        fp.discs + grow * settings.slowdown_margin])
         self._disc_count = len(fp.discs)
         offsets = float(np.hypot(fp.discs[:, 0], fp.discs[:, 1]).max())
-        stretch = math.hypot(1.0, offsets / SCALE)
+        #: a disc moves at most this many metres per unit of travel (corners swing out)
+        self._stretch = stretch = math.hypot(1.0, offsets / SCALE)
         self.reach = settings.horizon * stretch + offsets + float(fp.discs[:, 2].max()) + \
             settings.slowdown_margin
         self._bin_width = 2.0 * math.pi / settings.bins
@@ -170,15 +173,20 @@ class CollisionMonitor:
         if self._odom_points is None:
             return
         ox, oy = self._odom_points
-        c, s = math.cos(pose[2]), math.sin(pose[2])
+        cos, sin = math.cos(pose[2]), math.sin(pose[2])
         dx, dy = ox - pose[0], oy - pose[1]
-        px, py = c * dx + s * dy, -s * dx + c * dy
+        px, py = cos * dx + sin * dy, -sin * dx + cos * dy
         keep = np.hypot(px, py) <= self.reach
         px, py = px[keep], py[keep]
-        nearest = self._kth(self.settings.footprint.clearance(px, py))
-        zone = "stop" if nearest <= self.settings.stop_margin else (
-            "slowdown" if nearest <= self.settings.slowdown_margin else "clear")
-        self.table = Table(pose, px, py, nearest, zone, {})
+        s = self.settings
+        nearest = self._kth(s.footprint.clearance(px, py))
+        zone = "stop" if nearest <= s.stop_margin else (
+            "slowdown" if nearest <= s.slowdown_margin else "clear")
+        discs = s.footprint.discs
+        to_discs = (np.hypot(px[None, :] - discs[:, 0:1], py[None, :] - discs[:, 1:2]) -
+                    discs[:, 2:3]).min(axis=0)
+        open_travel = (self._kth(to_discs) - s.slowdown_margin) / self._stretch
+        self.table = Table(pose, px, py, nearest, zone, {}, open_travel)
 
     def _kth(self, values: Array) -> float:
         k = self.settings.min_points
@@ -207,9 +215,13 @@ class CollisionMonitor:
         if target is None and current is None:
             return Verdict(linear, angular, False, "none", "")
         table = self._refresh()
+        travel = self._travel(table, current_linear, current_angular, now)
+        fastest = max(target.sigma if target else 0.0, current.sigma if current else 0.0)
+        if (table.open_travel - travel) > fastest * self.settings.time_before_collision:
+            self._stopped = False  # nothing any path could reach in time: no sweep needed
+            return Verdict(linear, angular, False, "none", "")
         self._compute(table, (target.bins if target else []) +
                       (current.bins if current and current is not target else []))
-        travel = self._travel(table, current_linear, current_angular, now)
         fraction, action, reason, hard = self._judge(table, target, travel, self._stopped)
         # the motion as it is now may need the emergency deceleration whatever the target
         unsafe_now = hard if current is target else self._judge(table, current, travel)[3]
@@ -306,10 +318,13 @@ class CollisionMonitor:
         """Compute the bins these twists will need now, so the next commands find them."""
         if self.table is None:
             return
-        paths = [self._path(linear, angular) for linear, angular in twists]
-        bins = [b for path in paths if path is not None for b in path.bins]
-        if bins:
-            self._compute(self._refresh(), bins)
+        paths = [p for p in (self._path(v, w) for v, w in twists) if p is not None]
+        if not paths:
+            return
+        table = self._refresh()
+        if table.open_travel > max(p.sigma for p in paths) * self.settings.time_before_collision:
+            return  # open space: the check will not need them
+        self._compute(table, [b for path in paths for b in path.bins])
 
     def _deceleration(self, psi: float) -> float:
         """The emergency deceleration along a path direction, in travel units per s²."""

@@ -1,0 +1,104 @@
+# `arbiterd simulate`: options -> a lockstep run -> the run metrics as a table or JSON.
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+from daemon.config import Config, ConfigError, load_config
+from daemon.lockstep.runner import Lockstep
+from daemon.lockstep.script import ScriptError, load_script
+from sim.settings import SimConfigError
+from sim.world import WorldError
+
+EXIT_OK, EXIT_USAGE, EXIT_CONFIG = 0, 2, 78
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p: argparse.ArgumentParser = sub.add_parser(
+        "simulate", help="run the control loop, safety, autonomy and the simulated world in "
+        "lockstep virtual time, faster than real time; print the run metrics")
+    p.add_argument("--seconds", type=float, required=True, help="simulated seconds to run")
+    p.add_argument("--seed", type=int, help="[sim] seed: obstacle placement, noise, wander")
+    p.add_argument("--world", help="world file (.toml or .json) instead of the seeded arena")
+    p.add_argument("--autonomy", choices=("wander",), help="start the wander behaviour")
+    p.add_argument("--script", help="timed commands and events to replay (.toml or .json)")
+    p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    p.add_argument("--csv", help="stream the run metrics to this CSV file")
+    p.add_argument("--config", help="take [robot], [limits], [control], [collision_monitor], "
+                   "[autonomy] and [sim] from this config file (default: built-in defaults)")
+    p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
+                   "change to stderr")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.getLogger().setLevel(logging.INFO if args.verbose else logging.WARNING)
+    if not args.seconds > 0:
+        print("arbiterd simulate: --seconds must be > 0", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        script = load_script(args.script) if args.script else []
+    except ScriptError as exc:
+        print(f"arbiterd simulate: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        config = _config(args)
+        runner = Lockstep(config, script=script, autonomy=args.autonomy)
+    except ConfigError as exc:
+        for problem in exc.problems:
+            print(f"arbiterd simulate: {problem}", file=sys.stderr)
+        return EXIT_CONFIG
+    except (SimConfigError, WorldError, OSError, ValueError) as exc:
+        print(f"arbiterd simulate: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    result = asyncio.run(runner.run(args.seconds))
+    print(json.dumps(result) if args.json else format_report(result))
+    return EXIT_OK
+
+
+def _config(args: argparse.Namespace) -> Config:
+    config = load_config(Path(args.config) if args.config else None, sim=True, env={})
+    sim = config.sections["sim"]
+    if args.seed is not None:
+        sim["seed"] = args.seed
+    if args.world:
+        sim["world_file"] = args.world
+    if args.csv:
+        sim["metrics_csv"] = args.csv
+    return config
+
+
+def format_report(r: dict[str, Any]) -> str:
+    cov, safety, autonomy = r["coverage"], r["safety"], r["autonomy"]
+    lines = [
+        f"arbiterd simulate: {r['seconds']:g} s of {r['world']} (seed {r['seed']}) in "
+        f"{r['wall_s']:.2f} s wall, {r['realtime_factor']}x real time",
+        f"  collisions          {r['collisions']}",
+        f"  path length         {r['path_length_m']:.2f} m",
+        f"  mean speed          {r['mean_speed_m_s']:.3f} m/s (max {r['max_speed_m_s']:.2f})",
+        f"  smoothness (RMS)    linear acc {r['smoothness']['rms_linear_acceleration_m_s2']:.3f}"
+        f" m/s2, jerk {r['smoothness']['rms_linear_jerk_m_s3']:.1f} m/s3; angular acc "
+        f"{r['smoothness']['rms_angular_acceleration_rad_s2']:.3f} rad/s2",
+        f"  coverage            {100 * cov['fraction']:.1f} % of the free area "
+        f"({cov['visited_cells']}/{cov['free_cells']} cells of {cov['cell_m']} m)",
+        f"  nearest approach    {r['min_clearance_m']:.3f} m (footprint to obstacle)",
+    ]
+    if autonomy["mode"] != "off" or autonomy["transitions"]:
+        times = ", ".join(f"{k} {v:.1f} s" for k, v in autonomy["state_times_s"].items() if v)
+        lines.append(f"  autonomy            {autonomy['transitions']} transitions; {times}")
+    if safety["enabled"]:
+        acts = ", ".join(f"{k} {safety['entries'][k]}x / {safety['time_s'][k]:.1f} s"
+                         for k in ("stop", "limit", "slowdown"))
+        lines.append(f"  collision monitor   {acts}")
+    else:
+        lines.append("  collision monitor   disabled")
+    for mark in r["marks"]:
+        lines.append(f"  at {mark['t']:7.2f} s {mark['label']:<10} x {mark['x']:.2f} y "
+                     f"{mark['y']:.2f} v {mark['v']:.2f} clearance {mark['clearance_m']:.3f} m "
+                     f"safety {mark['safety']}")
+    return "\n".join(lines)

@@ -1,0 +1,256 @@
+# The lockstep runner: control loop, collision monitor, autonomy and world on one virtual clock.
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from daemon.autonomy.component import AutonomyComponent
+from daemon.bus import Bus
+from daemon.config import Config
+from daemon.control.clock import VirtualClock
+from daemon.control.commands import Twist
+from daemon.control.kinematics import DiffDrive
+from daemon.control.loop import ControlLoop
+from daemon.latency import LatencyTracker
+from daemon.lockstep.driver import WorldDriver
+from daemon.lockstep.script import Step
+from daemon.safety.component import SafetyComponent, scan_points
+from sensors.scan import LaserScan
+from sim.coverage import Coverage
+from sim.settings import SimConfig
+from sim.stepper import SimWorld
+
+SCRIPT_SOURCE = "script"
+
+
+@dataclass
+class Sender:
+    """A scripted teleop client: re-sends its twist at a fixed rate."""
+
+    twist: Twist | None = None
+    period: float = 0.1
+    next_send: float = math.inf
+    sent: int = 0
+    refused: int = 0
+
+
+@dataclass
+class LidarFeed:
+    """The simulated lidar in lockstep: a revolution is cast at its first ray's time and
+    delivered one revolution later (as the device delivers it), unless stalled."""
+
+    period: float
+    next_cast: float = 0.0
+    pending: list[tuple[float, LaserScan]] = field(default_factory=list)
+    stalled: bool = False
+    delivered: int = 0
+
+
+class Lockstep:
+    """Builds the daemon's control code around a :class:`SimWorld` and steps both.
+
+    Per physics step at virtual time t: due script steps, due lidar revolutions (published on
+    the bus as the lidar component does), a control tick when one is due (internal sources,
+    arbiter, collision monitor, limiter, the driver write into the world's motors, odometry
+    from the world's encoders), then the world's physics step. Nothing sleeps; the clock only
+    moves here, so a run repeats exactly for a seed.
+    """
+
+    def __init__(self, config: Config, *, script: Sequence[Step] = (),
+                 autonomy: str | None = None) -> None:
+        self.config = config
+        self._simulated_lidar(config)
+        self.clock = VirtualClock()
+        sim = SimConfig.from_section(config["sim"])
+        robot = config["robot"]
+        self.world = SimWorld(sim, wheel_radius=robot["wheel_radius"],
+                              wheel_separation=robot["wheel_separation"])
+        self.bus = Bus()
+        self.latency = LatencyTracker(window=1000)
+        limits = config["limits"]
+        max_wheel = robot["max_wheel_speed"] or DiffDrive.from_config(robot).max_wheel_speed(
+            limits["linear.x.max_velocity"], limits["angular.z.max_velocity"])
+        self.driver = WorldDriver(self.world.motors, self.clock, max_wheel_speed=max_wheel)
+        self.control = ControlLoop(config, self.driver, self.bus, self.latency, clock=self.clock)
+        points = scan_points(config)
+        self.safety = (SafetyComponent(config, self.control, self.bus,
+                                       self.latency.metrics.registry, wall_clock=self.clock,
+                                       points=points)
+                       if config["collision_monitor"]["enabled"] else None)
+        self.autonomy = AutonomyComponent(config, self.control, self.bus, lidar=True,
+                                          seed=sim.seed, points=points)
+        self.script = list(script)
+        self.start_mode = autonomy
+        self.sender = Sender()
+        self.lidar = LidarFeed(1.0 / sim.lidar_rate)
+        self.coverage = Coverage(self.world.world, sim.footprint_radius)
+        self.marks: list[dict[str, Any]] = []
+        self.min_clearance = math.inf
+        self._clearance_bound = -math.inf
+        self._since_clearance = 0.0
+
+    @staticmethod
+    def _simulated_lidar(config: Config) -> None:
+        """The world's lidar sits at the robot's centre and is always there."""
+        sim = config["sim"]
+        config.sections["lidar"].update(enabled=True, mount_x=0.0, mount_y=0.0,
+                                        mount_yaw_deg=0.0, range_min=sim["range_min"],
+                                        range_max=sim["range_max"])
+
+    # -- running --------------------------------------------------------------------------------
+
+    async def run(self, seconds: float) -> dict[str, Any]:
+        start = time.perf_counter()
+        await self.control.start(realtime=False)
+        if self.start_mode:
+            self.autonomy.set_mode(self.start_mode, "--autonomy")
+        dt = self.world.config.physics_dt
+        period = self.control.period_s
+        next_tick = 0.0
+        steps = round(seconds / dt)
+        for index in range(steps):
+            t = index * dt
+            self.clock.set(t)
+            await self._script_until(t)
+            self._lidar_at(t)
+            if t + 1e-9 >= next_tick:
+                await self.control.tick(next_tick)
+                next_tick += period
+            self.world.step()
+            self._track()
+        self.clock.set(steps * dt)
+        await self._script_until(steps * dt, final=True)
+        result = self.report(seconds, time.perf_counter() - start)
+        await self.control.stop()
+        self.world.close()
+        return result
+
+    async def _script_until(self, t: float, final: bool = False) -> None:
+        while self.script and self.script[0].t <= t + 1e-9:
+            step = self.script.pop(0)
+            self._mark(step.label, t)
+            await self._apply(step, t)
+        if final:
+            return
+        sender = self.sender
+        if sender.twist is not None and t + 1e-9 >= sender.next_send:
+            applied = await self.control.submit(SCRIPT_SOURCE, sender.twist, t_recv=t)
+            sender.sent += 1
+            sender.refused += not applied.accepted
+            sender.next_send += sender.period
+
+    async def _apply(self, step: Step, t: float) -> None:
+        sender = self.sender
+        if step.action == "cmd_vel":
+            sender.twist, sender.period, sender.next_send = step.value, 1.0 / step.rate, t
+        elif step.action == "stop":
+            sender.twist, sender.next_send = None, math.inf
+        elif step.action == "estop":
+            if step.value:
+                await self.control.engage_estop("script")
+            else:
+                self.control.release_estop()
+        elif step.action == "autonomy":
+            refusal = self.autonomy.refusal(step.value)
+            if refusal is None:
+                self.autonomy.set_mode(step.value, "script")
+        elif step.action == "lidar":
+            self.lidar.stalled = step.value == "stall"
+            if self.lidar.stalled:
+                self.lidar.pending.clear()
+            else:
+                self.lidar.next_cast = t
+
+    def _lidar_at(self, t: float) -> None:
+        feed = self.lidar
+        while feed.pending and feed.pending[0][0] <= t + 1e-9:
+            _, scan = feed.pending.pop(0)
+            feed.delivered += 1
+            self.bus.publish("scan", scan)
+        if not feed.stalled and t + 1e-9 >= feed.next_cast:
+            feed.pending.append((t + feed.period, self._cast(t)))
+            feed.next_cast = t + feed.period
+
+    def _cast(self, t: float) -> LaserScan:
+        sim = self.world.config
+        ranges = self.world.scan()
+        step = 2.0 * math.pi / len(ranges)
+        return LaserScan(stamp=t, frame_id="laser", angle_min=0.0,
+                         angle_max=step * (len(ranges) - 1), angle_increment=step,
+                         time_increment=self.lidar.period / len(ranges),
+                         scan_time=self.lidar.period, range_min=sim.range_min,
+                         range_max=sim.range_max, ranges=ranges.astype(np.float32))
+
+    def _track(self) -> None:
+        state = self.world.physics.state
+        self.coverage.visit(state.x, state.y)
+        self._since_clearance += state.travelled
+        if self._clearance_bound - self._since_clearance > self.min_clearance:
+            return  # cannot be a new minimum yet: it was this far and moved only so much
+        clearance = self.truth_clearance()
+        self._clearance_bound, self._since_clearance = clearance, 0.0
+        self.min_clearance = min(self.min_clearance, clearance)
+
+    def truth_clearance(self) -> float:
+        """Ground truth: distance from the footprint to the nearest wall or obstacle (m)."""
+        state = self.world.physics.state
+        return self.world.world.clearance(state.x, state.y) - \
+            self.world.geometry.footprint_radius
+
+    def _mark(self, label: str, t: float) -> None:
+        state = self.world.physics.state
+        self.marks.append({
+            "label": label, "t": round(t, 4), "x": round(state.x, 4), "y": round(state.y, 4),
+            "theta": round(state.theta, 4), "v": round(state.v, 4),
+            "clearance_m": round(self.truth_clearance(), 4),
+            "safety": self.safety.action if self.safety else "disabled",
+        })
+
+    # -- the result ----------------------------------------------------------------------------
+
+    def report(self, seconds: float, wall_s: float) -> dict[str, Any]:
+        summary = self.world.metrics_summary()
+        state = self.world.physics.state
+        autonomy = self.autonomy.status()
+        return {
+            "seconds": seconds, "seed": self.world.config.seed,
+            "world": self.world.config.world_file or "generated arena",
+            "collisions": summary["collisions"],
+            "path_length_m": summary["path_length_m"],
+            "mean_speed_m_s": summary["mean_speed_m_s"],
+            "max_speed_m_s": summary["max_speed_m_s"],
+            "smoothness": {k: summary[k] for k in (
+                "rms_linear_acceleration_m_s2", "rms_angular_acceleration_rad_s2",
+                "rms_linear_jerk_m_s3", "rms_angular_jerk_rad_s3")},
+            "coverage": {"fraction": round(self.coverage.fraction, 4),
+                         "visited_cells": self.coverage.visited_free,
+                         "free_cells": self.coverage.free_cells,
+                         "cell_m": self.coverage.cell},
+            "min_clearance_m": round(self.min_clearance, 4),
+            "autonomy": {"mode": autonomy["mode"], "state": autonomy["state"],
+                         "transitions": autonomy["transitions"],
+                         "state_times_s": autonomy["state_times_s"]},
+            "safety": self._safety_report(),
+            "commands": {"sent": self.sender.sent, "refused": self.sender.refused},
+            "lidar_revolutions": self.lidar.delivered,
+            "final": {"x": round(state.x, 4), "y": round(state.y, 4),
+                      "theta": round(state.theta, 4),
+                      "clearance_m": round(self.truth_clearance(), 4)},
+            "marks": self.marks,
+            "wall_s": round(wall_s, 3),
+            "realtime_factor": round(seconds / wall_s, 1) if wall_s > 0 else None,
+        }
+
+    def _safety_report(self) -> dict[str, Any]:
+        safety = self.safety
+        if safety is None:
+            return {"enabled": False}
+        return {"enabled": True, "action": safety.action, "changes": safety.changes,
+                "entries": dict(safety.entries),
+                "time_s": {k: round(v, 3) for k, v in safety.time_in.items()},
+                "stop_margin_m": safety.settings.stop_margin}
