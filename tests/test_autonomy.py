@@ -48,11 +48,12 @@ def wall_ahead(distance: float) -> Callable[[np.ndarray], np.ndarray]:
 # -- the sector histogram -------------------------------------------------------------------------
 
 def test_sectors_measure_the_corridor_the_robot_needs() -> None:
-    sectors = Sectors(48, half_width=0.3, look=3.0)
-    free = sectors.free(np.array([1.5]), np.array([0.25]))  # a post just left of the path
-    assert free[0] == pytest.approx(1.5 - math.sqrt(0.3 ** 2 - 0.25 ** 2))
-    assert free[sectors.index(math.pi / 2)] == pytest.approx(3.0)  # nothing to the left
-    assert free[sectors.index(-math.radians(30))] == pytest.approx(3.0)  # clear to the right
+    sectors = Sectors(48, half_width=0.3, look=3.0, tight_width=0.2)
+    comfortable, tight = sectors.free(np.array([1.5]), np.array([0.25]))  # a post just left
+    assert comfortable[0] == pytest.approx(1.5 - math.sqrt(0.3 ** 2 - 0.25 ** 2))
+    assert tight[0] == pytest.approx(3.0)  # the robot itself would pass it
+    assert comfortable[sectors.index(math.pi / 2)] == pytest.approx(3.0)  # nothing left
+    assert comfortable[sectors.index(-math.radians(30))] == pytest.approx(3.0)  # clear right
 
 
 # -- the FSM -----------------------------------------------------------------------------------

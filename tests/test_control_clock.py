@@ -6,14 +6,13 @@ from collections.abc import AsyncIterator
 import pytest
 
 from daemon.bus import Bus
-from daemon.config import load_config
+from daemon.config import build_driver, load_config
 from daemon.control.clock import VirtualClock
 from daemon.control.commands import Twist
 from daemon.control.guard import Guarded
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
-from daemon.probe import build_driver
 
 
 @pytest.fixture

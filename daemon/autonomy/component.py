@@ -234,20 +234,6 @@ def create(ctx: Any) -> AutonomyComponent:
     component = AutonomyComponent(ctx.config, ctx.control, ctx.bus,
                                   lidar=ctx.config["lidar"]["enabled"],
                                   points=shared_points(ctx))
-    ctx.http.add_route("GET", "/api/autonomy", _read(ctx, component.get_autonomy))
-    ctx.http.add_route("POST", "/api/autonomy", _drive(ctx, component.post_autonomy))
+    ctx.http.add_route("GET", "/api/autonomy", component.get_autonomy, access="read")
+    ctx.http.add_route("POST", "/api/autonomy", component.post_autonomy, access="drive")
     return component
-
-
-def _read(ctx: Any, handler: Any) -> Any:
-    async def guarded(request: web.Request) -> web.StreamResponse:
-        ctx.security.require_read(request)
-        return await handler(request)
-    return guarded
-
-
-def _drive(ctx: Any, handler: Any) -> Any:
-    async def guarded(request: web.Request) -> web.StreamResponse:
-        ctx.security.require_token(request)
-        return await handler(request)
-    return guarded
