@@ -80,6 +80,7 @@ class AutonomyComponent:
         self._latched = False
         self._last_published = -math.inf
         self._published_state = ""
+        control.behaviours[SOURCE] = self.request
         control.tick_sources.append(self._tick)
         control.on_command.append(self._on_command)
         control.on_tick.append(self._on_tick)
@@ -117,6 +118,15 @@ class AutonomyComponent:
             self.control.arbiter.drop(SOURCE)
         log.info("autonomy %s (%s)", mode, reason)
         self._publish(now)
+
+    def request(self, mode: str, reason: str = "requested") -> str | None:
+        """Switch the mode if it may be switched now; why not, else None."""
+        if mode not in MODES:
+            return f"mode must be one of {', '.join(MODES)}, got {mode!r}"
+        refusal = self.refusal(mode)
+        if refusal is None:
+            self.set_mode(mode, reason)
+        return refusal
 
     def _on_command(self, source: str) -> None:
         if source != SOURCE and self.mode != "off":
@@ -199,10 +209,9 @@ class AutonomyComponent:
         if mode not in MODES:
             raise ApiError(422, "invalid autonomy request: mode: expected \"wander\" or "
                            "\"off\"", {"got": mode})
-        refusal = self.refusal(mode)
+        refusal = self.request(mode, "requested over HTTP")
         if refusal:
             raise ApiError(409, f"autonomy refused: {refusal}")
-        self.set_mode(mode, "requested over HTTP")
         return json_response(self.status())
 
     # -- component -----------------------------------------------------------------------------

@@ -1,14 +1,23 @@
 # A motor driver whose wheels are the simulated world's motors (no wire, virtual time).
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from daemon.control.clock import Clock
 from drivers.base import EncoderReading, MotorDriver
 from sim.motor_model import MotorPair
 
 
+@dataclass(frozen=True)
+class WorldSettings:
+    """The world driver has no options."""
+
+
 class WorldDriver(MotorDriver):
     """Commands set the world's wheel targets; encoders read the world's wheel positions
     (with the world's encoder noise), stamped with the virtual clock."""
+
+    SETTINGS = WorldSettings
 
     def __init__(self, motors: MotorPair, clock: Clock, *, max_wheel_speed: float) -> None:
         super().__init__({}, max_wheel_speed=max_wheel_speed)

@@ -156,9 +156,7 @@ class Lockstep:
             else:
                 self.control.release_estop()
         elif step.action == "autonomy":
-            refusal = self.autonomy.refusal(step.value)
-            if refusal is None:
-                self.autonomy.set_mode(step.value, "script")
+            self.autonomy.request(step.value, "script")
         elif step.action == "lidar":
             self.lidar.stalled = step.value == "stall"
             if self.lidar.stalled:

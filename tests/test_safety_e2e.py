@@ -1,0 +1,75 @@
+# Real time, end to end: `arbiterd run --sim` driven at a wall over HTTP, then wandering on its own.
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from daemon.settings import COLLISION_MONITOR_OPTIONS
+from tests.conftest import DaemonProcess, wait_for
+from tests.daemon_proc import REPO
+
+WALL_X = 3.0  # tests/scenarios/wall.toml: the robot starts at x = 0 facing this wall
+FOOTPRINT = 0.2  # [sim] footprint_radius default
+STOP_MARGIN = COLLISION_MONITOR_OPTIONS["stop_margin_m"].default
+
+
+def status(daemon: DaemonProcess) -> dict[str, Any]:
+    code, body = daemon.get("/api/status")
+    assert code == 200, body
+    return body  # type: ignore[no-any-return]
+
+
+def test_driving_at_a_wall_over_http_and_wandering(
+        daemon_process: Callable[..., DaemonProcess]) -> None:
+    world = REPO / "tests" / "scenarios" / "wall.toml"
+    daemon = daemon_process(f'[sim]\ndriver = "mock"\nworld_file = "{world}"\n',
+                            args=("--sim",))
+    wait_for(lambda: status(daemon)["safety"]["zone"] != "unknown", "the first revolution")
+
+    closest, actions = drive_at_the_wall(daemon, seconds=7.0)
+    assert closest >= STOP_MARGIN, f"ground truth came within {closest:.3f} m of the wall"
+    assert "stop" in actions  # /api/status showed the monitor holding the robot
+    safety = status(daemon)["safety"]
+    assert safety["zone"] == "stop" and safety["nearest_m"] is not None
+    assert safety["scan_age_s"] is not None and safety["scan_age_s"] < 0.5
+    code, metrics = daemon.get("/api/sim/metrics")
+    assert code == 200 and metrics["collisions"] == 0
+    code, text = daemon.get("/metrics")
+    assert code == 200 and 'arbiterd_collision_monitor_actions_total{action="stop"}' in text
+
+    assert daemon.post("/api/sim/reset", {})[0] == 200
+    code, body = daemon.post("/api/autonomy", {"mode": "wander"})
+    assert code == 200 and body["mode"] == "wander", body
+    start = daemon.get("/api/sim/metrics")[1]["path_length_m"]
+    metrics = watch_for(daemon, 20.0)  # the behaviour on its own for 20 s of real time
+    assert metrics["path_length_m"] - start > 2.0, metrics  # it did get around
+    code, autonomy = daemon.get("/api/autonomy")
+    assert autonomy["mode"] == "wander" and autonomy["state"] != "STOPPED", autonomy
+    assert "collision monitor:" in daemon.log()  # changes of action are logged
+
+
+def drive_at_the_wall(daemon: DaemonProcess, seconds: float) -> tuple[float, set[str]]:
+    """A teleop holding 1 m/s toward the wall at ~20 Hz; the closest the footprint came to
+    the wall (ground truth) and the safety actions /api/status showed."""
+    closest, actions = float("inf"), set()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        code, body = daemon.post("/api/cmd_vel", {"linear": {"x": 1.0}})
+        assert code == 200, body
+        now = status(daemon)
+        closest = min(closest, WALL_X - now["ground_truth"]["x"] - FOOTPRINT)
+        actions.add(now["safety"]["action"])
+        time.sleep(0.05)
+    return closest, actions
+
+
+def watch_for(daemon: DaemonProcess, seconds: float) -> dict[str, Any]:
+    """Poll /api/sim/metrics for ``seconds``, failing at the first collision; the last."""
+    deadline = time.monotonic() + seconds
+    while True:
+        code, metrics = daemon.get("/api/sim/metrics")
+        assert code == 200 and metrics["collisions"] == 0, metrics
+        if time.monotonic() >= deadline:
+            return metrics  # type: ignore[no-any-return]
+        time.sleep(0.25)
