@@ -74,6 +74,7 @@ class AutonomyComponent:
         self.period = 1.0 / autonomy["decision_rate"]
         self.mode = "off"
         self.free: np.ndarray | None = None
+        self._scan: LaserScan | None = None
         self.scan_time: float | None = None
         self._next_decision = -math.inf
         self._invalidations = control.invalidations
@@ -135,9 +136,15 @@ class AutonomyComponent:
     # -- inputs --------------------------------------------------------------------------------
 
     def on_scan(self, scan: LaserScan) -> None:
-        px, py = self.points(scan)
-        self.free = self.sectors.free(px, py)
+        """Keep the revolution; its histogram is built when a decision needs it."""
+        self._scan = scan
         self.scan_time = self.clock()
+
+    def _histogram(self) -> np.ndarray | None:
+        if self._scan is not None:
+            self.free = self.sectors.free(*self.points(self._scan))
+            self._scan = None
+        return self.free
 
     def _blocked(self, now: float) -> str | None:
         control = self.control
@@ -148,8 +155,7 @@ class AutonomyComponent:
             return "e-stop engaged"
         if control.fault:
             return f"driver fault: {control.fault}"
-        if self.scan_time is None or self.free is None or \
-                now - self.scan_time > SCAN_TIMEOUT_S:
+        if self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S:
             return "no fresh lidar scan"
         return None
 
@@ -163,7 +169,8 @@ class AutonomyComponent:
         if blocked is None and self._latched:
             self.set_mode("off", "e-stop, fault or stall cleared: ask again to resume")
             return
-        free = self.free if self.free is not None else np.zeros((2, self.sectors.count))
+        histogram = self._histogram()
+        free = histogram if histogram is not None else np.zeros((2, self.sectors.count))
         seen = Perception(free[0], self.sectors.angles, self.control.odometry.theta, blocked,
                           self._held(), free[1])
         previous = self.wander.state

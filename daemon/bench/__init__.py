@@ -61,4 +61,5 @@ SUITES: dict[str, str] = {
     "rosbridge": "daemon.bench.rosbridge",
     "console": "daemon.bench.console",
     "rosbridge-flood": "daemon.bench.rosbridge_flood",
+    "safety": "daemon.bench.safety",
 }

@@ -182,10 +182,14 @@ class CollisionMonitor:
         nearest = self._kth(s.footprint.clearance(px, py))
         zone = "stop" if nearest <= s.stop_margin else (
             "slowdown" if nearest <= s.slowdown_margin else "clear")
-        discs = s.footprint.discs
-        to_discs = (np.hypot(px[None, :] - discs[:, 0:1], py[None, :] - discs[:, 1:2]) -
-                    discs[:, 2:3]).min(axis=0)
-        open_travel = (self._kth(to_discs) - s.slowdown_margin) / self._stretch
+        if s.footprint.round:
+            to_discs = nearest  # the one disc is the footprint
+        else:
+            discs = s.footprint.discs
+            to_discs = self._kth((np.hypot(px[None, :] - discs[:, 0:1],
+                                           py[None, :] - discs[:, 1:2]) -
+                                  discs[:, 2:3]).min(axis=0))
+        open_travel = (to_discs - s.slowdown_margin) / self._stretch
         self.table = Table(pose, px, py, nearest, zone, {}, open_travel)
 
     def _kth(self, values: Array) -> float:
