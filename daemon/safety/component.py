@@ -15,7 +15,7 @@ from daemon.control.clock import Clock
 from daemon.control.guard import Guarded
 from daemon.control.loop import ControlLoop
 from daemon.safety.footprint import Footprint
-from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings, severity
+from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings
 from sensors.scan import LaserScan
 
 log = logging.getLogger("arbiterd.safety")
@@ -25,6 +25,7 @@ HOLD_S = 0.25
 #: the state is published on change and at least this often (s)
 PUBLISH_EVERY_S = 1.0
 STATE_TOPIC = "collision_monitor_state"
+SEVERE_FIRST = ACTIONS[:0:-1]  # stop, limit, slowdown
 
 
 def monitor_settings(config: Config) -> MonitorSettings:
@@ -168,8 +169,9 @@ class SafetyComponent:
 
     def _report(self, action: str, reason: str, now: float) -> None:
         """The reported action is the most severe one seen within ``HOLD_S``."""
-        self._seen[action] = now
-        held = max((a for a in ACTIONS if now - self._seen[a] <= HOLD_S), key=severity)
+        seen = self._seen
+        seen[action] = now
+        held = next((a for a in SEVERE_FIRST if now - seen[a] <= HOLD_S), "none")
         elapsed = now - self._last_report if self._last_report > -math.inf else 0.0
         self.time_in[self.action] += max(0.0, elapsed)
         self._last_report = now

@@ -117,12 +117,21 @@ class CollisionMonitor:
         self.scans = 0
         self.bin_computations = 0
         self._stopped = False
+        #: the twists of the last check that needed the sweep (None: open space)
+        self._in_use: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     # -- inputs -----------------------------------------------------------------------------
 
     def observe(self, now: float, x: float, y: float, theta: float) -> None:
-        """The odometry pose at ``now`` (once per control tick)."""
+        """The odometry pose at ``now`` (once per control tick). While the last check needed
+        the sweep, the points are placed around the robot again here, on the tick, when it
+        has moved far enough, with the bins of that check ready, so that the commands'
+        event path finds them."""
         self._poses.append((now, x, y, theta))
+        if self._in_use is not None and self.table is not None:
+            placed = self.table
+            if self._refresh() is not placed:
+                self.warm(*self._in_use)
 
     def _refresh(self) -> Table:
         """The table, placed around the robot again if it has moved or turned noticeably
@@ -223,7 +232,9 @@ class CollisionMonitor:
         fastest = max(target.sigma if target else 0.0, current.sigma if current else 0.0)
         if (table.open_travel - travel) > fastest * self.settings.time_before_collision:
             self._stopped = False  # nothing any path could reach in time: no sweep needed
+            self._in_use = None
             return Verdict(linear, angular, False, "none", "")
+        self._in_use = ((linear, angular), (current_linear, current_angular))
         self._compute(table, (target.bins if target else []) +
                       (current.bins if current and current is not target else []))
         fraction, action, reason, hard = self._judge(table, target, travel, self._stopped)
@@ -361,6 +372,3 @@ def _braking_speed(room: float, deceleration: float, reaction: float) -> float:
 def _wrap(angle: float) -> float:
     return math.atan2(math.sin(angle), math.cos(angle))
 
-
-def severity(action: str) -> int:
-    return ACTIONS.index(action)
