@@ -119,7 +119,9 @@ def check_scan_matches_world(daemon: DaemonProcess, truth: dict[str, Any]) -> No
 
 
 def test_driving_into_an_obstacle_counts_a_collision(tmp_path: Path) -> None:
-    toml = '[sim]\ndriver = "serial"\nnoise = false\n'
+    # the collision monitor would stop the robot short of it (tests/test_simulate.py)
+    toml = ('[sim]\ndriver = "serial"\nnoise = false\n'
+            '[collision_monitor]\nenabled = false\n')
     with DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
         sim = SimConfig.from_section({"seed": 1, "noise": False})
         world = build_world(sim)
