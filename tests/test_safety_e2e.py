@@ -29,7 +29,8 @@ def test_driving_at_a_wall_over_http_and_wandering(
 
     closest, actions = drive_at_the_wall(daemon, seconds=7.0)
     assert closest >= STOP_MARGIN, f"ground truth came within {closest:.3f} m of the wall"
-    assert "stop" in actions  # /api/status showed the monitor holding the robot
+    assert "stop" in actions  # held in front of the wall
+    assert actions & {"limit", "slowdown"}  # after slowing down on the approach
     safety = status(daemon)["safety"]
     assert safety["zone"] == "stop" and safety["nearest_m"] is not None
     assert safety["scan_age_s"] is not None and safety["scan_age_s"] < 0.5
@@ -56,7 +57,8 @@ def drive_at_the_wall(daemon: DaemonProcess, seconds: float) -> tuple[float, set
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         code, body = daemon.post("/api/cmd_vel", {"linear": {"x": 1.0}})
-        assert code == 200, body
+        assert code == 200 and body["accepted"], body
+        actions.add(body["safety"])  # what the monitor did to this very command
         now = status(daemon)
         closest = min(closest, WALL_X - now["ground_truth"]["x"] - FOOTPRINT)
         actions.add(now["safety"]["action"])

@@ -58,6 +58,7 @@ class ControlApi:
             "accepted": True, "id": cmd_id, "clamped": applied.clamped,
             "wheel_speeds_rad_s": list(applied.wheel_rad_s),
             "exec_ms": applied.report.exec_ms if applied.report else None,
+            "safety": applied.guard_action,
         })
 
     async def post_estop(self, request: web.Request) -> web.Response:

@@ -7,12 +7,13 @@ from typing import Protocol
 
 @dataclass(frozen=True)
 class Guarded:
-    """A target twist after the guard: the safe target, and whether the limiter must brake
-    with the emergency deceleration to honour it."""
+    """A target twist after the guard: the safe target, whether the limiter must brake
+    with the emergency deceleration to honour it, and what the guard did (for reports)."""
 
     linear: float
     angular: float
     brake: bool = False
+    action: str = "none"
 
 
 class MotionGuard(Protocol):

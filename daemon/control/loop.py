@@ -37,6 +37,8 @@ class Applied:
     clamped: list[str]
     report: LatencyReport | None
     error: str | None = None
+    #: what the guard (collision monitor) did on that step: none, slowdown, limit, stop
+    guard_action: str | None = None
 
 
 def axis_limits(limits: dict[str, Any], axis: str) -> AxisLimits:
@@ -76,6 +78,7 @@ class ControlLoop:
         self.on_command: list[Callable[[str], None]] = []
         #: between the arbiter and the limiter for every source (the collision monitor)
         self.guard: MotionGuard | None = None
+        self.guard_action: str | None = None
         #: behaviours a client may switch by name (``autonomy``): mode -> refusal or None
         self.behaviours: dict[str, Callable[[str], str | None]] = {}
         #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
@@ -155,7 +158,8 @@ class ControlLoop:
                                              t_sent_ms=t_sent_ms)
         if cmd_id is not None or t_sent_ms is not None:
             self.bus.publish("latency_report", report)
-        return Applied(True, self.decision.source, self.wheels, self.last_clamped, report)
+        return Applied(True, self.decision.source, self.wheels, self.last_clamped, report,
+                       guard_action=self.guard_action)
 
     def _refusal_reason(self) -> str | None:
         if self._stopping:
@@ -242,6 +246,7 @@ class ControlLoop:
                                        self.angular.velocity, now)
             target_v, target_w = guarded.linear, guarded.angular
             brake = brake or guarded.brake
+            self.guard_action = guarded.action
         v = self.linear.step(target_v, dt, brake)
         w = self.angular.step(target_w, dt, brake)
         if decision.source is None and v == 0.0 and w == 0.0:

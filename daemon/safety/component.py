@@ -149,7 +149,7 @@ class SafetyComponent:
         if verdict.action != "none":
             self.metrics.steps_by_action[verdict.action].inc()
         self._report(verdict.action, verdict.reason, now)
-        return Guarded(verdict.linear, verdict.angular, verdict.brake)
+        return Guarded(verdict.linear, verdict.angular, verdict.brake, verdict.action)
 
     def observe(self, now: float, x: float, y: float, theta: float) -> None:
         self.monitor.observe(now, x, y, theta)
