@@ -79,8 +79,8 @@ class ControlLoop:
         #: between the arbiter and the limiter for every source (the collision monitor)
         self.guard: MotionGuard | None = None
         self.guard_action: str | None = None
-        #: behaviours a client may switch by name (``autonomy``): mode -> refusal or None
-        self.behaviours: dict[str, Callable[[str], str | None]] = {}
+        #: behaviours a client may switch by name (``autonomy``): (mode, why) -> refusal
+        self.behaviours: dict[str, Callable[[str, str], str | None]] = {}
         #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
         self.invalidations = 0
         #: extra fields of /api/status supplied by other components (the simulator's truth)

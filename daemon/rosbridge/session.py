@@ -43,7 +43,7 @@ from daemon.rosbridge.outbox import (
     SubscribeOptions,
     TopicQueue,
 )
-from daemon.rosbridge.topics import COMMAND_TOPICS, TWIST, TWIST_STAMPED
+from daemon.rosbridge.topics import AUTONOMY_MODE, COMMAND_TOPICS, TWIST, TWIST_STAMPED
 from daemon.rosbridge.writer import Writer
 
 if TYPE_CHECKING:
@@ -315,6 +315,9 @@ class ClientSession:
             if name == "/estop":
                 await self._estop(bool(msg["data"]))
                 return
+            if name == AUTONOMY_MODE:
+                self._behaviour("autonomy", str(msg["data"]))
+                return
             twist, cmd_id, t_sent = self._parse_command(name, type_name, msg)
         except CommandError as exc:
             raise ProtocolError(f"publish {name}: msg.{exc}; not applied") from None
@@ -345,6 +348,14 @@ class ClientSession:
             await self.control.engage_estop(f"rosbridge client {self.id} ({self.peer})")
         else:
             self.control.release_estop()
+
+    def _behaviour(self, name: str, mode: str) -> None:
+        """Switch a behaviour of the robot (``/autonomy/mode``); a refusal is a status error."""
+        request = self.control.behaviours.get(name)
+        refusal = f"{name} is not available" if request is None else request(
+            mode, f"rosbridge client {self.id}")
+        if refusal:
+            raise ProtocolError(f"publish /{name}/mode: {refusal}")
 
     def _say_once(self, key: str, message: str, rid: Id) -> None:
         """A status error repeated at most every REFUSAL_REPEAT_S per ``key``."""

@@ -22,8 +22,9 @@ LASER_SCAN = "sensor_msgs/msg/LaserScan"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 LOG = "rcl_interfaces/msg/Log"
 
+AUTONOMY_MODE = "/autonomy/mode"
 # the topics clients publish to that move the robot (a token is needed when configured)
-COMMAND_TOPICS = ("/cmd_vel", "/stamped_cmd_vel", "/estop")
+COMMAND_TOPICS = ("/cmd_vel", "/stamped_cmd_vel", "/estop", AUTONOMY_MODE)
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,10 @@ def robot_topics(*, sim: bool, odom_tf: bool) -> dict[str, RobotTopic]:
         RobotTopic("/cmd_vel", TWIST, "in", accepts=(TWIST, TWIST_STAMPED)),
         RobotTopic("/stamped_cmd_vel", STRING, "in"),
         RobotTopic("/estop", BOOL, "in"),
+        RobotTopic(AUTONOMY_MODE, STRING, "in"),
+        RobotTopic("/autonomy/state", STRING, "out", "autonomy_state", json_string_msg),
+        RobotTopic("/collision_monitor/state", STRING, "out", "collision_monitor_state",
+                   json_string_msg),
         RobotTopic("/odom", ODOMETRY, "out", "odom", odometry_msg),
         RobotTopic("/scan", LASER_SCAN, "out", "scan", scan_msg),
         RobotTopic("/robot_info", STRING, "out", "robot_info", json_string_msg),
