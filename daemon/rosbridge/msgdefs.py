@@ -103,4 +103,34 @@ MSG_TEXT: dict[str, str] = {
         "string file\n"
         "string function\n"
         "uint32 line\n"),
+    "diagnostic_msgs/msg/KeyValue": (
+        "string key\n"
+        "string value\n"),
+    "diagnostic_msgs/msg/DiagnosticStatus": (
+        "# The state of one part of the system.\n"
+        "byte OK=0\n"
+        "byte WARN=1\n"
+        "byte ERROR=2\n"
+        "byte STALE=3\n"
+        "byte level\n"
+        "string name\n"
+        "string message\n"
+        "string hardware_id\n"
+        "KeyValue[] values\n"),
+    "diagnostic_msgs/msg/DiagnosticArray": (
+        "std_msgs/Header header\n"
+        "DiagnosticStatus[] status\n"),
+    "arbiterd_msgs/msg/Command": (
+        "# A motion command arbiterd received, as its flight recorder logs it.\n"
+        "builtin_interfaces/Time stamp\n"
+        "# who sent it: http, ws:<client>, autonomy, ...\n"
+        "string source\n"
+        "# cmd_vel, estop or estop_release\n"
+        "string kind\n"
+        "# the command's id when it was stamped, else empty\n"
+        "string id\n"
+        "geometry_msgs/Twist twist\n"
+        "bool accepted\n"
+        "# why it was not applied (empty when accepted)\n"
+        "string error\n"),
 }
