@@ -21,6 +21,7 @@ from daemon.http_api import Access, HttpServer, json_response
 from daemon.latency import LatencyTracker
 from daemon.metrics import prometheus_text
 from daemon.notify import SystemdNotifier
+from daemon.recorder import component as recorder
 from daemon.rosbridge import server as rosbridge_server
 from daemon.safety import component as safety
 from daemon.security import Security
@@ -37,6 +38,7 @@ COMPONENTS: dict[str, Callable[[DaemonContext], Component | None]] = {
     "collision_monitor": safety.create,
     "autonomy": autonomy.create,
     "rosbridge": rosbridge_server.create,
+    "recorder": recorder.create,
 }
 
 
@@ -201,9 +203,10 @@ class Daemon:
             loop.add_signal_handler(sig, self.request_shutdown, f"signal {sig.name}")
 
     async def _supervise(self) -> None:
-        """Once a second: recompute health state and publish /robot_info."""
+        """Once a second: recompute health state, publish it and /robot_info."""
         while True:
             self._update_state()
+            self.bus.publish("health", self.health())
             self.bus.publish("robot_info", self.robot_info())
             await asyncio.sleep(1.0)
 

@@ -1,4 +1,4 @@
-# The `arbiterd` command line: run, check, status, safe-stop, bench, simulate, lidar.
+# The `arbiterd` command line: run, check, status, safe-stop, bench, simulate, lidar, record.
 from __future__ import annotations
 
 import argparse
@@ -17,6 +17,8 @@ from typing import Any
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
+from daemon.recorder import cli as record_cli
+from daemon.recorder.paths import record_directory
 from sensors.rplidar import cli as lidar_cli
 
 EXIT_BROKEN_PIPE = 141  # what a shell reports for a command killed by SIGPIPE
@@ -269,6 +271,17 @@ def cmd_lidar(args: argparse.Namespace) -> int:
     return result
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    directory = Path(args.dir) if getattr(args, "dir", None) else None
+    if directory is None and args.record_command == "list":
+        try:
+            config = _load(args)
+        except ConfigError as exc:
+            return _report_config_error(exc)
+        directory = record_directory(config["record"])
+    return record_cli.run(args, directory or Path("."))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="arbiterd", description="ArbiterROS on-robot daemon")
     parser.add_argument("--version", action="version", version=f"arbiterd {__version__}")
@@ -304,6 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.set_defaults(func=cmd_bench)
     _add_simulate(sub)
     _add_lidar(sub)
+    record_cli.add_parser(sub).set_defaults(func=cmd_record)
     return parser
 
 

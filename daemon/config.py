@@ -30,6 +30,7 @@ SECTIONS: dict[str, Options] = {
     "autonomy": settings.AUTONOMY_OPTIONS,
     "http": settings.HTTP_OPTIONS,
     "rosbridge": settings.ROSBRIDGE_OPTIONS,
+    "record": settings.RECORD_OPTIONS,
     "security": settings.SECURITY_OPTIONS,
     "sim": SIM_OPTIONS,
     "logging": settings.LOGGING_OPTIONS,

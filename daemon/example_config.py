@@ -21,6 +21,7 @@ HEADER = """\
 PI_VALUES: dict[str, dict[str, Any]] = {
     "driver": {"type": "serial"},
     "lidar": {"enabled": True},
+    "record": {"enabled": True, "directory": "/var/lib/arbiterd/recordings"},
 }
 
 

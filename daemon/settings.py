@@ -220,3 +220,25 @@ AUTONOMY_OPTIONS: Options = {
     "decision_rate": Option(float, 10.0, "decisions per second", minval=1.0, maxval=100.0),
     "seed": Option(int, 0, "seed of the wander heading changes (0 = random)", minval=0),
 }
+
+RECORD_COMPRESSIONS = ("zstd", "lz4", "none")
+
+RECORD_OPTIONS: Options = {
+    "enabled": Option(bool, False, "record /odom, /tf, /scan, commands, latency reports, log "
+                      "lines and health changes to MCAP files (the flight recorder)"),
+    "directory": Option(str, "", "where the MCAP files go; '' = recordings/ in the service's "
+                        "state directory ($STATE_DIRECTORY, /var/lib/arbiterd under systemd), "
+                        "else in ~/.local/state/arbiterd"),
+    "max_file_mb": Option(float, 64.0, "start a new file when the current one reaches this "
+                          "size, MB", minval=1.0, maxval=4096.0),
+    "max_file_s": Option(float, 900.0, "start a new file when the current one covers this "
+                         "long, s", minval=10.0, maxval=86400.0),
+    "max_total_mb": Option(float, 1024.0, "cap on all recordings together: the oldest files "
+                           "are deleted first, MB", minval=2.0, maxval=1048576.0),
+    "compression": Option(str, "zstd", "chunk compression", choices=RECORD_COMPRESSIONS),
+    "flush_interval_s": Option(float, 1.0, "chunks are closed and written at least this "
+                               "often: what a crash or power cut can lose, s",
+                               minval=0.05, maxval=1.0),
+    "queue_size": Option(int, 10000, "messages waiting for the writer thread; when full, "
+                         "new ones are dropped and counted", minval=100, maxval=1000000),
+}

@@ -42,3 +42,18 @@ class LatencyReport:
         return {"id": self.id, "t_sent": self.t_sent, "t_recv": self.t_recv,
                 "t_exec": self.t_exec, "exec_ms": self.exec_ms, "source": self.source,
                 "transit_ms": None if self.t_sent is None else self.t_recv - self.t_sent}
+
+
+@dataclass(frozen=True)
+class CommandEvent:
+    """A motion command as received (published on the bus as ``command``): who sent what, and
+    whether the control loop applied it."""
+
+    stamp: float  # wall clock, s
+    source: str
+    kind: str  # cmd_vel | estop | estop_release
+    linear_x: float = 0.0
+    angular_z: float = 0.0
+    id: str | int | None = None
+    accepted: bool = True
+    error: str = ""

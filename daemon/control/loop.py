@@ -21,7 +21,7 @@ from daemon.control.metronome import Metronome
 from daemon.control.odometry import Odometry
 from daemon.control.supervisor import StallSupervisor
 from daemon.latency import LatencyTracker
-from daemon.telemetry import LatencyReport, OdomSample
+from daemon.telemetry import CommandEvent, LatencyReport, OdomSample
 from drivers import DriverError, MotorDriver
 
 log = logging.getLogger("arbiterd.control")
@@ -141,6 +141,14 @@ class ControlLoop:
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
                      priority: int = 10) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
+        applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
+        self.bus.publish("command", CommandEvent(
+            time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
+            applied.accepted, applied.error or ""))
+        return applied
+
+    async def _apply(self, source: str, twist: Twist, t_recv: float, cmd_id: str | int | None,
+                     t_sent_ms: float | None, priority: int) -> Applied:
         refusal = self._refusal_reason()
         if refusal:
             return Applied(False, self.decision.source, self.wheels, [], None, refusal)
@@ -180,6 +188,7 @@ class ControlLoop:
         self.arbiter.engage_estop(reason)
         self.invalidations += 1
         log.warning("e-stop engaged: %s", reason)
+        self.bus.publish("command", CommandEvent(time.time(), reason, "estop"))
         async with self._lock:
             await self._step(self.clock())
 
@@ -188,6 +197,7 @@ class ControlLoop:
             log.warning("e-stop released; waiting for a fresh command")
         self.arbiter.release_estop()
         self.invalidations += 1
+        self.bus.publish("command", CommandEvent(time.time(), "", "estop_release"))
 
     # -- tick path -----------------------------------------------------------------------
 

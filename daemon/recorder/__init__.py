@@ -1,0 +1,1 @@
+# The flight recorder: what the robot did, written to MCAP files Foxglove and Lichtblick open.

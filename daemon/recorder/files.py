@@ -1,0 +1,137 @@
+# Reading recordings back: duration, topics and counts of an MCAP file, complete or cut short.
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from daemon.recorder.writer import recordings
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class TopicInfo:
+    type: str
+    count: int = 0
+
+
+@dataclass
+class RecordingInfo:
+    """What a recording holds. ``complete`` is False for a file whose writer was killed: its
+    messages up to the last whole chunk are still there, but it has no summary or index."""
+
+    name: str
+    size: int
+    complete: bool
+    start_ns: int | None = None
+    end_ns: int | None = None
+    topics: dict[str, TopicInfo] = field(default_factory=dict)
+
+    @property
+    def messages(self) -> int:
+        return sum(t.count for t in self.topics.values())
+
+    @property
+    def duration_s(self) -> float:
+        if self.start_ns is None or self.end_ns is None:
+            return 0.0
+        return (self.end_ns - self.start_ns) / 1e9
+
+    def to_json(self, topics: bool = True) -> dict[str, Any]:
+        body: dict[str, Any] = {
+            "name": self.name, "size": self.size, "complete": self.complete,
+            "start": None if self.start_ns is None else self.start_ns / 1e9,
+            "duration_s": round(self.duration_s, 3), "messages": self.messages}
+        if topics:
+            body["topics"] = {name: {"type": t.type, "count": t.count}
+                              for name, t in sorted(self.topics.items())}
+        return body
+
+
+def inspect(path: Path) -> RecordingInfo:
+    """Read ``path``'s summary, or scan it record by record when it was cut short."""
+    with path.open("rb") as stream:
+        size = path.stat().st_size
+        if _ends_with_magic(stream, size):
+            info = _from_summary(path.name, size, stream)
+            if info is not None:
+                return info
+        stream.seek(0)
+        return _salvage(path.name, size, stream)
+
+
+def _ends_with_magic(stream: IO[bytes], size: int) -> bool:
+    if size < 2 * len(MAGIC):
+        return False
+    stream.seek(size - len(MAGIC))
+    return stream.read(len(MAGIC)) == MAGIC
+
+
+def _from_summary(name: str, size: int, stream: IO[bytes]) -> RecordingInfo | None:
+    stream.seek(0)
+    try:
+        summary = make_reader(stream).get_summary()
+    except Exception:
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    stats = summary.statistics
+    info = RecordingInfo(name, size, True)
+    if stats.message_count:
+        info.start_ns, info.end_ns = stats.message_start_time, stats.message_end_time
+    for channel_id, channel in summary.channels.items():
+        schema = summary.schemas.get(channel.schema_id)
+        info.topics[channel.topic] = TopicInfo(
+            schema.name if schema else "", stats.channel_message_counts.get(channel_id, 0))
+    return info
+
+
+def _salvage(name: str, size: int, stream: IO[bytes]) -> RecordingInfo:
+    info = RecordingInfo(name, size, False)
+    schemas: dict[int, str] = {}
+    channels: dict[int, TopicInfo] = {}
+    with contextlib.suppress(Exception):  # the first broken record ends what can be read
+        for record in StreamReader(stream, skip_magic=False).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record.name
+            elif isinstance(record, Channel):
+                channels[record.id] = info.topics.setdefault(
+                    record.topic, TopicInfo(schemas.get(record.schema_id, "")))
+            elif isinstance(record, Message) and record.channel_id in channels:
+                channels[record.channel_id].count += 1
+                t = record.log_time
+                info.start_ns = t if info.start_ns is None else min(info.start_ns, t)
+                info.end_ns = t if info.end_ns is None else max(info.end_ns, t)
+    return info
+
+
+class RecordingIndex:
+    """The recordings of a directory, each file read once per (size, mtime)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self._cache: dict[Path, tuple[tuple[int, int], RecordingInfo]] = {}
+
+    def list(self) -> list[RecordingInfo]:
+        out = []
+        for path in sorted(recordings(self.directory), key=lambda p: p.name):
+            with contextlib.suppress(OSError):
+                out.append(self.info(path))
+        self._cache = {p: v for p, v in self._cache.items() if p.exists()}
+        return out
+
+    def info(self, path: Path) -> RecordingInfo:
+        stat = path.stat()
+        key = (stat.st_size, stat.st_mtime_ns)
+        cached = self._cache.get(path)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        info = inspect(path)
+        self._cache[path] = (key, info)
+        return info
