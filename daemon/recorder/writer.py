@@ -278,13 +278,15 @@ class FlightRecorder:
             self.enqueue(channels, source)
 
     def _new_path(self) -> Path:
-        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-        path = self.options.directory / f"{PREFIX}{stamp}{SUFFIX}"
-        n = 1
-        while path.exists():
-            n += 1
-            path = self.options.directory / f"{PREFIX}{stamp}-{n}{SUFFIX}"
-        return path
+        """``arbiterd-20261122T141409_123Z.mcap``: fixed width, so names sort by start time."""
+        ms = time.time_ns() // 1_000_000
+        while True:
+            when = datetime.fromtimestamp(ms / 1000, UTC)
+            path = self.options.directory / (
+                f"{PREFIX}{when:%Y%m%dT%H%M%S}_{ms % 1000:03d}Z{SUFFIX}")
+            if not path.exists():
+                return path
+            ms += 1
 
     def _maybe_rotate(self, now: float) -> None:
         file = self._file

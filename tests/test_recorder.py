@@ -1,0 +1,193 @@
+# The flight recorder's writer on real files: decoding, rotation, the disk cap, drops, a quota.
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from daemon.recorder.channels import bus_channels
+from daemon.recorder.files import inspect
+from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
+from daemon.telemetry import OdomSample
+from sensors.scan import LaserScan
+from tests.conftest import wait_for
+from tests.daemon_proc import REPO
+
+CHANNELS = bus_channels(sim=False, odom_tf=True)
+ODOM = tuple(CHANNELS["odom"])
+SCAN = tuple(CHANNELS["scan"])
+
+
+def options(directory: Path, **overrides: Any) -> WriterOptions:
+    values: dict[str, Any] = {
+        "directory": directory, "max_file_bytes": 64_000_000, "max_file_s": 900.0,
+        "max_total_bytes": 1_000_000_000, "compression": "zstd", "flush_interval_s": 0.05,
+        "queue_size": 10000}
+    return WriterOptions(**(values | overrides))
+
+
+def odom(i: int) -> OdomSample:
+    return OdomSample(1700000000.0 + i * 0.05, "odom", "base_link", i * 0.01, 0.0, 0.0, 0.2,
+                      0.0, [0.1] * 6, [0.1] * 6)
+
+
+def scan(i: int, rays: int = 720) -> LaserScan:
+    rng = np.random.default_rng(i)  # incompressible enough that files grow
+    return LaserScan(stamp=1700000000.0 + i * 0.1, ranges=rng.uniform(0.2, 8, rays).astype(
+        np.float32), intensities=np.zeros(rays, np.float32), range_max=12.0)
+
+
+@pytest.fixture
+def recorder(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[FlightRecorder]:
+    overrides = getattr(request, "param", {})
+    all_channels = [c for group in CHANNELS.values() for c in group]
+    rec = FlightRecorder(options(tmp_path / "rec", **overrides), all_channels)
+    rec.wanted = True
+    rec.start()
+    yield rec
+    rec.stop()
+
+
+def decoded(path: Path) -> list[tuple[str, int, Any]]:
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return [(channel.topic, message.log_time, msg)
+                for _, channel, message, msg in reader.iter_decoded_messages()]
+
+
+def test_messages_come_back_decoded_in_time_order(recorder: FlightRecorder) -> None:
+    for i in range(40):
+        recorder.enqueue(ODOM, odom(i))
+    recorder.enqueue(SCAN, scan(0))
+    wait_for(lambda: recorder.written >= 81, "the writer to take every message")
+    path = recorder.current
+    recorder.stop()
+    assert path is not None and inspect(path).complete
+    messages = decoded(path)
+    topics = [t for t, _, _ in messages]
+    assert topics.count("/odom") == 40 and topics.count("/tf") == 40 and "/scan" in topics
+    times = [t for _, t, _ in messages]
+    assert times == sorted(times)
+    xs = [m.pose.pose.position.x for t, _, m in messages if t == "/odom"]
+    assert xs == pytest.approx([i * 0.01 for i in range(40)])
+
+
+@pytest.mark.parametrize("recorder", [{"max_file_bytes": 100_000, "compression": "none"}],
+                         indirect=True)
+def test_files_rotate_by_size(recorder: FlightRecorder) -> None:
+    def fed() -> bool:
+        recorder.enqueue(SCAN, scan(recorder.written))
+        return recorder.files_started >= 3
+
+    wait_for(fed, "three files")
+    current = recorder.current
+    closed = [p for p in recordings(recorder.options.directory) if p != current]
+    assert len(closed) >= 2
+    for path in closed:
+        info = inspect(path)
+        assert info.complete and info.topics["/scan"].count > 0
+        size = path.stat().st_size  # rotation happens at the first flush past the limit
+        assert 100_000 <= size < 200_000
+
+
+@pytest.mark.parametrize("recorder", [{"max_file_s": 0.3}], indirect=True)
+def test_files_rotate_by_age(recorder: FlightRecorder) -> None:
+    def fed() -> bool:
+        recorder.enqueue(ODOM, odom(recorder.written))
+        return recorder.files_started >= 3
+
+    wait_for(fed, "three files", interval_s=0.02)
+    assert all(inspect(p).complete for p in recordings(recorder.options.directory)
+               if p != recorder.current)
+
+
+@pytest.mark.parametrize("recorder", [{"max_file_bytes": 30_000, "max_total_bytes": 100_000,
+                                       "compression": "none"}], indirect=True)
+def test_the_disk_cap_deletes_the_oldest_files(recorder: FlightRecorder) -> None:
+    directory = recorder.options.directory
+    first_names: set[str] = set()
+
+    def fed() -> bool:
+        recorder.enqueue(SCAN, scan(recorder.written))
+        if recorder.files_started <= 2:
+            first_names.update(p.name for p in recordings(directory))
+        return recorder.files_started >= 8
+
+    wait_for(fed, "eight files")
+    recorder.stop()
+    remaining = recordings(directory)
+    assert recorder.deleted > 0
+    assert sum(p.stat().st_size for p in remaining) <= 100_000 + 30_000
+    assert not first_names & {p.name for p in remaining}  # the oldest went first
+
+
+def test_a_full_queue_drops_and_counts(tmp_path: Path) -> None:
+    rec = FlightRecorder(options(tmp_path, queue_size=100), list(ODOM))
+    rec.wanted = True  # the thread is not started: nothing drains
+    for i in range(150):
+        rec.enqueue(ODOM, odom(i))
+    assert (rec.queued, rec.dropped) == (100, 50)
+
+
+def test_nothing_is_queued_while_disabled(tmp_path: Path) -> None:
+    rec = FlightRecorder(options(tmp_path), list(ODOM))
+    rec.enqueue(ODOM, odom(0))
+    assert rec.queued == 0
+
+
+def test_an_unwritable_directory_is_an_error_naming_it(tmp_path: Path) -> None:
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("")
+    rec = FlightRecorder(options(blocker / "recordings"), list(ODOM))
+    rec.wanted = True
+    rec.start()
+    try:
+        rec.enqueue(ODOM, odom(0))
+        error = wait_for(lambda: rec.error, "the recorder's error")
+        assert str(blocker / "recordings") in error and "[record] directory" in error
+        wait_for(lambda: rec.lost >= 1, "the queued message to be counted as lost")
+    finally:
+        rec.stop()
+
+
+QUOTA_SCRIPT = textwrap.dedent("""
+    import json, resource, signal, sys, time
+    from pathlib import Path
+    from tests.test_recorder import CHANNELS, SCAN, options, scan
+    from daemon.recorder.writer import FlightRecorder
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+    resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+    rec = FlightRecorder(options(Path(sys.argv[1]), compression="none"), list(SCAN))
+    rec.wanted = True
+    rec.start()
+    deadline = time.monotonic() + 20
+    i = 0
+    while rec.error is None and time.monotonic() < deadline:
+        rec.enqueue(SCAN, scan(i))
+        i += 1
+        time.sleep(0.01)
+    rec.stop()
+    print(json.dumps(rec.snapshot()))
+""")
+
+
+def test_a_file_size_quota_pauses_recording_with_an_error(tmp_path: Path) -> None:
+    """RLIMIT_FSIZE stands in for a full disk: writes past it fail as they would on ENOSPC."""
+    result = subprocess.run([sys.executable, "-c", QUOTA_SCRIPT, str(tmp_path / "rec")],
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    state = json.loads(result.stdout.splitlines()[-1])
+    assert state["error"] and "cannot write" in state["error"]
+    assert str(tmp_path / "rec") in state["error"]
+    (path,) = recordings(tmp_path / "rec")
+    info = inspect(path)  # cut short, yet what reached the disk reads back
+    assert not info.complete and info.topics["/scan"].count > 0
