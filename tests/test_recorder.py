@@ -14,8 +14,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from daemon.config import load_config
 from daemon.recorder.channels import bus_channels
 from daemon.recorder.files import inspect
+from daemon.recorder.paths import default_directory
 from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
@@ -191,3 +193,16 @@ def test_a_file_size_quota_pauses_recording_with_an_error(tmp_path: Path) -> Non
     (path,) = recordings(tmp_path / "rec")
     info = inspect(path)  # cut short, yet what reached the disk reads back
     assert not info.complete and info.topics["/scan"].count > 0
+
+
+def test_files_go_to_the_service_state_directory_by_default(tmp_path: Path) -> None:
+    assert default_directory({"STATE_DIRECTORY": "/var/lib/arbiterd"}) == Path(
+        "/var/lib/arbiterd/recordings")
+    assert default_directory({"XDG_STATE_HOME": str(tmp_path)}) == (
+        tmp_path / "arbiterd" / "recordings")
+
+
+def test_the_service_records_and_a_plain_config_does_not(tmp_path: Path) -> None:
+    assert load_config(REPO / "systemd" / "arbiterd.toml.example", env={})["record"]["enabled"]
+    (tmp_path / "plain.toml").write_text("")
+    assert not load_config(tmp_path / "plain.toml", env={})["record"]["enabled"]
