@@ -15,6 +15,7 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from daemon.rosbridge import binary, cdr
 from daemon.rosbridge.msgtypes import default_message, full_text, known_types
+from daemon.rosbridge.outbox import SharedMessage, SubscribeOptions, TopicQueue
 from daemon.rosbridge.topics import (
     LASER_SCAN,
     LOG,
@@ -172,3 +173,46 @@ def test_cbor_frame_is_the_rosbridge_publish_op() -> None:
     body = cbor2.loads(frame)
     assert body["op"] == "publish" and body["topic"] == "odom"
     assert body["msg"]["pose"]["pose"]["position"]["x"] == 1.25
+
+
+# -- shared frames and merged subscriptions (outbox) -----------------------------------------------
+
+
+def test_a_message_is_encoded_once_per_encoding_and_the_frame_shared() -> None:
+    calls: list[str] = []
+
+    def convert(sample: OdomSample) -> dict[str, Any]:
+        calls.append("odom")
+        return odometry_msg(sample)
+
+    shared = SharedMessage("/odom", odom_sample(), convert)
+    first = shared.binary_frame("cbor-raw", "/odom", ODOMETRY)
+    assert shared.binary_frame("cbor-raw", "/odom", ODOMETRY) is first
+    other_spelling = shared.binary_frame("cbor-raw", "odom", ODOMETRY)
+    assert cbor2.loads(other_spelling)["msg"] == cbor2.loads(first)["msg"]
+    shared.binary_frame("cbor", "/odom", ODOMETRY)
+    shared.frame("/odom")
+    assert calls == ["odom", "odom", "odom"]  # once for cbor-raw, cbor and JSON, never per client
+    body = cbor2.loads(first)
+    assert decode(ODOMETRY, body["msg"]["bytes"]).pose.pose.position.x == 1.25
+
+
+def test_a_robot_scan_takes_the_array_path_and_a_relayed_dict_its_own() -> None:
+    scan = laser_scan()
+    raw = cbor2.loads(SharedMessage("/scan", scan, scan_msg).binary_frame(
+        "cbor-raw", "/scan", LASER_SCAN))
+    ranges = np.asarray(decode(LASER_SCAN, raw["msg"]["bytes"]).ranges, dtype=np.float32)
+    assert np.array_equal(ranges, scan.ranges)  # float32 as measured, not the JSON rounding
+    relayed = SharedMessage("/chatter", {"data": "hi"})
+    assert cbor2.loads(relayed.binary_frame("cbor", "/chatter", "std_msgs/msg/String"))[
+        "msg"] == {"data": "hi"}
+
+
+def test_subscriptions_merge_compression_by_rosbridge_precedence() -> None:
+    queue = TopicQueue("/odom", "/odom", state=True)
+    queue.set_entry("a", SubscribeOptions(compression="none"))
+    queue.set_entry("b", SubscribeOptions(compression="cbor-raw"))
+    queue.set_entry("c", SubscribeOptions(compression="cbor"))
+    assert queue.options.compression == "cbor-raw"
+    queue.remove_entry("b")
+    assert queue.options.compression == "cbor"

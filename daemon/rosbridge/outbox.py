@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from daemon.rosbridge import binary, cdr
 from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
 EVENT_QUEUE = 100  # messages kept per event topic (every message counts) with queue_length 0
@@ -17,9 +18,12 @@ REPLY_BYTES = 8 * 1048576  # ... and at most this much of them (the oldest go fi
 
 
 class SharedMessage:
-    """One message for one topic, converted and JSON-encoded at most once for all clients."""
+    """One message for one topic, converted and encoded at most once per encoding (JSON, cbor,
+    cbor-raw) for all clients; ``source`` is the robot's own data when ``convert`` is given,
+    else a message dict."""
 
-    __slots__ = ("_convert", "_frames", "_msg_json", "_source", "topic")
+    __slots__ = ("_binary_frames", "_binary_msgs", "_convert", "_frames", "_msg_json",
+                 "_source", "topic")
 
     def __init__(self, topic: str, source: Any,
                  convert: Callable[[Any], dict[str, Any]] | None = None) -> None:
@@ -28,13 +32,36 @@ class SharedMessage:
         self._convert = convert
         self._msg_json: str | None = None
         self._frames: dict[str, str] = {}
+        self._binary_msgs: dict[str, bytes] = {}
+        self._binary_frames: dict[tuple[str, str], bytes] = {}
 
     def msg_json(self) -> str:
         if self._msg_json is None:
             msg = self._convert(self._source) if self._convert else self._source
             self._msg_json = encode(msg)
-            self._source = None
         return self._msg_json
+
+    def binary_frame(self, compression: str, spelling: str, type_name: str) -> bytes:
+        """The binary ``publish`` frame (``cbor`` or ``cbor-raw``) of this message as
+        ``type_name``; raises :class:`cdr.CdrError` when the message does not fit the type."""
+        key = (compression, spelling)
+        frame = self._binary_frames.get(key)
+        if frame is None:
+            frame = self._binary_frames[key] = binary.publish_frame(
+                spelling, self._binary_msg(compression, type_name))
+        return frame
+
+    def _binary_msg(self, compression: str, type_name: str) -> bytes:
+        msg = self._binary_msgs.get(compression)
+        if msg is None:
+            convert = self._convert and binary.BINARY_CONVERT.get(type_name, self._convert)
+            values = convert(self._source) if convert else self._source
+            if compression == "cbor":
+                msg = binary.cbor_msg(type_name, values)
+            else:  # the server clock at (first) send, as rosbridge's cbor-raw carries it
+                msg = binary.cbor_raw_msg(cdr.encode(type_name, values), time.time())
+            self._binary_msgs[compression] = msg
+        return msg
 
     def frame(self, spelling: str) -> str:
         """The ``publish`` op for a subscriber that named the topic ``spelling``."""
@@ -51,6 +78,11 @@ class SubscribeOptions:
     throttle_s: float = 0.0
     queue_length: int = 0
     fragment_size: int | None = None
+    compression: str = "none"
+
+
+#: rosbridge's precedence when one client's subscriptions to a topic ask for different ones
+COMPRESSION_PRECEDENCE = ("none", "png", "cbor", "cbor-raw")
 
 
 class MinTracker:
@@ -103,6 +135,7 @@ class TopicQueue:
         self.scheduled = False  # in the outbox's ready or waiting line
         self.closed = False
         self._throttle, self._length, self._fragment = MinTracker(), MinTracker(), MinTracker()
+        self._compressions: Counter[str] = Counter()
 
     def set_entry(self, key: Id, options: SubscribeOptions) -> None:
         old = self.entries.get(key)
@@ -113,6 +146,7 @@ class TopicQueue:
         self._length.add(options.queue_length)
         if options.fragment_size:
             self._fragment.add(options.fragment_size)
+        self._compressions[options.compression] += 1
         self._merge()
 
     def remove_entry(self, key: Id) -> None:
@@ -127,12 +161,19 @@ class TopicQueue:
         self._length.remove(options.queue_length)
         if options.fragment_size:
             self._fragment.remove(options.fragment_size)
+        self._compressions[options.compression] -= 1
+
+    def _compression(self) -> str:
+        """rosbridge's precedence over this client's subscriptions: cbor-raw > cbor > png."""
+        return next((c for c in reversed(COMPRESSION_PRECEDENCE) if self._compressions[c] > 0),
+                    "none")
 
     def _merge(self) -> None:
         fragment = self._fragment.min()
         self.options = SubscribeOptions(self._throttle.min() or 0.0,
                                         int(self._length.min() or 0),
-                                        int(fragment) if fragment else None)
+                                        int(fragment) if fragment else None,
+                                        self._compression())
         length = self.options.queue_length or (1 if self.state else EVENT_QUEUE)
         if self.queue.maxlen != length:
             self.queue = deque(self.queue, maxlen=length)
