@@ -277,7 +277,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         try:
             config = _load(args)
         except ConfigError as exc:
-            return _report_config_error(exc)
+            return _report_config_error(exc, args)
         directory = record_directory(config["record"])
     return record_cli.run(args, directory or Path("."))
 

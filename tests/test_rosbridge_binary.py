@@ -1,6 +1,7 @@
 # CDR and CBOR encodings checked against an independent ROS 2 CDR decoder (mcap_ros2) and cbor2.
 from __future__ import annotations
 
+import json
 import logging
 import math
 import struct
@@ -216,3 +217,15 @@ def test_subscriptions_merge_compression_by_rosbridge_precedence() -> None:
     assert queue.options.compression == "cbor-raw"
     queue.remove_entry("b")
     assert queue.options.compression == "cbor"
+
+
+def test_the_bench_measures_real_frames_of_one_scan() -> None:
+    from daemon.bench.foxglove import _frame_makers, synthetic_scan
+
+    makers = _frame_makers(synthetic_scan(1700000000.0))
+    as_json = json.loads(makers["json"]())["msg"]
+    as_raw = decode(LASER_SCAN, cbor2.loads(makers["cbor-raw"]())["msg"]["bytes"])
+    as_cbor = cbor2.loads(makers["cbor"]())["msg"]
+    assert len(as_json["ranges"]) == len(as_raw.ranges) == 720
+    assert as_cbor["header"] == as_json["header"] == {
+        "stamp": {"sec": 1700000000, "nanosec": 0}, "frame_id": "laser"}

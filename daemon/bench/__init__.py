@@ -62,4 +62,5 @@ SUITES: dict[str, str] = {
     "console": "daemon.bench.console",
     "rosbridge-flood": "daemon.bench.rosbridge_flood",
     "safety": "daemon.bench.safety",
+    "foxglove": "daemon.bench.foxglove",
 }

@@ -122,10 +122,11 @@ class TopicQueue:
     throttle window are dropped.
     """
 
-    def __init__(self, topic: str, spelling: str, state: bool) -> None:
+    def __init__(self, topic: str, spelling: str, state: bool, type_name: str = "") -> None:
         self.topic = topic
         self.spelling = spelling
         self.state = state
+        self.type_name = type_name  # what binary encodings serialise the messages as
         self.entries: dict[Id, SubscribeOptions] = {}
         self.options = SubscribeOptions()
         self.queue: deque[SharedMessage] = deque(maxlen=1)

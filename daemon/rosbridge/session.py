@@ -387,7 +387,8 @@ class ClientSession:
                              "max_subscriptions_per_client")
         if queue is None:
             state = topic.robot.state if topic is not None and topic.robot is not None else False
-            queue = TopicQueue(name, req.spelling, state)
+            queue = TopicQueue(name, req.spelling, state,
+                               topic.type if topic is not None else type_name)
             self.outbox.add_queue(queue)
         self.subscriptions += req.id not in queue.entries
         queue.set_entry(req.id, options)
@@ -401,15 +402,15 @@ class ClientSession:
         if compression not in COMPRESSIONS:
             raise ProtocolError(f"subscribe: field 'compression': expected one of "
                                 f"{', '.join(COMPRESSIONS)}")
-        if compression != "none":
-            raise ProtocolError(f"subscribe: compression {compression!r} is not supported by "
-                                "this server; use 'none'")
+        if compression == "png":
+            raise ProtocolError("subscribe: compression 'png' is not supported by arbiterd; "
+                                "use 'cbor-raw' (ROS 2 CDR), 'cbor' or 'none' (JSON)")
         if fragment_size == 0:
             raise ProtocolError("subscribe: field 'fragment_size': must be positive")
         if queue_length > self.limits.max_queue_length:
             raise over_limit(f"subscribe: field 'queue_length': {queue_length} is too large",
                              self.limits.max_queue_length, "max_queue_length")
-        return SubscribeOptions(throttle_ms / 1e3, queue_length, fragment_size)
+        return SubscribeOptions(throttle_ms / 1e3, queue_length, fragment_size, compression)
 
     async def op_unsubscribe(self, req: Request) -> None:
         queue = self.outbox.topics.get(req.target)

@@ -8,6 +8,8 @@ from collections.abc import Callable, Iterator
 
 from aiohttp import web
 
+from daemon.rosbridge.binary import BINARY_COMPRESSIONS
+from daemon.rosbridge.cdr import CdrError
 from daemon.rosbridge.codec import Id, fragment_count, fragments, over_limit
 from daemon.rosbridge.limits import Limits, Pacer
 from daemon.rosbridge.outbox import FragmentedReply, Outbox, SharedMessage, TopicQueue
@@ -90,6 +92,10 @@ class Writer:
             await self.ws.send_str(piece)
 
     async def _send_topic(self, queue: TopicQueue, message: SharedMessage) -> None:
+        compression = queue.options.compression
+        if compression in BINARY_COMPRESSIONS:
+            await self._send_binary(queue, message, compression)
+            return
         text = message.frame(queue.spelling)
         size = queue.options.fragment_size
         if not size or len(text) <= size:
@@ -104,5 +110,18 @@ class Writer:
             self.warn(f"fragments:{queue.topic}", refusal.message, None)
             return
         await self.send_pieces(fragments(text, size, f"publish:{queue.spelling}:{id(message)}"))
+
+    async def _send_binary(self, queue: TopicQueue, message: SharedMessage,
+                           compression: str) -> None:
+        """One binary frame (``cbor`` or ``cbor-raw``), shared with every subscriber of the
+        message, never fragmented (rosbridge's fragment_size applies to JSON only)."""
+        try:
+            data = message.binary_frame(compression, queue.spelling, queue.type_name)
+        except CdrError as exc:
+            queue.dropped += 1
+            self.warn(f"{compression}:{queue.topic}", f"subscribe {queue.topic}: a message "
+                      f"cannot be sent as {compression}: {exc}; dropped", None)
+            return
+        await self.ws.send_bytes(data)
 
 

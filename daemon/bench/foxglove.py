@@ -1,0 +1,250 @@
+# Bench suite "foxglove": a 720-ray scan as JSON, cbor and cbor-raw frames; tick lateness with
+# ten cbor-raw /scan clients, with and without the flight recorder, beside the idle figure.
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import socket
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+
+from daemon.bench import BenchResult, percentile_ms
+from daemon.rosbridge.outbox import SharedMessage
+from daemon.rosbridge.topics import LASER_SCAN, scan_msg
+from sensors.scan import LaserScan
+
+SUITE = "foxglove"
+RAYS = 720
+CLIENTS = 10
+
+
+def synthetic_scan(stamp: float | None = None) -> LaserScan:
+    rng = np.random.default_rng(7)
+    ranges = rng.uniform(0.2, 10.0, RAYS).astype(np.float32)
+    ranges[::40] = np.inf
+    return LaserScan(time.time() if stamp is None else stamp, "laser", -math.pi, math.pi,
+                     2 * math.pi / RAYS, 0.1 / RAYS, 0.1, 0.15, 12.0, ranges,
+                     np.full(RAYS, 47, dtype=np.float32))
+
+
+# -- encoding cost: one frame per encoding, built the way the server builds it --------------------
+
+
+def _frame_makers(scan: LaserScan) -> dict[str, Callable[[], Any]]:
+    def shared() -> SharedMessage:
+        return SharedMessage("/scan", scan, scan_msg)
+
+    return {"json": lambda: shared().frame("/scan"),
+            "cbor": lambda: shared().binary_frame("cbor", "/scan", LASER_SCAN),
+            "cbor-raw": lambda: shared().binary_frame("cbor-raw", "/scan", LASER_SCAN)}
+
+
+def _costs_us(makers: dict[str, Callable[[], Any]], repeats: int) -> dict[str, float]:
+    """Per frame, in µs: the median of ``repeats`` timed batches; the encodings take turns
+    batch by batch, so all of them see the same machine load."""
+    batch = 20
+    samples: dict[str, list[float]] = {name: [] for name in makers}
+    for _ in range(repeats):
+        for name, make in makers.items():
+            t0 = time.perf_counter()
+            for _ in range(batch):
+                make()
+            samples[name].append((time.perf_counter() - t0) / batch * 1e6)
+    return {name: statistics.median(values) for name, values in samples.items()}
+
+
+def encoding_results(quick: bool) -> list[BenchResult]:
+    scan = synthetic_scan()
+    makers = _frame_makers(scan)
+    costs = _costs_us(makers, 15 if quick else 60)
+    sizes = {name: len(make()) for name, make in makers.items()}
+    ratio = costs["cbor-raw"] / costs["json"]
+    out = [BenchResult(SUITE, f"{RAYS}-ray scan frame, {name}", round(cost, 2), "µs",
+                       note=f"{sizes[name]} bytes; convert + encode + frame, median")
+           for name, cost in costs.items()]
+    out.append(BenchResult(SUITE, "cbor-raw / JSON encoding cost", round(ratio, 3), "x",
+                           "<= 0.1", ratio <= 0.1))
+    return out
+
+
+# -- tick lateness: the load side (a separate process, like real clients) ------------------------
+
+
+async def generate_load(bridge_url: str, seconds: float, clients: int,
+                        compression: str) -> dict[str, Any]:
+    """``clients`` subscribers on /scan with ``compression``, reading for ``seconds``."""
+    received = [0] * clients
+    async with aiohttp.ClientSession() as session, contextlib.AsyncExitStack() as stack:
+        sockets = [await stack.enter_async_context(session.ws_connect(bridge_url))
+                   for _ in range(clients)]
+        for ws in sockets:
+            await ws.send_json({"op": "subscribe", "topic": "/scan",
+                                "compression": compression})
+
+        receiving = asyncio.Event()
+
+        async def read(index: int, ws: aiohttp.ClientWebSocketResponse) -> None:
+            async for message in ws:
+                if message.type == aiohttp.WSMsgType.BINARY:
+                    received[index] += 1
+                    if min(received):
+                        receiving.set()
+
+        readers = [asyncio.create_task(read(i, ws)) for i, ws in enumerate(sockets)]
+        await asyncio.wait_for(receiving.wait(), 20)  # every client subscribed and receiving
+        print("ready", flush=True)
+        await asyncio.sleep(seconds)
+        for task in readers:
+            task.cancel()
+    return {"frames_received": received}
+
+
+def worker_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m daemon.bench.foxglove")
+    parser.add_argument("--bridge", required=True)
+    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--clients", type=int, default=CLIENTS)
+    parser.add_argument("--compression", default="cbor-raw")
+    args = parser.parse_args(argv)
+    out = asyncio.run(generate_load(args.bridge, args.seconds, args.clients, args.compression))
+    print(json.dumps(out), flush=True)
+    return 0
+
+
+# -- tick lateness: the daemon side (this process) ------------------------------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@contextlib.asynccontextmanager
+async def bench_daemon(workdir: Path) -> AsyncIterator[tuple[Any, str]]:
+    """The daemon on the mock driver (no simulated world), recorder present but off."""
+    from daemon.app import Daemon
+    from daemon.config import load_config
+
+    ws_port = _free_port()
+    config_path = workdir / "bench.toml"
+    config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
+                           f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
+                           '[driver]\ntype = "mock"\n'
+                           f'[record]\nenabled = false\ndirectory = "{workdir / "rec"}"\n')
+    daemon = Daemon(load_config(config_path))
+    task = asyncio.create_task(daemon.run())
+    while daemon.state == "startup":
+        if task.done():
+            raise RuntimeError(f"bench daemon did not start (exit {task.result()})")
+        await asyncio.sleep(0.01)
+    try:
+        yield daemon, f"ws://127.0.0.1:{ws_port}/"
+    finally:
+        daemon.request_shutdown("bench over")
+        await task
+
+
+async def _load(bridge_url: str, seconds: float) -> asyncio.subprocess.Process:
+    return await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "daemon.bench.foxglove", "--bridge", bridge_url,
+        "--seconds", str(seconds), stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE)
+
+
+async def _load_result(proc: asyncio.subprocess.Process) -> dict[str, Any]:
+    out, err = await proc.communicate()
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench worker failed: {err.decode()[-2000:]}")
+    return dict(json.loads(out.decode().strip().splitlines()[-1]))
+
+
+async def _publish_scans(daemon: Any, stop: asyncio.Event) -> None:
+    """A 10 Hz lidar: a fresh 720-ray scan on the bus every 0.1 s."""
+    while not stop.is_set():
+        daemon.bus.publish("scan", synthetic_scan())
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), 0.1)
+
+
+async def _lateness(daemon: Any, seconds: float) -> list[float]:
+    """Tick lateness samples (s) over the next ``seconds``."""
+    latency = daemon.latency
+    latency.tick_late_ms.clear()
+    await asyncio.sleep(seconds)
+    return [ms / 1e3 for ms in latency.tick_late_ms]
+
+
+async def _alternate(daemon: Any, recorder: Any, seconds: float,
+                     segment: float) -> tuple[list[float], list[float]]:
+    """Recorder off and on in turns of ``segment`` s, so both see the same machine load."""
+    off: list[float] = []
+    on: list[float] = []
+    for i in range(max(2, round(seconds / segment))):
+        recorder.wanted = i % 2 == 1
+        (on if recorder.wanted else off).extend(await _lateness(daemon, segment))
+    recorder.wanted = False
+    return off, on
+
+
+async def _tick_results(quick: bool) -> list[BenchResult]:
+    seconds, segment = (3.0, 0.5) if quick else (15.0, 1.0)
+    with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
+        async with bench_daemon(Path(tmp)) as (daemon, url):
+            stop = asyncio.Event()
+            scans = asyncio.create_task(_publish_scans(daemon, stop))
+            recorder = next(c for c in daemon.components if c.name == "recorder").recorder
+            idle = await _lateness(daemon, seconds)
+            worker = await _load(url, 2 * seconds + 1.0)
+            assert worker.stdout is not None
+            await asyncio.wait_for(worker.stdout.readline(), 20)  # "ready"
+            clients, recording = await _alternate(daemon, recorder, 2 * seconds, segment)
+            load = await _load_result(worker)
+            written, dropped = recorder.written, recorder.dropped
+            stop.set()
+            await scans
+    p99 = {name: percentile_ms(samples, 99) for name, samples in
+           (("idle", idle), ("clients", clients), ("recording", recording))}
+    added = p99["recording"] - p99["clients"]
+    frames = load["frames_received"]
+    return [
+        BenchResult(SUITE, "tick lateness p99 idle", round(p99["idle"], 4), "ms",
+                    note="same daemon, no clients, recorder off, scans on the bus at 10 Hz"),
+        BenchResult(SUITE, f"tick lateness p99, {CLIENTS} cbor-raw /scan clients",
+                    round(p99["clients"], 4), "ms", "<= 1", p99["clients"] <= 1.0,
+                    note=f"{min(frames)}-{max(frames)} frames per client"),
+        BenchResult(SUITE, "tick lateness p99, same clients + recorder",
+                    round(p99["recording"], 4), "ms",
+                    note=f"{written} messages written, {dropped} dropped"),
+        BenchResult(SUITE, "tick lateness p99 added by recording", round(added, 4), "ms",
+                    "<= 0.2", added <= 0.2,
+                    note=f"recorder off/on in turns of {segment:g} s over {2 * seconds:g} s, "
+                    "50 Hz tick"),
+    ]
+
+
+def run(quick: bool) -> list[BenchResult]:
+    arbiterd_log = logging.getLogger("arbiterd")
+    level = arbiterd_log.level
+    arbiterd_log.setLevel(logging.ERROR)
+    try:
+        return [*encoding_results(quick), *asyncio.run(_tick_results(quick))]
+    finally:
+        arbiterd_log.setLevel(level)
+
+
+if __name__ == "__main__":
+    sys.exit(worker_main(sys.argv[1:]))
