@@ -18,7 +18,7 @@ from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.recorder import cli as record_cli
-from daemon.recorder.paths import record_directory
+from daemon.recorder.paths import listing_directory
 from sensors.rplidar import cli as lidar_cli
 
 EXIT_BROKEN_PIPE = 141  # what a shell reports for a command killed by SIGPIPE
@@ -278,7 +278,7 @@ def cmd_record(args: argparse.Namespace) -> int:
             config = _load(args)
         except ConfigError as exc:
             return _report_config_error(exc, args)
-        directory = record_directory(config["record"])
+        directory = listing_directory(config["record"])
     return record_cli.run(args, directory or Path("."))
 
 

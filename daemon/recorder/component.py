@@ -48,7 +48,7 @@ class RecorderComponent:
         all_channels = [c for group in self.channels.values() for c in group] + [ROSOUT]
         self.recorder = FlightRecorder(self._writer_options(), all_channels,
                                        self._metadata, self._on_open)
-        self.index = RecordingIndex(self.directory)
+        self.index = RecordingIndex(self.directory, self.recorder.live_file)
         self._unsubscribers: list[Callable[[], None]] = []
         self._log_handler: RecordLogHandler | None = None
         self._health: tuple[Any, ...] | None = None

@@ -2,15 +2,19 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from daemon.recorder.writer import recordings
+
+if TYPE_CHECKING:
+    from daemon.recorder.writer import OpenFile
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -111,18 +115,32 @@ def _salvage(name: str, size: int, stream: IO[bytes]) -> RecordingInfo:
     return info
 
 
+def _live_info(file: OpenFile) -> RecordingInfo:
+    info = RecordingInfo(file.path.name, file.path.stat().st_size, False, file.start_ns,
+                         file.end_ns if file.start_ns is not None else None)
+    counts = dict(file.counts)
+    info.topics = {topic: TopicInfo(type_name, counts.get(topic, 0))
+                   for topic, type_name in file.types.items()}
+    return info
+
+
 class RecordingIndex:
     """The recordings of a directory, each file read once per (size, mtime)."""
 
-    def __init__(self, directory: Path) -> None:
+    def __init__(self, directory: Path,
+                 live: Callable[[], OpenFile | None] = lambda: None) -> None:
         self.directory = directory
+        self.live = live
         self._cache: dict[Path, tuple[tuple[int, int], RecordingInfo]] = {}
 
     def list(self) -> list[RecordingInfo]:
+        """Every recording; the one being written is described from the writer's counts."""
+        live = self.live()
         out = []
         for path in sorted(recordings(self.directory), key=lambda p: p.name):
             with contextlib.suppress(OSError):
-                out.append(self.info(path))
+                out.append(_live_info(live) if live is not None and live.path == path
+                           else self.info(path))
         self._cache = {p: v for p, v in self._cache.items() if p.exists()}
         return out
 

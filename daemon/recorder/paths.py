@@ -16,6 +16,20 @@ def default_directory(env: Mapping[str, str] | None = None) -> Path:
     return Path(xdg) / "arbiterd" / "recordings"
 
 
+SERVICE_DIRECTORY = Path("/var/lib/arbiterd/recordings")  # StateDirectory=arbiterd of the unit
+
+
 def record_directory(options: Mapping[str, object]) -> Path:
     configured = str(options.get("directory") or "")
     return Path(configured).expanduser() if configured else default_directory()
+
+
+def listing_directory(options: Mapping[str, object],
+                      env: Mapping[str, str] | None = None) -> Path:
+    """Where `arbiterd record list` looks: as the daemon would, except that from a shell
+    (no $STATE_DIRECTORY) the installed service's recordings win when they exist."""
+    env = os.environ if env is None else env
+    if not options.get("directory") and not env.get("STATE_DIRECTORY") and (
+            SERVICE_DIRECTORY.is_dir()):
+        return SERVICE_DIRECTORY
+    return record_directory(options)

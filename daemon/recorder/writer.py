@@ -44,7 +44,7 @@ class WriterOptions:
     queue_size: int
 
 
-class _OpenFile:
+class OpenFile:
     """One MCAP file being written, with its channels registered."""
 
     def __init__(self, path: Path, compression: str, channels: Iterable[Channel],
@@ -54,6 +54,11 @@ class _OpenFile:
         self.ids: dict[str, int] = {}
         self.started = time.monotonic()
         self.sequence = 0
+        # what the file holds so far (for listings while it is written: no need to read it)
+        self.types: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self.start_ns: int | None = None
+        self.end_ns = 0
         try:
             self._begin(compression, channels, metadata)
         except OSError:
@@ -73,6 +78,7 @@ class _OpenFile:
                     channel.type, "ros2msg", full_text(channel.type).encode())
             self.ids[channel.topic] = self.writer.register_channel(
                 channel.topic, "cdr", schemas[channel.type])
+            self.types[channel.topic] = channel.type
         self.writer.add_metadata("arbiterd", metadata)
         self.flush()
 
@@ -80,6 +86,10 @@ class _OpenFile:
         self.sequence += 1
         self.writer.add_message(self.ids[channel.topic], log_time, data, log_time,
                                 self.sequence)
+        self.counts[channel.topic] = self.counts.get(channel.topic, 0) + 1
+        if self.start_ns is None:
+            self.start_ns = log_time
+        self.end_ns = log_time
 
     def flush(self) -> None:
         """Close the chunk in progress and put it on the disk: a crash loses nothing before."""
@@ -130,7 +140,7 @@ class FlightRecorder:
         self.deleted = 0
         self.error: str | None = None
         self._queue: deque[Item] = deque()
-        self._file: _OpenFile | None = None
+        self._file: OpenFile | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="flight-recorder", daemon=True)
         self._wall0 = time.time_ns()
@@ -165,6 +175,10 @@ class FlightRecorder:
     def current(self) -> Path | None:
         file = self._file
         return file.path if file is not None else None
+
+    def live_file(self) -> OpenFile | None:
+        """The file being written (its counts are kept as messages are added)."""
+        return self._file
 
     @property
     def queued(self) -> int:
@@ -241,7 +255,7 @@ class FlightRecorder:
                 log.error("flight recorder: cannot encode a %s message: %s", channel.topic, exc)
             return None
 
-    def _write_failed(self, file: _OpenFile, exc: OSError) -> None:
+    def _write_failed(self, file: OpenFile, exc: OSError) -> None:
         """Abandon the file (what reached the disk stays readable) and pause recording."""
         self._fail(f"cannot write {file.path}: {exc.strerror or exc}; recording paused (free "
                    f"some space or fix the permissions of {self.options.directory}, [record] "
@@ -260,7 +274,7 @@ class FlightRecorder:
         try:
             directory.mkdir(parents=True, exist_ok=True)
             path = self._new_path()
-            self._file = _OpenFile(path, self.options.compression, self.channels,
+            self._file = OpenFile(path, self.options.compression, self.channels,
                                    self.metadata())
         except OSError as exc:
             self._fail(f"cannot write recordings to {directory}: {exc.strerror or exc}; "
