@@ -113,7 +113,6 @@ class RecorderComponent:
     # -- HTTP ----------------------------------------------------------------------------------
 
     async def post_record(self, request: web.Request) -> web.Response:
-        self.ctx.security.require_token(request)
         body = await read_json_object(request, self.ctx.http.max_body_bytes)
         enabled = body.get("enabled")
         if set(body) != {"enabled"} or not isinstance(enabled, bool):
@@ -134,7 +133,6 @@ class RecorderComponent:
             await asyncio.sleep(0.02)
 
     async def get_recordings(self, request: web.Request) -> web.Response:
-        self.ctx.security.require_read(request)
         infos = await asyncio.to_thread(self.index.list)
         current = self.recorder.current
         return json_response({
@@ -144,7 +142,6 @@ class RecorderComponent:
                            for i in infos]})
 
     async def get_recording(self, request: web.Request) -> web.StreamResponse:
-        self.ctx.security.require_read(request)
         name = request.match_info["name"]
         path = self.directory / name
         if _NAME.match(name) is None or not path.is_file():
@@ -171,7 +168,8 @@ def create(ctx: Any) -> RecorderComponent:
     """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
     options = defaults(RECORD_OPTIONS) | dict(ctx.config["record"])
     component = RecorderComponent(ctx, options)
-    ctx.http.add_route("POST", "/api/record", component.post_record)
-    ctx.http.add_route("GET", "/api/recordings", component.get_recordings)
-    ctx.http.add_route("GET", "/api/recordings/{name}", component.get_recording)
+    ctx.http.add_route("POST", "/api/record", component.post_record, access="drive")
+    ctx.http.add_route("GET", "/api/recordings", component.get_recordings, access="read")
+    ctx.http.add_route("GET", "/api/recordings/{name}", component.get_recording,
+                       access="read")
     return component
