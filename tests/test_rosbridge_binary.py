@@ -46,7 +46,7 @@ def laser_scan(rays: int = 720) -> LaserScan:
     ranges = np.linspace(0.15, 11.0, rays, dtype=np.float32)
     ranges[::7] = np.inf
     return LaserScan(stamp=1700000001.5, frame_id="laser", angle_min=-math.pi,
-                     angle_max=math.pi, angle_increment=2 * math.pi / rays,
+                     angle_max=math.pi, angle_increment=2 * math.pi / max(rays, 1),
                      time_increment=1e-4, scan_time=0.1, range_min=0.15, range_max=12.0,
                      ranges=ranges, intensities=np.full(rays, 47.0, dtype=np.float32))
 
@@ -229,3 +229,19 @@ def test_the_bench_measures_real_frames_of_one_scan() -> None:
     assert len(as_json["ranges"]) == len(as_raw.ranges) == 720
     assert as_cbor["header"] == as_json["header"] == {
         "stamp": {"sec": 1700000000, "nanosec": 0}, "frame_id": "laser"}
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.text(max_size=9), st.integers(0, 50), st.floats(1e9, 2e9))
+def test_the_scan_fast_path_writes_what_the_generic_encoder_writes(
+        frame_id: str, rays: int, t: float) -> None:
+    scan = laser_scan(rays)
+    scan.frame_id, scan.stamp = frame_id, t
+    assert binary.scan_cdr(scan) == cdr.encode(LASER_SCAN, binary.scan_arrays(scan))
+
+
+def test_cbor_heads_of_every_width() -> None:
+    for value in (0, 23, 24, 255, 256, 65535, 65536, 2**32 - 1, 2**32):
+        data = bytes(value % 7 for _ in range(min(value, 70000)))
+        raw = binary.cbor_raw_msg(data, value + 0.5)
+        assert cbor2.loads(raw) == {"secs": value, "nsecs": 500000000, "bytes": data}

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import math
+import operator
+import struct
 from collections.abc import Callable
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any
 
 import cbor2
@@ -29,16 +31,41 @@ _FRAME_HEAD = b"\xa3" + cbor2.dumps("op") + cbor2.dumps("publish") + cbor2.dumps
 _MSG_KEY = cbor2.dumps("msg")
 
 
+_RAW_KEYS = [cbor2.dumps(key) for key in ("secs", "nsecs", "bytes")]
+
+
 def publish_frame(spelling: str, msg_cbor: bytes) -> bytes:
     """CBOR ``{"op": "publish", "topic": T, "msg": M}`` around an already encoded message."""
-    return _FRAME_HEAD + cbor2.dumps(spelling) + _MSG_KEY + msg_cbor
+    return b"".join((_frame_head(spelling), msg_cbor))
+
+
+@lru_cache(maxsize=1024)
+def _frame_head(spelling: str) -> bytes:
+    return _FRAME_HEAD + cbor2.dumps(spelling) + _MSG_KEY
 
 
 def cbor_raw_msg(cdr_bytes: bytes, t: float) -> bytes:
-    """The ``msg`` of a ``cbor-raw`` frame: the server clock ``t`` and the CDR bytes."""
+    """The ``msg`` of a ``cbor-raw`` frame: ``{"secs", "nsecs", "bytes"}`` with the server clock
+    ``t`` and the CDR bytes, written directly (the bytes are copied once)."""
     secs = math.floor(t)
     nsecs = min(round((t - secs) * 1e9), 999_999_999)
-    return cbor2.dumps({"secs": secs, "nsecs": nsecs, "bytes": cdr_bytes})
+    secs_key, nsecs_key, bytes_key = _RAW_KEYS
+    return b"".join((b"\xa3", secs_key, _head(0, secs), nsecs_key, _head(0, nsecs),
+                     bytes_key, _head(2, len(cdr_bytes)), cdr_bytes))
+
+
+def _head(major: int, value: int) -> bytes:
+    """A CBOR item head: unsigned integer (major 0) or byte-string length (major 2)."""
+    kind = major << 5
+    if value < 24:
+        return bytes((kind | value,))
+    if value < 0x100:
+        return bytes((kind | 24, value))
+    if value < 0x10000:
+        return struct.pack(">BH", kind | 25, value)
+    if value < 0x100000000:
+        return struct.pack(">BI", kind | 26, value)
+    return struct.pack(">BQ", kind | 27, value)
 
 
 def cbor_msg(type_name: str, msg: Any) -> bytes:
@@ -118,7 +145,40 @@ def _float32(values: Any) -> np.ndarray:
     return np.asarray(values if values is not None else [], dtype=np.float32).ravel()
 
 
+def scan_cdr(scan: ScanLike) -> bytes:
+    """sensor_msgs/msg/LaserScan as CDR straight from the scan's arrays: after the string, every
+    field is 4-aligned, so the layout is fixed and the arrays are copied once."""
+    sec, nanosec = stamp_parts(float(scan.stamp))
+    frame_id = getattr(scan, "frame_id", "laser").encode()
+    ranges, intensities = _le32(scan.ranges), _le32(getattr(scan, "intensities", None))
+    pad = -(len(frame_id) + 1) % 4
+    return b"".join((
+        cdr.ENCAPSULATION, _STAMP_LEN.pack(sec, nanosec, len(frame_id) + 1), frame_id,
+        _NULS[:1 + pad], _SCAN_FIELDS.pack(*_scan_floats(scan), len(ranges)),
+        ranges.tobytes(), cdr.U32.pack(len(intensities)), intensities.tobytes()))
+
+
+def _le32(values: Any) -> np.ndarray:
+    return np.asarray(values if values is not None else (), dtype="<f4").reshape(-1)
+
+
+def stamp_parts(t: float) -> tuple[int, int]:
+    sec = math.floor(t)
+    return int(sec), min(round((t - sec) * 1e9), 999_999_999)
+
+
+_STAMP_LEN = struct.Struct("<iII")
+_SCAN_FLOATS = ("angle_min", "angle_max", "angle_increment", "time_increment", "scan_time",
+                "range_min", "range_max")
+_scan_floats = operator.attrgetter(*_SCAN_FLOATS)
+_SCAN_FIELDS = struct.Struct("<7fI")
+_NULS = bytes(4)
+
 #: robot message types whose binary encodings start from their own conversion
 BINARY_CONVERT: dict[str, Callable[[Any], dict[str, Any]]] = {
     "sensor_msgs/msg/LaserScan": scan_arrays,
+}
+#: robot message types with a CDR encoder of their own (the generic one is checked against it)
+BINARY_CDR: dict[str, Callable[[Any], bytes]] = {
+    "sensor_msgs/msg/LaserScan": scan_cdr,
 }

@@ -23,7 +23,7 @@ PRIMITIVE_CODES: dict[str, tuple[str, str]] = {
     "uint64": ("Q", "<u8"), "float32": ("f", "<f4"), "float64": ("d", "<f8"),
 }
 BYTE_BASES = ("uint8", "char", "byte")
-_U32 = struct.Struct("<I")
+U32 = struct.Struct("<I")
 _ZEROS = bytes(8)
 
 Writer = Callable[[bytearray, Any], None]
@@ -166,7 +166,7 @@ def _fixed(value: Any, count: int, path: tuple[str, ...]) -> Any:
 def write_string(buf: bytearray, value: str) -> None:
     data = value.encode()
     _align(buf, 4)
-    buf += _U32.pack(len(data) + 1)
+    buf += U32.pack(len(data) + 1)
     buf += data
     buf.append(0)
 
@@ -191,7 +191,7 @@ def _byte_array_writer(length: int | None) -> Writer:
         data = value if isinstance(value, bytes | bytearray) else bytes(value)
         if length is None:
             _align(buf, 4)
-            buf += _U32.pack(len(data))
+            buf += U32.pack(len(data))
         elif len(data) != length:
             raise CdrError(f"expected exactly {length} bytes, got {len(data)}")
         buf += data
@@ -206,7 +206,7 @@ def _sequence_writer(dtype: str) -> Writer:
     def write(buf: bytearray, value: Any) -> None:
         array = as_array(value, dtype)
         _align(buf, 4)
-        buf += _U32.pack(len(array))
+        buf += U32.pack(len(array))
         if len(array):
             _align(buf, size)
             buf += array.tobytes()
@@ -228,7 +228,7 @@ def _object_sequence_writer(element: Writer, length: int | None) -> Writer:
     def write(buf: bytearray, value: Any) -> None:
         if length is None:
             _align(buf, 4)
-            buf += _U32.pack(len(value))
+            buf += U32.pack(len(value))
         elif len(value) != length:
             raise CdrError(f"expected exactly {length} items, got {len(value)}")
         for item in value:

@@ -54,14 +54,24 @@ class SharedMessage:
     def _binary_msg(self, compression: str, type_name: str) -> bytes:
         msg = self._binary_msgs.get(compression)
         if msg is None:
-            convert = self._convert and binary.BINARY_CONVERT.get(type_name, self._convert)
-            values = convert(self._source) if convert else self._source
             if compression == "cbor":
-                msg = binary.cbor_msg(type_name, values)
+                msg = binary.cbor_msg(type_name, self._values(type_name))
             else:  # the server clock at (first) send, as rosbridge's cbor-raw carries it
-                msg = binary.cbor_raw_msg(cdr.encode(type_name, values), time.time())
+                msg = binary.cbor_raw_msg(self._cdr(type_name), time.time())
             self._binary_msgs[compression] = msg
         return msg
+
+    def _values(self, type_name: str) -> Any:
+        """The message as a dict for the binary encoders (robot data: their own conversion)."""
+        if self._convert is None:
+            return self._source
+        return binary.BINARY_CONVERT.get(type_name, self._convert)(self._source)
+
+    def _cdr(self, type_name: str) -> bytes:
+        direct = binary.BINARY_CDR.get(type_name) if self._convert is not None else None
+        if direct is not None:
+            return direct(self._source)
+        return cdr.encode(type_name, self._values(type_name))
 
     def frame(self, spelling: str) -> str:
         """The ``publish`` op for a subscriber that named the topic ``spelling``."""
