@@ -6,7 +6,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.rosbridge.binary import scan_arrays
+from daemon.rosbridge import cdr
+from daemon.rosbridge.binary import scan_arrays, scan_cdr
 from daemon.rosbridge.msgtypes import stamp
 from daemon.rosbridge.topics import (
     LASER_SCAN,
@@ -34,6 +35,12 @@ class Channel:
     topic: str
     type: str
     convert: Callable[[Any], dict[str, Any]]
+    encode: Callable[[Any], bytes] | None = None  # a CDR encoder of its own (scans)
+
+    def cdr(self, source: Any) -> bytes:
+        if self.encode is not None:
+            return self.encode(source)
+        return cdr.encode(self.type, self.convert(source))
 
 
 def command_msg(event: CommandEvent) -> dict[str, Any]:
@@ -86,7 +93,7 @@ def bus_channels(*, sim: bool, odom_tf: bool) -> dict[str, list[Channel]]:
         odom.append(Channel("/tf", TF_MESSAGE, tf_msg))
     channels = {
         "odom": odom,
-        "scan": [Channel("/scan", LASER_SCAN, scan_arrays)],
+        "scan": [Channel("/scan", LASER_SCAN, scan_arrays, scan_cdr)],
         "latency_report": [Channel("/latency_reports", STRING, latency_msg)],
         "command": [Channel("/commands", COMMAND, command_msg)],
         "health": [Channel("/diagnostics", DIAGNOSTIC_ARRAY, diagnostics_msg)],

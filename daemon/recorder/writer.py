@@ -17,7 +17,6 @@ from mcap.writer import CompressionType, Writer
 
 from daemon import __version__
 from daemon.recorder.channels import Channel
-from daemon.rosbridge import cdr
 from daemon.rosbridge.msgtypes import full_text
 
 log = logging.getLogger("arbiterd.recorder")
@@ -247,7 +246,7 @@ class FlightRecorder:
 
     def _encode(self, channel: Channel, source: Any) -> bytes | None:
         try:
-            return cdr.encode(channel.type, channel.convert(source))
+            return channel.cdr(source)
         except Exception as exc:
             self.bad += 1
             if channel.topic not in self._failed_channels:
