@@ -201,7 +201,7 @@ async def _alternate(daemon: Any, recorder: Any, seconds: float,
 
 
 async def _tick_results(quick: bool) -> list[BenchResult]:
-    seconds, segment = (3.0, 0.5) if quick else (15.0, 1.0)
+    seconds, segment = (3.0, 1.0) if quick else (15.0, 5.0)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         async with bench_daemon(Path(tmp)) as (daemon, url):
             stop = asyncio.Event()
