@@ -6,7 +6,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import logging
 import math
 import socket
 import statistics
@@ -20,7 +19,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from daemon.bench import BenchResult, percentile_ms
+from daemon.bench import BenchResult, percentile_ms, run_quietly
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.topics import LASER_SCAN, scan_msg
 from sensors.scan import LaserScan
@@ -237,13 +236,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
 
 
 def run(quick: bool) -> list[BenchResult]:
-    arbiterd_log = logging.getLogger("arbiterd")
-    level = arbiterd_log.level
-    arbiterd_log.setLevel(logging.ERROR)
-    try:
-        return [*encoding_results(quick), *asyncio.run(_tick_results(quick))]
-    finally:
-        arbiterd_log.setLevel(level)
+    return [*encoding_results(quick), *run_quietly(_tick_results(quick))]
 
 
 if __name__ == "__main__":
