@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
-from collections.abc import Coroutine
+import socket
+from collections.abc import AsyncIterator, Coroutine
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -49,6 +52,41 @@ def run_quietly(main: Coroutine[Any, Any, T]) -> T:
         return asyncio.run(main)
     finally:
         arbiterd_log.setLevel(level)
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@contextlib.asynccontextmanager
+async def bench_daemon(workdir: Path, extra_toml: str = "") -> AsyncIterator[tuple[Any, str]]:
+    """The daemon in this process on the mock driver, HTTP off: (daemon, rosbridge URL).
+
+    No simulated world, so the figures are the bridge's, not the world's; ``extra_toml`` is
+    appended to its configuration file in ``workdir``."""
+    from daemon.app import Daemon
+    from daemon.config import load_config
+
+    ws_port = free_port()
+    config_path = workdir / "bench.toml"
+    config_path.write_text(f'[http]\nenabled = false\nport = {free_port()}\n'
+                           f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
+                           '[driver]\ntype = "mock"\n' + extra_toml)
+    daemon = Daemon(load_config(config_path))
+    task = asyncio.create_task(daemon.run())
+    while daemon.state == "startup":
+        if task.done():
+            raise RuntimeError(f"bench daemon did not start (exit {task.result()})")
+        await asyncio.sleep(0.01)
+    try:
+        yield daemon, f"ws://127.0.0.1:{ws_port}/"
+    finally:
+        daemon.request_shutdown("bench over")
+        await task
 
 
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`

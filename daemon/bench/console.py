@@ -8,7 +8,6 @@ import contextlib
 import json
 import os
 import shutil
-import socket
 import sys
 import tempfile
 import time
@@ -18,7 +17,7 @@ from typing import Any
 
 import aiohttp
 
-from daemon.bench import BenchResult, run_quietly
+from daemon.bench import BenchResult, free_port, run_quietly
 from daemon.latency import LatencyTracker, summarize
 
 SUITE = "console"
@@ -32,13 +31,6 @@ SUBSCRIPTIONS = [("/odom", {}), ("/scan", {}), ("/latency_reports", {}), ("/robo
                  ("/odom_ground_truth", {"throttle_rate": 100})]
 POLLS = {"/api/health": 1.0, "/api/status": 0.25, "/api/latency": 2.0}
 COMMAND_PERIOD_S = 0.05
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
 
 
 # -- the console's traffic, replayed from a separate process ----------------------------------
@@ -157,7 +149,7 @@ async def sim_daemon(workdir: Path) -> AsyncIterator[tuple[Any, str, str]]:
     from daemon.app import Daemon
     from daemon.config import load_config
 
-    http_port, ws_port = _free_port(), _free_port()
+    http_port, ws_port = free_port(), free_port()
     config_path = workdir / "bench.toml"
     config_path.write_text(f'[http]\nhost = "127.0.0.1"\nport = {http_port}\n'
                            f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n')

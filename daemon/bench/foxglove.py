@@ -7,19 +7,18 @@ import asyncio
 import contextlib
 import json
 import math
-import socket
 import statistics
 import sys
 import tempfile
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import aiohttp
 import numpy as np
 
-from daemon.bench import BenchResult, percentile_ms, run_quietly
+from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.topics import LASER_SCAN, scan_msg
 from sensors.scan import LaserScan
@@ -125,38 +124,6 @@ def worker_main(argv: list[str]) -> int:
 # -- tick lateness: the daemon side (this process) ------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-@contextlib.asynccontextmanager
-async def bench_daemon(workdir: Path) -> AsyncIterator[tuple[Any, str]]:
-    """The daemon on the mock driver (no simulated world), recorder present but off."""
-    from daemon.app import Daemon
-    from daemon.config import load_config
-
-    ws_port = _free_port()
-    config_path = workdir / "bench.toml"
-    config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
-                           f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-                           '[driver]\ntype = "mock"\n'
-                           f'[record]\nenabled = false\ndirectory = "{workdir / "rec"}"\n')
-    daemon = Daemon(load_config(config_path))
-    task = asyncio.create_task(daemon.run())
-    while daemon.state == "startup":
-        if task.done():
-            raise RuntimeError(f"bench daemon did not start (exit {task.result()})")
-        await asyncio.sleep(0.01)
-    try:
-        yield daemon, f"ws://127.0.0.1:{ws_port}/"
-    finally:
-        daemon.request_shutdown("bench over")
-        await task
-
-
 async def _load(bridge_url: str, seconds: float) -> asyncio.subprocess.Process:
     return await asyncio.create_subprocess_exec(
         sys.executable, "-m", "daemon.bench.foxglove", "--bridge", bridge_url,
@@ -202,7 +169,9 @@ async def _alternate(daemon: Any, recorder: Any, seconds: float,
 async def _tick_results(quick: bool) -> list[BenchResult]:
     seconds, segment = (3.0, 1.0) if quick else (15.0, 5.0)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
-        async with bench_daemon(Path(tmp)) as (daemon, url):
+        # the recorder present but off: _alternate switches it
+        record = f'[record]\nenabled = false\ndirectory = "{Path(tmp) / "rec"}"\n'
+        async with bench_daemon(Path(tmp), record) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
             recorder = next(c for c in daemon.components if c.name == "recorder").recorder

@@ -6,7 +6,6 @@ import asyncio
 import contextlib
 import json
 import math
-import socket
 import sys
 import tempfile
 import time
@@ -18,17 +17,10 @@ import aiohttp
 import numpy as np
 from aiohttp import web
 
-from daemon.bench import BenchResult, run_quietly
+from daemon.bench import BenchResult, bench_daemon, free_port, run_quietly
 
 SUITE = "rosbridge"
 SCAN_RAYS = 720
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -152,36 +144,12 @@ async def echo_server() -> AsyncIterator[str]:
     app.router.add_get("/", _echo)
     runner = web.AppRunner(app, access_log=None, handle_signals=False)
     await runner.setup()
-    port = _free_port()
+    port = free_port()
     await web.TCPSite(runner, "127.0.0.1", port).start()
     try:
         yield f"ws://127.0.0.1:{port}/"
     finally:
         await runner.cleanup()
-
-
-@contextlib.asynccontextmanager
-async def bench_daemon(workdir: Path, extra_toml: str = "") -> AsyncIterator[Any]:
-    from daemon.app import Daemon
-    from daemon.config import load_config
-
-    ws_port = _free_port()
-    config_path = workdir / "bench.toml"
-    config_path.write_text(f'[http]\nenabled = false\nport = {_free_port()}\n'
-                           f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-                           '[driver]\ntype = "mock"\n' + extra_toml)
-    # the mock driver with no simulated world: the figures are the bridge's, not the world's
-    daemon = Daemon(load_config(config_path))
-    task = asyncio.create_task(daemon.run())
-    while daemon.state == "startup":
-        if task.done():
-            raise RuntimeError(f"bench daemon did not start (exit {task.result()})")
-        await asyncio.sleep(0.01)
-    try:
-        yield daemon, f"ws://127.0.0.1:{ws_port}/"
-    finally:
-        daemon.request_shutdown("bench over")
-        await task
 
 
 async def _worker(*args: str) -> dict[str, Any]:
