@@ -16,7 +16,7 @@ from daemon.config import Config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
 from daemon.http_api import ApiError, json_response, read_json_object
-from daemon.safety.component import ScanPoints, scan_points, shared_points
+from daemon.safety.component import ScanPoints, StatePublisher, scan_points, shared_points
 from sensors.scan import LaserScan
 
 log = logging.getLogger("arbiterd.autonomy")
@@ -79,12 +79,11 @@ class AutonomyComponent:
         self._next_decision = -math.inf
         self._invalidations = control.invalidations
         self._latched = False
-        self._last_published = -math.inf
         self._published_state = ""
         control.behaviours[SOURCE] = self.request
         control.tick_sources.append(self._tick)
         control.on_command.append(self._on_command)
-        control.on_tick.append(self._on_tick)
+        self.publisher = StatePublisher(bus, STATE_TOPIC, self.status, control, PUBLISH_EVERY_S)
         bus.subscribe("scan", self.on_scan)
         self._initial_mode = autonomy["mode"]
 
@@ -118,7 +117,7 @@ class AutonomyComponent:
             self.wander.stop(now, reason)
             self.control.arbiter.drop(SOURCE)
         log.info("autonomy %s (%s)", mode, reason)
-        self._publish(now)
+        self.publisher.publish(now)
 
     def request(self, mode: str, reason: str = "requested") -> str | None:
         """Switch the mode if it may be switched now; why not, else None."""
@@ -178,20 +177,12 @@ class AutonomyComponent:
         self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)
         if self.wander.state != previous:
             log.debug("wander %s -> %s (%s)", previous, self.wander.state, self.wander.reason)
-            self._publish(now)
+            self.publisher.publish(now)
 
     def _held(self) -> bool:
         guard = self.control.guard
         action = getattr(guard, "action", "none")
         return action == "stop"
-
-    def _on_tick(self, now: float, on_time: bool) -> None:
-        if now - self._last_published >= PUBLISH_EVERY_S:
-            self._publish(now)
-
-    def _publish(self, now: float) -> None:
-        self._last_published = now
-        self.bus.publish(STATE_TOPIC, self.status())
 
     def status(self) -> dict[str, Any]:
         now = self.clock()

@@ -4,6 +4,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,28 @@ def horizon_warning(settings: MonitorSettings) -> str | None:
     return (f"[collision_monitor] time_before_collision_s = {settings.time_before_collision:g} "
             f"is shorter than the {needed:.2f} s the robot needs to stop from "
             f"{v:g} m/s: obstacles may be seen too late; raise it")
+
+
+class StatePublisher:
+    """Publishes a component's ``status()`` on the bus: on change (:meth:`publish`) and at least
+    every ``every_s`` from the control tick."""
+
+    def __init__(self, bus: Bus, topic: str, status: Callable[[], dict[str, Any]],
+                 control: ControlLoop, every_s: float = PUBLISH_EVERY_S) -> None:
+        self.bus = bus
+        self.topic = topic
+        self.status = status
+        self.every_s = every_s
+        self.last = -math.inf
+        control.on_tick.append(self.on_tick)
+
+    def on_tick(self, now: float, on_time: bool) -> None:
+        if now - self.last >= self.every_s:
+            self.publish(now)
+
+    def publish(self, now: float) -> None:
+        self.last = now
+        self.bus.publish(self.topic, self.status())
 
 
 class ScanPoints:
@@ -134,10 +157,9 @@ class SafetyComponent:
         self._seen: dict[str, float] = dict.fromkeys(ACTIONS, -math.inf)
         self._last_target = (0.0, 0.0)
         self._last_report = -math.inf
-        self._last_published = -math.inf
         control.guard = self
         control.status_extras["safety"] = self.status
-        control.on_tick.append(self._on_tick)
+        self.publisher = StatePublisher(bus, STATE_TOPIC, self.status, control)
         bus.subscribe("scan", self.on_scan)
 
     # -- the guard -----------------------------------------------------------------------------
@@ -190,15 +212,7 @@ class SafetyComponent:
         log.log(level, "collision monitor: %s -> %s (%s; nearest obstacle %s)", previous,
                 action, self.reason or "clear", f"{nearest:.2f} m" if nearest is not None
                 else "unknown")
-        self._publish(now)
-
-    def _on_tick(self, now: float, on_time: bool) -> None:
-        if now - self._last_published >= PUBLISH_EVERY_S:
-            self._publish(now)
-
-    def _publish(self, now: float) -> None:
-        self._last_published = now
-        self.bus.publish(STATE_TOPIC, self.status())
+        self.publisher.publish(now)
 
     def status(self) -> dict[str, Any]:
         now = self.clock()
