@@ -4,12 +4,14 @@ from __future__ import annotations
 import json
 import math
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+
+T = TypeVar("T")
 
 
 class WorldError(ValueError):
@@ -151,24 +153,40 @@ def _fits(x: float, y: float, r: float, placed: Sequence[Circle], start: Pose,
 
 def load_world(path: str | Path) -> World:
     """Read a world from a ``.toml`` or ``.json`` file (format in docs/simulator.md)."""
+    return load_document(path, "world file", WorldError, world_from_dict)
+
+
+def load_document(path: str | Path, what: str, error: type[ValueError],
+                  parse: Callable[[Any], T]) -> T:
+    """``parse(data)`` of a ``.toml`` or ``.json`` file (``what`` it is, e.g. "world file");
+    every problem, the parser's ``error`` too, raises ``error`` naming the file."""
     path = Path(path)
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise WorldError(f"{path}: cannot read world file: {exc.strerror or exc}") from None
+        raise error(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
     try:
         if path.suffix.lower() == ".json":
             data = json.loads(raw)
         elif path.suffix.lower() == ".toml":
             data = tomllib.loads(raw.decode("utf-8"))
         else:
-            raise WorldError(f"{path}: world files must end in .toml or .json")
+            raise error(f"{path}: {what}s must end in .toml or .json")
     except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise WorldError(f"{path}: not valid {path.suffix[1:].upper()}: {exc}") from None
+        raise error(f"{path}: not valid {path.suffix[1:].upper()}: {exc}") from None
     try:
-        return world_from_dict(data)
-    except WorldError as exc:
-        raise WorldError(f"{path}: {exc}") from None
+        return parse(data)
+    except error as exc:
+        raise error(f"{path}: {exc}") from None
+
+
+def finite_number(value: Any, where: str, error: type[ValueError]) -> float:
+    """``value`` as a float when it is a finite int or float (not a bool); else ``error``."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise error(f"{where}: expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise error(f"{where}: must be finite, got {value}")
+    return float(value)
 
 
 def world_from_dict(data: Any) -> World:
@@ -214,11 +232,7 @@ def _table(value: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
 
 
 def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise WorldError(f"{where}: expected a number, got {value!r}")
-    if not math.isfinite(value):
-        raise WorldError(f"{where}: must be finite, got {value}")
-    return float(value)
+    return finite_number(value, where, WorldError)
 
 
 def _point(value: Any, where: str) -> tuple[float, float]:

@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import json
-import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from daemon.control.commands import CommandError, Twist, parse_twist
+from sim.world import finite_number, load_document
 
 #: the actions a step can take; exactly one per step
 ACTIONS = ("cmd_vel", "stop", "estop", "autonomy", "lidar", "mark")
@@ -35,25 +34,15 @@ class Step:
 
 def load_script(path: str | Path) -> list[Step]:
     """Read a ``.toml`` (``[[step]]`` tables) or ``.json`` (``{"steps": [...]}`` or a list)."""
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ScriptError(f"{path}: cannot read script: {exc.strerror or exc}") from None
-    try:
-        if path.suffix.lower() == ".toml":
-            data: Any = tomllib.loads(raw.decode("utf-8")).get("step", [])
-        elif path.suffix.lower() == ".json":
-            data = json.loads(raw)
-            data = data.get("steps", data) if isinstance(data, dict) else data
-        else:
-            raise ScriptError(f"{path}: scripts must end in .toml or .json")
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ScriptError(f"{path}: not valid {path.suffix[1:].upper()}: {exc}") from None
-    try:
-        return parse_steps(data)
-    except ScriptError as exc:
-        raise ScriptError(f"{path}: {exc}") from None
+    toml = Path(path).suffix.lower() == ".toml"
+    return load_document(path, "script", ScriptError,
+                         lambda data: parse_steps(_steps_in(data, toml)))
+
+
+def _steps_in(data: Any, toml: bool) -> Any:
+    if toml:
+        return data.get("step", [])
+    return data.get("steps", data) if isinstance(data, dict) else data
 
 
 def parse_steps(data: Any) -> list[Step]:
@@ -113,8 +102,4 @@ def _value(action: str, value: Any, where: str) -> Any:
 
 
 def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ScriptError(f"{where}: expected a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ScriptError(f"{where}: must be finite")
-    return float(value)
+    return finite_number(value, where, ScriptError)
