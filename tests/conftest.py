@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import pytest
 
@@ -16,10 +17,11 @@ from daemon.config import load_config
 from tests.daemon_proc import DaemonProcess, free_port
 from tests.rigs import RIGS, Rig
 
-__all__ = ["DaemonProcess", "Rig", "Robot", "close_to", "eventually", "free_port",
+__all__ = ["Collector", "DaemonProcess", "Rig", "Robot", "close_to", "eventually", "free_port",
            "running_robot", "wait_for"]
 
 DEFAULT_WITHIN_S = 10.0
+T = TypeVar("T")
 
 
 def wait_for(condition: Callable[[], Any], what: str = "condition",
@@ -57,6 +59,33 @@ def close_to(actual: float | Sequence[float], expected: float | Sequence[float],
         return abs(actual - expected) <= tol
     assert not isinstance(actual, int | float) and not isinstance(expected, int | float)
     return all(abs(a - e) <= tol for a, e in zip(actual, expected, strict=True))
+
+
+class Collector(Generic[T]):
+    """A callback that keeps what another thread hands it (e.g. a lidar manager's
+    revolutions), for the test to count and wait for."""
+
+    def __init__(self) -> None:
+        self._items: list[T] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, item: T) -> None:
+        with self._lock:
+            self._items.append(item)
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self._items)
+
+    def items(self) -> list[T]:
+        with self._lock:
+            return list(self._items)
+
+    def wait(self, count: int, what: str = "",
+             within_s: float = DEFAULT_WITHIN_S) -> list[T]:
+        """All items once there are ``count``; fail naming ``what`` after ``within_s``."""
+        wait_for(lambda: self.count() >= count, what or f"{count} items", within_s)
+        return self.items()
 
 
 class Robot:

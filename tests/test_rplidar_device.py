@@ -2,9 +2,8 @@
 from __future__ import annotations
 
 import asyncio
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,15 +17,7 @@ from sensors.rplidar.client import RplidarClient, open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig
 from sensors.scan import LaserScan
 from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 5.0, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what or condition}")
+from tests.conftest import Collector, wait_for
 
 
 class Run:
@@ -37,26 +28,19 @@ class Run:
         link = tmp_path / "rplidar"
         kwargs = {} if ranges is None else {"ranges_fn": ranges}
         self.emulator = RplidarEmulator(link, model, **kwargs).start()
-        self.revolutions: list[Revolution] = []
-        self.lock = threading.Lock()
+        self.revolutions: Collector[Revolution] = Collector()
         config = ManagerConfig(port=str(link), scan_mode=mode, reconnect_min=0.05,
                                reconnect_max=0.3, error_retry=0.5, banner_timeout=0.5)
-        self.manager = LidarManager(config, self._keep)
-
-    def _keep(self, rev: Revolution) -> None:
-        with self.lock:
-            self.revolutions.append(rev)
+        self.manager = LidarManager(config, self.revolutions)
 
     def count(self) -> int:
-        with self.lock:
-            return len(self.revolutions)
+        return self.revolutions.count()
 
     def health(self) -> dict[str, Any]:
         return self.manager.snapshot()
 
     def more_revolutions(self, extra: int = 3, timeout: float = 5.0) -> None:
-        target = self.count() + extra
-        wait_for(lambda: self.count() >= target, timeout, f"{extra} more revolutions")
+        self.revolutions.wait(self.count() + extra, f"{extra} more revolutions", timeout)
 
 
 @pytest.fixture
@@ -75,8 +59,7 @@ def test_streams_whole_revolutions_and_reports_the_device(run: Run) -> None:
     assert health["model"] == "A1M8" and health["firmware"] == "1.29"
     assert health["mode"] == "Express" and health["device_health"] == "ok"
     assert health["sample_rate_hz"] > 0 and health["scan_rate_hz"] > 0
-    with run.lock:
-        rev = run.revolutions[-1]
+    rev = run.revolutions.items()[-1]
     # express at 254 µs/sample and 10 Hz: about 394 samples, one full turn
     assert 300 < len(rev) < 500
     assert rev.angle_deg.min() < 10 and rev.angle_deg.max() > 350
@@ -86,9 +69,9 @@ def test_streams_whole_revolutions_and_reports_the_device(run: Run) -> None:
 def test_garbage_and_dropped_bytes_are_survived_and_counted(run: Run) -> None:
     run.more_revolutions(2)
     run.emulator.inject_garbage(60)
-    wait_for(lambda: run.health()["dropped_capsules"] >= 1, what="a dropped capsule")
+    wait_for(lambda: run.health()["dropped_capsules"] >= 1, "a dropped capsule")
     run.emulator.drop_bytes(3)
-    wait_for(lambda: run.health()["dropped_capsules"] >= 2, what="another dropped capsule")
+    wait_for(lambda: run.health()["dropped_capsules"] >= 2, "another dropped capsule")
     run.more_revolutions(3)
     assert run.health()["status"] == "ok"
     assert run.health()["stream_restarts"] == 0  # resync, not restart
@@ -97,7 +80,7 @@ def test_garbage_and_dropped_bytes_are_survived_and_counted(run: Run) -> None:
 def test_stalled_stream_is_restarted(run: Run) -> None:
     run.more_revolutions(2)
     run.emulator.stall(3.0)
-    wait_for(lambda: run.health()["stream_restarts"] >= 1, timeout=5, what="a restart")
+    wait_for(lambda: run.health()["stream_restarts"] >= 1, "a restart", within_s=5)
     assert run.health()["status"] == "degraded"
     run.more_revolutions(3, timeout=8.0)
     health = run.health()
@@ -108,7 +91,7 @@ def test_stalled_stream_is_restarted(run: Run) -> None:
 def test_unplug_and_replug_reconnects(run: Run) -> None:
     run.more_revolutions(2)
     run.emulator.unplug()
-    wait_for(lambda: run.health()["state"] == "disconnected", what="disconnected")
+    wait_for(lambda: run.health()["state"] == "disconnected", "disconnected")
     assert run.health()["status"] == "degraded"
     assert "cannot open" in (run.health()["last_error"] or "") or run.health()["last_error"]
     time.sleep(0.3)  # a few failed reopen attempts against a missing port
@@ -130,7 +113,7 @@ def test_persistent_health_error_is_reported_not_fatal(tmp_path: Path) -> None:
     r.emulator.set_health(2, 0x0004, clears_on_reset=False)
     r.manager.start()
     try:
-        wait_for(lambda: r.health()["state"] == "error", what="error state")
+        wait_for(lambda: r.health()["state"] == "error", "error state")
         health = r.health()
         assert health["status"] == "error" and health["device_error_code"] == 4
         assert "0x0004" in health["last_error"]
@@ -174,7 +157,7 @@ def test_missing_port_keeps_retrying(tmp_path: Path) -> None:
     manager = LidarManager(config, lambda rev: None)
     manager.start()
     try:
-        wait_for(lambda: manager.snapshot()["state"] == "disconnected")
+        wait_for(lambda: manager.snapshot()["state"] == "disconnected", "disconnected")
         assert "cannot open" in manager.snapshot()["last_error"]
         assert manager.running
     finally:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,7 @@ from sensors.rplidar.protocol import (
     StreamParser,
 )
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.conftest import wait_for
+from tests.conftest import Collector, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -227,31 +226,18 @@ def test_clean_streams_give_whole_revolutions_on_the_profile() -> None:
         assert np.all(np.abs(outcome.fill(kind) - 1) <= 0.01), outcome.summary(kind)
 
 
-@SEEDS
-@given(seed=st.integers(0, 2**32 - 1))
-def test_standard_stream_with_junk(seed: int) -> None:
-    check_integrity(run(STANDARD, 40.0, seed), STANDARD, 40.0, 0.90)
-
-
-@SEEDS
-@given(seed=st.integers(0, 2**32 - 1))
-def test_express_stream_with_junk(seed: int) -> None:
-    check_integrity(run(EXPRESS, 40.0, seed), EXPRESS, 40.0, 0.90)
-
-
-@SEEDS
-@given(seed=st.integers(0, 2**32 - 1))
-def test_dense_stream_with_junk(seed: int) -> None:
-    check_integrity(run(DENSE, 15.0, seed), DENSE, 15.0, 0.90)
-
-
-@SEEDS
-@given(seed=st.integers(0, 2**32 - 1))
-def test_ultra_stream_with_junk(seed: int) -> None:
+@pytest.mark.parametrize(("kind", "turns", "min_fill"), [
+    pytest.param(STANDARD, 40.0, 0.90, id="standard"),
+    pytest.param(EXPRESS, 40.0, 0.90, id="express"),
+    pytest.param(DENSE, 15.0, 0.90, id="dense"),
     # one ultra capsule is 96 samples, 12 % of a 787-sample turn at 10 Hz: a turn that lost
     # the capsule hit by junk keeps one capsule less than 90 %
-    min_fill = 1 - (ULTRA.per_record + 8) / ULTRA.per_revolution
-    check_integrity(run(ULTRA, 40.0, seed), ULTRA, 40.0, min_fill)
+    pytest.param(ULTRA, 40.0, 1 - (ULTRA.per_record + 8) / ULTRA.per_revolution, id="ultra"),
+])
+@SEEDS
+@given(seed=st.integers(0, 2**32 - 1))
+def test_stream_with_junk(kind: Kind, turns: float, min_fill: float, seed: int) -> None:
+    check_integrity(run(kind, turns, seed), kind, turns, min_fill)
 
 
 # ---------------------------------------------------------------- one rule at a time
@@ -409,27 +395,6 @@ def test_scan_json_through_a_flaky_cable(tmp_path: Path, mode: str, kind: Kind) 
     assert fill.min() >= 0.90 and fill.max() <= 1.01, summary
 
 
-class Collector:
-    """The device manager's revolution consumer (called from its reader thread)."""
-
-    def __init__(self) -> None:
-        self.revolutions: list[Revolution] = []
-        self.lock = threading.Lock()
-
-    def __call__(self, rev: Revolution) -> None:
-        with self.lock:
-            self.revolutions.append(rev)
-
-    def count(self) -> int:
-        with self.lock:
-            return len(self.revolutions)
-
-    def wait(self, count: int) -> list[Revolution]:
-        wait_for(lambda: self.count() >= count, f"{count} revolutions", within_s=10.0)
-        with self.lock:
-            return list(self.revolutions)
-
-
 def health_when(manager: LidarManager, ok: Callable[[dict[str, Any]], bool],
                 what: str) -> dict[str, Any]:
     """The manager's health once ``ok`` holds for it."""
@@ -442,14 +407,14 @@ def health_when(manager: LidarManager, ok: Callable[[dict[str, Any]], bool],
 
 def test_device_manager_through_a_flaky_cable_counts_and_recovers(tmp_path: Path) -> None:
     link = tmp_path / "rplidar"
-    collector = Collector()
+    collector: Collector[Revolution] = Collector()
     config = ManagerConfig(port=str(link), scan_mode="standard", banner_timeout=0.5)
     manager = LidarManager(config, collector)
     with RplidarEmulator(link, A1, ranges_fn=emulated_world, seed=9) as emulator:
         emulator.sprinkle_junk(STANDARD.records_per_junk)
         manager.start()
         try:
-            revs = collector.wait(15)
+            revs = collector.wait(15, "15 revolutions")
             health = manager.snapshot()
             emulator.sprinkle_junk(0)
             emulator.stall(0.05)  # half a turn lost, no junk: the angle jumps, a turn is short
@@ -460,7 +425,7 @@ def test_device_manager_through_a_flaky_cable_counts_and_recovers(tmp_path: Path
             restarting = health_when(manager, lambda h: h["stream_restarts"] > 0,
                                      "a stream restart")
             assert restarting["last_error"], restarting
-            collector.wait(collector.count() + 3)
+            collector.wait(collector.count() + 3, "3 more revolutions")
             recovered = manager.snapshot()
         finally:
             manager.stop()
