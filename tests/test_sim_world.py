@@ -132,22 +132,20 @@ def test_bad_world_data_names_the_field(data: dict[str, object], message: str) -
         world_from_dict(data)
 
 
-def test_bad_world_files_name_the_file(tmp_path: Path) -> None:
-    missing = tmp_path / "none.toml"
-    with pytest.raises(WorldError, match=r"none\.toml: cannot read"):
-        load_world(missing)
-    wrong = tmp_path / "room.yaml"
-    wrong.write_text("walls: []")
-    with pytest.raises(WorldError, match=r"room.yaml: world files must end in \.toml or \.json"):
-        load_world(wrong)
-    broken = tmp_path / "broken.json"
-    broken.write_text("{\"walls\": [")
-    with pytest.raises(WorldError, match=r"broken\.json: not valid JSON"):
-        load_world(broken)
-    unknown = tmp_path / "unknown.toml"
-    unknown.write_text("[arena]\nwidth = 4\nheight = 4\ndepth = 2\n")
-    with pytest.raises(WorldError, match=r"unknown\.toml: unknown field 'arena\.depth'"):
-        load_world(unknown)
+@pytest.mark.parametrize(("name", "content", "message"), [
+    ("none.toml", None, r"none\.toml: cannot read"),
+    ("room.yaml", "walls: []", r"room.yaml: world files must end in \.toml or \.json"),
+    ("broken.json", "{\"walls\": [", r"broken\.json: not valid JSON"),
+    ("unknown.toml", "[arena]\nwidth = 4\nheight = 4\ndepth = 2\n",
+     r"unknown\.toml: unknown field 'arena\.depth'"),
+])
+def test_bad_world_files_name_the_file(tmp_path: Path, name: str, content: str | None,
+                                       message: str) -> None:
+    path = tmp_path / name
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(WorldError, match=message):
+        load_world(path)
 
 
 def test_nearby_lists_what_is_within_reach() -> None:
