@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+import aiohttp
+
 T = TypeVar("T")
 
 
@@ -87,6 +89,18 @@ async def bench_daemon(workdir: Path, extra_toml: str = "") -> AsyncIterator[tup
     finally:
         daemon.request_shutdown("bench over")
         await task
+
+
+async def scan_subscribers(session: aiohttp.ClientSession, stack: contextlib.AsyncExitStack,
+                           bridge_url: str, clients: int,
+                           **options: Any) -> list[aiohttp.ClientWebSocketResponse]:
+    """``clients`` WebSockets to the rosbridge at ``bridge_url``, each subscribed to /scan with
+    ``options`` (e.g. compression); ``stack`` closes them."""
+    sockets = [await stack.enter_async_context(session.ws_connect(bridge_url))
+               for _ in range(clients)]
+    for ws in sockets:
+        await ws.send_json({"op": "subscribe", "topic": "/scan", **options})
+    return sockets
 
 
 # suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`

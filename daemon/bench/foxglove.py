@@ -18,7 +18,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly
+from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly, scan_subscribers
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.topics import LASER_SCAN, scan_msg
 from sensors.scan import LaserScan
@@ -85,11 +85,8 @@ async def generate_load(bridge_url: str, seconds: float, clients: int,
     """``clients`` subscribers on /scan with ``compression``, reading for ``seconds``."""
     received = [0] * clients
     async with aiohttp.ClientSession() as session, contextlib.AsyncExitStack() as stack:
-        sockets = [await stack.enter_async_context(session.ws_connect(bridge_url))
-                   for _ in range(clients)]
-        for ws in sockets:
-            await ws.send_json({"op": "subscribe", "topic": "/scan",
-                                "compression": compression})
+        sockets = await scan_subscribers(session, stack, bridge_url, clients,
+                                         compression=compression)
 
         receiving = asyncio.Event()
 

@@ -17,7 +17,7 @@ import aiohttp
 import numpy as np
 from aiohttp import web
 
-from daemon.bench import BenchResult, bench_daemon, free_port, run_quietly
+from daemon.bench import BenchResult, bench_daemon, free_port, run_quietly, scan_subscribers
 
 SUITE = "rosbridge"
 SCAN_RAYS = 720
@@ -79,10 +79,7 @@ async def generate_load(bridge_url: str, seconds: float, clients: int,
     """``clients`` subscribers on /scan, one /cmd_vel publisher at ``rate_hz``."""
     received = [0] * clients
     async with aiohttp.ClientSession() as session, contextlib.AsyncExitStack() as stack:
-        sockets = [await stack.enter_async_context(session.ws_connect(bridge_url))
-                   for _ in range(clients)]
-        for ws in sockets:
-            await ws.send_json({"op": "subscribe", "topic": "/scan"})
+        sockets = await scan_subscribers(session, stack, bridge_url, clients)
         driver = await stack.enter_async_context(session.ws_connect(bridge_url))
         await driver.send_json({"op": "advertise", "topic": "/cmd_vel",
                                 "type": "geometry_msgs/msg/Twist"})
