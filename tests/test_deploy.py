@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.deploy_helpers import DEPLOY_SH
+from tests.deploy_helpers import DEPLOY_SH, fake_service_pid
 from tests.deploy_helpers.sshd import SshServer, free_port, start_sshd
 from tests.deploy_helpers.wheels import Wheels, wheels
 
@@ -48,11 +48,7 @@ class FakePi:
         return (self.root / "opt/arbiterd/history").read_text().split()
 
     def daemon_pid(self) -> int | None:
-        state = self.root / "run/fake-systemd/arbiterd.json"
-        if not state.exists():
-            return None
-        pid: int = json.loads(state.read_text())["pid"]
-        return pid
+        return fake_service_pid(self.root / "run/fake-systemd")
 
     def serving_release(self) -> str:
         """The release whose interpreter runs the daemon process (its venv's script shebang)."""

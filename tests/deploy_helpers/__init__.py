@@ -1,6 +1,7 @@
 # Helpers shared by the systemd, install.sh and deploy-pi.sh tests (unit parsing, paths).
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -30,3 +31,13 @@ def parse_unit(text: str) -> list[tuple[str, str, str]]:
 def unit_values(text: str, section: str, key: str) -> list[str]:
     """Every value assigned to section.key, in order (repeatable keys give several)."""
     return [v for s, k, v in parse_unit(text) if s == section and k == key]
+
+
+def fake_service_pid(state_dir: Path) -> int | None:
+    """The pid of the daemon fake_systemctl.py started, from its state in ``state_dir``
+    (its FAKE_SYSTEMD_STATE); None while it has not started one."""
+    state = state_dir / "arbiterd.json"
+    if not state.exists():
+        return None
+    pid: int = json.loads(state.read_text())["pid"]
+    return pid

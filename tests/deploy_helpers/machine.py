@@ -3,12 +3,13 @@
 # sudoedit are stand-ins on PATH. Lets a test run install commands exactly as a user types them.
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+from tests.deploy_helpers import fake_service_pid
 
 FAKE_SYSTEMCTL = Path(__file__).with_name("fake_systemctl.py")
 OVERLAID = ("/etc", "/opt", "/usr/local", "/var")
@@ -77,8 +78,4 @@ class Machine:
                               timeout=timeout_s, check=False, stdin=subprocess.DEVNULL)
 
     def service_pid(self) -> int | None:
-        state = self.state / "arbiterd.json"
-        if not state.exists():
-            return None
-        pid: int = json.loads(state.read_text())["pid"]
-        return pid
+        return fake_service_pid(self.state)
