@@ -440,8 +440,8 @@ def test_device_manager_through_a_flaky_cable_counts_and_recovers(tmp_path: Path
     for key in ("dropped_nodes", "angle_misfits", "short_revolutions"):
         assert isinstance(health[key], int), (key, health)
     assert health["dropped_nodes"] >= 5 and health["angle_misfits"] >= 1, health
-    # the jump itself is dropped either as a misfit or as a resync, depending on where in a
-    # node the stall cut the stream; either way it is counted and the short turn is not published
-    assert (after_gap["angle_misfits"] + after_gap["resyncs"]
-            > health["angle_misfits"] + health["resyncs"]), after_gap
+    # the half turn lost is counted as a short revolution (the wait above) and not published;
+    # how the jump itself is counted (misfit, resync, relock) depends on where the stall cut
+    # the stream, so it is asserted by the parser's unit tests, not here
+    assert after_gap["short_revolutions"] > health["short_revolutions"], after_gap
     assert recovered["status"] == "ok" and recovered["last_error"] is None, recovered
