@@ -12,6 +12,7 @@ from typing import Any
 from base.options import Options, defaults
 from daemon import settings
 from drivers import DRIVERS, MotorDriver, create_driver, driver_class
+from drivers.base import renamed_hint
 from sensors.rplidar.settings import LIDAR_OPTIONS
 from sim.settings import SIM_OPTIONS
 
@@ -289,6 +290,9 @@ def _cross_checks(section: str, values: dict[str, Any]) -> list[str]:
 
 
 def _unknown_key(source: str, section: str, key: str, options: Options) -> str:
+    renamed = renamed_hint(key) if section.startswith("driver.") else None
+    if renamed:
+        return f"{source}: [{section}] {key}: {renamed}"
     close = difflib.get_close_matches(key, list(options), n=1, cutoff=0.7)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
     return f"{source}: [{section}] {key}: unknown key{hint}"

@@ -57,7 +57,8 @@ class SimRuntime:
         self.world.start()
         self._stops.append(self.world.close)
         emulated = EMULATORS[self.driver_name].start(
-            self.motors, self.workdir, self.config.driver_options(self.driver_name))
+            self.motors, self.workdir, self.config.driver_options(self.driver_name),
+            self.sim.miswire)
         self._stops.append(emulated.stop)
         self.driver_options = emulated.options
         if self.config["sim"]["lidar"]:

@@ -14,7 +14,14 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.base import (
+    DriverFault,
+    EncoderReading,
+    MotorDriver,
+    inversion_options,
+    inversion_signs,
+    option,
+)
 from drivers.rosarduino import (
     BAUDRATE,
     DEFAULT_GAINS,
@@ -226,8 +233,10 @@ class SerialSettings:
     timeout_s: float
     reset_wait_s: float
     keepalive_s: float
-    invert_left: bool
-    invert_right: bool
+    left_motor_inverted: bool
+    right_motor_inverted: bool
+    left_encoder_inverted: bool
+    right_encoder_inverted: bool
 
 
 @contextlib.contextmanager
@@ -274,8 +283,7 @@ class SerialBridgeDriver(MotorDriver):
                                "board resets", minval=0),
         "keepalive_s": option(float, 0.5, "re-send a held non-zero speed after this many "
                               "seconds (the firmware auto-stops after 2 s)", above=0),
-        "invert_left": option(bool, False, "left motor and encoder mounted mirrored"),
-        "invert_right": option(bool, False, "right motor and encoder mounted mirrored"),
+        **inversion_options(),
     }
     SETTINGS = SerialSettings
     settings: SerialSettings
@@ -286,7 +294,10 @@ class SerialBridgeDriver(MotorDriver):
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
         super().__init__(options, max_wheel_speed=max_wheel_speed)
         s = self.settings
-        self._signs = (-1 if s.invert_left else 1, -1 if s.invert_right else 1)
+        (left_motor, left_encoder), (right_motor, right_encoder) = (
+            inversion_signs(s, side) for side in ("left", "right"))
+        self._signs = (left_motor, right_motor)
+        self._encoder_signs = (int(left_encoder), int(right_encoder))
         self._link: BridgeLink | None = None
         self._poll_task: asyncio.Task[None] | None = None
         self._wire_command = encode_command(MOTOR_SPEEDS, 0, 0)
@@ -435,7 +446,7 @@ class SerialBridgeDriver(MotorDriver):
         if self._last_counts is not None:
             for side in (0, 1):
                 moved = count_delta(counts[side], self._last_counts[side])
-                self._position_counts[side] += moved * self._signs[side]
+                self._position_counts[side] += moved * self._encoder_signs[side]
         self._last_counts = counts
         cpr = self.settings.counts_per_rev
         left, right = (2 * math.pi * c / cpr for c in self._position_counts)

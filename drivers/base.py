@@ -263,12 +263,63 @@ def option(kind: type, default: Any, doc: str, **kw: Any) -> Option:
     return Option(kind, default, doc, **kw)
 
 
+SIDES = ("left", "right")
+
+
+def inversion_options(motor: tuple[bool, bool] = (False, False),
+                      encoder: tuple[bool, bool] = (False, False)) -> dict[str, Option]:
+    """The four direction keys every hardware driver spells the same way: a side's motor
+    command and its encoder reading are flipped independently (a mirrored mount: both)."""
+    options: dict[str, Option] = {}
+    for index, side in enumerate(SIDES):
+        options[f"{side}_motor_inverted"] = option(
+            bool, motor[index], f"flip the {side} motor's command (it turns the wheel backward "
+            "for a forward command)")
+    for index, side in enumerate(SIDES):
+        options[f"{side}_encoder_inverted"] = option(
+            bool, encoder[index], f"flip the {side} encoder's reading (it counts down when the "
+            "wheel turns forward)")
+    return options
+
+
+def inversion_signs(settings: Any, side: str) -> tuple[float, float]:
+    """(motor sign, encoder sign) of one side from the typed settings: -1.0 where inverted."""
+    motor = getattr(settings, f"{side}_motor_inverted")
+    encoder = getattr(settings, f"{side}_encoder_inverted")
+    return (-1.0 if motor else 1.0), (-1.0 if encoder else 1.0)
+
+
+def _renamed() -> dict[str, str]:
+    renamed = {}
+    for side in SIDES:
+        both = f"{side}_motor_inverted = true and {side}_encoder_inverted = true"
+        renamed[f"invert_{side}"] = both
+        renamed[f"{side}_inverted"] = both
+        renamed[f"{side}_invert"] = f"{side}_motor_inverted"
+        renamed[f"{side}_encoder_invert"] = f"{side}_encoder_inverted"
+    return renamed
+
+
+#: Old driver keys (before one spelling across drivers) => what replaces them.
+RENAMED_KEYS: dict[str, str] = _renamed()
+
+
+def renamed_hint(key: str) -> str | None:
+    """'renamed: did you mean ...' for an old driver key, else ``None``."""
+    new = RENAMED_KEYS.get(key)
+    return f"renamed; did you mean {new}?" if new else None
+
+
 def read_settings(settings: type[S], declared: Options, given: Mapping[str, Any],
                   name: str) -> S:
     """The defaults plus ``given``, each key checked against ``declared``, as ``settings``
     (a dataclass with one field per declared key). A driver may be built without the config
     loader, so an unknown key or a bad value is a ``ValueError`` naming ``[driver.<name>]``."""
     unknown = sorted(set(given) - set(declared))
+    for key in unknown:
+        hint = renamed_hint(key)
+        if hint:
+            raise ValueError(f"[driver.{name}] {key}: {hint}")
     if unknown:
         raise ValueError(f"[driver.{name}] unknown option(s): {', '.join(unknown)}; "
                          f"valid: {', '.join(sorted(declared))}")

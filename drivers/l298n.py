@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.base import DriverFault, EncoderReading, MotorDriver, inversion_options, option
 from drivers.pigpio_protocol import PI4B_REVISION
 from drivers.pigpio_pwm import (
     DUTY_MAP_OPTIONS,
@@ -124,8 +124,7 @@ class L298NDriver(MotorDriver):
         "right_forward": _pin(22, "right IN3 GPIO (PWM, forward)"),
         "right_backward": _pin(23, "right IN4 GPIO (PWM, backward)"),
         "right_enable": _pin(-1, "right ENB GPIO held high (-1 = jumpered)", optional=True),
-        "left_invert": option(bool, False, "reverse the left motor's direction"),
-        "right_invert": option(bool, False, "reverse the right motor's direction"),
+        **inversion_options(),
         "pwm_frequency": option(int, 500, "PWM frequency, Hz", minval=10, maxval=20000),
         **DUTY_MAP_OPTIONS,
         "encoders": option(bool, False, "read quadrature encoders with gpiozero RotaryEncoder"),
@@ -255,7 +254,8 @@ class L298NDriver(MotorDriver):
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         s = self.settings
         values = []
-        for invert, speed in ((s.left_invert, left_rad_s), (s.right_invert, right_rad_s)):
+        for invert, speed in ((s.left_motor_inverted, left_rad_s),
+                              (s.right_motor_inverted, right_rad_s)):
             duty = s.duty(speed, self.full_duty_speed)
             values.append(-duty if invert else duty)
         if not self._motors:
@@ -306,7 +306,7 @@ class L298NDriver(MotorDriver):
         steps = self._offsets[index]
         if self._encoders:
             steps += self._encoders[index].steps
-        sign = -1.0 if getattr(self.settings, f"{side}_encoder_invert") else 1.0
+        sign = -1.0 if getattr(self.settings, f"{side}_encoder_inverted") else 1.0
         return sign * steps / self.settings.encoder_counts_per_rev * 2.0 * math.pi
 
     def _where(self) -> str:

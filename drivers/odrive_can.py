@@ -12,7 +12,14 @@ from typing import Any, ClassVar
 import can
 
 from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.base import (
+    DriverFault,
+    EncoderReading,
+    MotorDriver,
+    inversion_options,
+    inversion_signs,
+    option,
+)
 from drivers.cansimple import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     AXIS_STATE_IDLE,
@@ -59,8 +66,10 @@ class ODriveSettings:
     multicast_port: int
     left_node_id: int
     right_node_id: int
-    left_inverted: bool
-    right_inverted: bool
+    left_motor_inverted: bool
+    right_motor_inverted: bool
+    left_encoder_inverted: bool
+    right_encoder_inverted: bool
     gear_ratio: float
     input_mode: str
     heartbeat_period_s: float
@@ -78,7 +87,8 @@ class _Axis:
 
     side: str
     node_id: int
-    sign: float
+    motor_sign: float
+    encoder_sign: float
     heartbeat: Heartbeat | None = None
     heartbeat_mono: float | None = None
     estimate: EncoderEstimate | None = None
@@ -143,9 +153,8 @@ class ODriveCanDriver(MotorDriver):
                                minval=0, maxval=MAX_NODE_ID),
         "right_node_id": option(int, 1, "CAN node id of the right wheel's axis",
                                 minval=0, maxval=MAX_NODE_ID),
-        "left_inverted": option(bool, False, "left motor turns backwards for forward motion"),
-        "right_inverted": option(bool, True, "right motor turns backwards for forward motion "
-                                 "(mirrored mounting)"),
+        # the right motor is usually mounted mirrored: its command and estimate both flip
+        **inversion_options(motor=(False, True), encoder=(False, True)),
         "gear_ratio": option(float, 1.0, "motor turns per wheel turn (1 for hub motors)",
                              above=0.0),
         "input_mode": option(str, "passthrough", "ODrive input mode in velocity control",
@@ -176,8 +185,8 @@ class ODriveCanDriver(MotorDriver):
         problems = self.check_options(asdict(s))
         if problems:
             raise ValueError("; ".join(problems))
-        self._left = _Axis("left", s.left_node_id, -1.0 if s.left_inverted else 1.0)
-        self._right = _Axis("right", s.right_node_id, -1.0 if s.right_inverted else 1.0)
+        self._left = _Axis("left", s.left_node_id, *inversion_signs(s, "left"))
+        self._right = _Axis("right", s.right_node_id, *inversion_signs(s, "right"))
         self._axes = {axis.node_id: axis for axis in (self._left, self._right)}
         self._bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
@@ -200,10 +209,10 @@ class ODriveCanDriver(MotorDriver):
     # -- unit conversion --------------------------------------------------------------------
 
     def _rad_to_rev(self, axis: _Axis, rad: float) -> float:
-        return axis.sign * rad * self.settings.gear_ratio / (2 * math.pi)
+        return axis.motor_sign * rad * self.settings.gear_ratio / (2 * math.pi)
 
     def _rev_to_rad(self, axis: _Axis, rev: float) -> float:
-        return axis.sign * rev * 2 * math.pi / self.settings.gear_ratio
+        return axis.encoder_sign * rev * 2 * math.pi / self.settings.gear_ratio
 
     # -- lifecycle --------------------------------------------------------------------------
 

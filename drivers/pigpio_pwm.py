@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, option
+from drivers.base import DriverFault, EncoderReading, MotorDriver, inversion_options, option
 from drivers.pigpio_protocol import (
     EITHER_EDGE,
     HARDWARE_DUTY_FULL,
@@ -50,8 +50,6 @@ ENCODER_PIN_OPTIONS: dict[str, Any] = {
     "left_encoder_b": _gpio(6, "left encoder channel B GPIO"),
     "right_encoder_a": _gpio(20, "right encoder channel A GPIO"),
     "right_encoder_b": _gpio(21, "right encoder channel B GPIO"),
-    "left_encoder_invert": option(bool, False, "left encoder counts down going forward"),
-    "right_encoder_invert": option(bool, False, "right encoder counts down going forward"),
 }
 
 
@@ -87,8 +85,10 @@ class Side:
 class BridgeSettings:
     """The keys the pigpio and l298n sections share: bridges, duty map, encoders, pigpiod."""
 
-    left_invert: bool
-    right_invert: bool
+    left_motor_inverted: bool
+    right_motor_inverted: bool
+    left_encoder_inverted: bool
+    right_encoder_inverted: bool
     pwm_frequency: int
     max_wheel_speed: float
     min_duty: float
@@ -98,8 +98,6 @@ class BridgeSettings:
     left_encoder_b: int
     right_encoder_a: int
     right_encoder_b: int
-    left_encoder_invert: bool
-    right_encoder_invert: bool
     encoder_counts_per_rev: int
     timeout: float
     watch_interval: float
@@ -233,8 +231,7 @@ class PigpioDriver(MotorDriver):
         "right_pwm": _gpio(13, "right EN (PWM) GPIO; 12/13/18/19 get hardware PWM"),
         "right_in1": _gpio(27, "right IN1 GPIO (high = forward)"),
         "right_in2": _gpio(22, "right IN2 GPIO (high = backward)"),
-        "left_invert": option(bool, False, "reverse the left motor's direction"),
-        "right_invert": option(bool, False, "reverse the right motor's direction"),
+        **inversion_options(),
         "hardware_pwm": option(bool, True, "use hardware PWM on GPIO 12/13/18/19"),
         "pwm_frequency": option(int, 1000, "PWM frequency, Hz (DMA PWM rounds to pigpiod's "
                                 "nearest allowed value)", minval=10, maxval=40000),
@@ -279,8 +276,8 @@ class PigpioDriver(MotorDriver):
         def key(suffix: str) -> Any:
             return getattr(s, f"{name}_{suffix}")
 
-        return Side(name, key("pwm"), key("in1"), key("in2"), key("invert"),
-                    s.encoder_pins(name), key("encoder_invert"))
+        return Side(name, key("pwm"), key("in1"), key("in2"), key("motor_inverted"),
+                    s.encoder_pins(name), key("encoder_inverted"))
 
     def _pin_keys(self) -> list[str]:
         keys = [f"{side}_{pin}" for side in ("left", "right") for pin in ("pwm", "in1", "in2")]

@@ -264,8 +264,8 @@ class ODriveEmulator:
             return encode_heartbeat(axis.axis_error, axis.axis_state)
         if cmd == CMD_GET_ERROR:
             return encode_error(axis.axis_error)
-        position = self.motors.positions()[axis.wheel]
-        speed = self.motors.speeds()[axis.wheel]
+        position = self.motors.encoder_positions()[axis.wheel]
+        speed = self.motors.encoder_speeds()[axis.wheel]
         scale = axis.direction * self.gear_ratio / (2 * math.pi)
         return encode_encoder_estimates(position * scale, speed * scale)
 

@@ -123,22 +123,21 @@ class Wiring:
 
 
 def pigpio_driver_wiring(options: Mapping[str, Any]) -> Wiring:
-    """The hardware a complete ``[driver.pigpio]`` section describes: EN = PWM, IN1/IN2; a
-    side the section inverts has its motor wired reversed."""
+    """The hardware a complete ``[driver.pigpio]`` section describes: EN = PWM, IN1/IN2.
+    (How each motor and encoder is mounted is the MotorPair's wiring: sim/wiring.py.)"""
     def bridge(side: str) -> HBridge:
-        return HBridge(options[f"{side}_in1"], options[f"{side}_in2"], options[f"{side}_pwm"],
-                       options[f"{side}_invert"])
+        return HBridge(options[f"{side}_in1"], options[f"{side}_in2"], options[f"{side}_pwm"])
 
     return Wiring(bridge("left"), bridge("right"), *_encoders(options))
 
 
 def l298n_driver_wiring(options: Mapping[str, Any]) -> Wiring:
-    """The hardware a complete ``[driver.l298n]`` section describes: IN1/IN2 PWM, EN if wired;
-    a side the section inverts has its motor wired reversed."""
+    """The hardware a complete ``[driver.l298n]`` section describes: IN1/IN2 PWM, EN if wired.
+    (How each motor and encoder is mounted is the MotorPair's wiring: sim/wiring.py.)"""
     def bridge(side: str) -> HBridge:
         enable = options[f"{side}_enable"]
         return HBridge(options[f"{side}_forward"], options[f"{side}_backward"],
-                       enable if enable >= 0 else None, options[f"{side}_invert"])
+                       enable if enable >= 0 else None)
 
     return Wiring(bridge("left"), bridge("right"), *_encoders(options))
 

@@ -7,6 +7,7 @@ from typing import Any
 
 from base.options import Option, Options, defaults
 from drivers.registry import DRIVERS
+from sim.motor_model import MISWIRES
 from sim.noise import NoiseConfig
 from sim.world import Pose
 
@@ -52,6 +53,8 @@ SIM_OPTIONS: Options = {
                            above=0.0, maxval=1000.0),
     "lidar": Option(bool, True, "emulate an RPLIDAR A1 (on a pty) whose ranges come from the "
                     "world, and read it through the real lidar manager"),
+    "miswire": Option(list, [], "wiring faults the emulated motors and encoders play "
+                      f"(bring-up tests): {', '.join(MISWIRES)}", item=str, choices=MISWIRES),
 }
 
 
@@ -84,6 +87,7 @@ class SimConfig:
     metrics_csv: str = ""
     metrics_rate: float = 10.0
     lidar: bool = True
+    miswire: tuple[str, ...] = ()
 
     @classmethod
     def from_section(cls, section: Mapping[str, Any] | None = None) -> SimConfig:
@@ -92,6 +96,7 @@ class SimConfig:
         values = _validated(section or {})
         _check_pairs(values)
         x, y, theta = values.pop("start_pose")
+        values["miswire"] = tuple(values["miswire"])
         noise = NoiseConfig(enabled=values.pop("noise"), lidar_sigma=values.pop("lidar_noise"),
                             odom_sigma=values.pop("odom_noise"),
                             wheel_slip=values.pop("wheel_slip"), seed=values["seed"])

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import time
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from drivers.rosarduino import ticks_to_rad_s
-from sim.motor_model import MotorPair, WheelMotor
+from sim.motor_model import MotorPair, PairWiring, WheelMotor
 
 LOOPBACK = "127.0.0.1"
 #: Seconds the emulated Arduino's bootloader ignores input after the port opens.
@@ -42,7 +42,15 @@ class EmulatorWiring:
 
     #: encoder counts (quadrature edges) per wheel revolution of the emulated wheels
     counts_per_rev: int
-    start: Starter
+    starter: Starter
+
+    def start(self, motors: MotorPair, workdir: Path, options: Mapping[str, Any],
+              miswire: Sequence[str] = ()) -> Emulated:
+        """Mount the wheels as the driver's complete section ``options`` expects them (its
+        ``*_motor_inverted`` / ``*_encoder_inverted`` keys), play the ``miswire`` faults on
+        top, and start the emulator on them."""
+        motors.wiring = mounted(options, miswire)
+        return self.starter(motors, workdir, options)
 
     def motors(self, *, max_speed_rad_s: float = 40.0, time_constant_s: float = 0.05,
                clock: Callable[[], float] | None = time.monotonic) -> MotorPair:
@@ -53,6 +61,15 @@ class EmulatorWiring:
                               counts_per_rev=self.counts_per_rev)
 
         return MotorPair(wheel(), wheel(), clock=clock)
+
+
+def mounted(options: Mapping[str, Any], miswire: Sequence[str] = ()) -> PairWiring:
+    """The wheels' wiring for a driver section (a driver without direction keys: as is)."""
+    def flags(kind: str) -> tuple[bool, bool]:
+        return (bool(options.get(f"left_{kind}_inverted", False)),
+                bool(options.get(f"right_{kind}_inverted", False)))
+
+    return PairWiring.build(flags("motor"), flags("encoder"), miswire)
 
 
 # -- one starter per driver --------------------------------------------------------------
@@ -105,8 +122,8 @@ def _start_odrive(motors: MotorPair, workdir: Path, options: Mapping[str, Any]) 
     from sim.odrive_emulator import ODriveEmulator
 
     channel = f"arbiterd-{workdir.name}-{uuid.uuid4().hex[:8]}"
-    directions = tuple(-1 if options[f"{side}_inverted"] else 1 for side in ("left", "right"))
-    odrive = ODriveEmulator("virtual", channel, motors=motors, directions=directions,
+    # the axes' directions are the MotorPair's wiring (mounted from the section)
+    odrive = ODriveEmulator("virtual", channel, motors=motors, directions=(1, 1),
                             node_ids=(options["left_node_id"], options["right_node_id"]),
                             gear_ratio=options["gear_ratio"]).start()
     return Emulated(odrive, {"interface": "virtual", "channel": channel}, odrive.stop,

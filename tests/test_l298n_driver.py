@@ -86,7 +86,7 @@ async def test_mock_pins_carry_pwm_frequency_enable_and_duty(tmp_path: Path) -> 
 
 
 async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
-    with mock_rig(tmp_path, right_invert=True) as the_rig:  # a mirrored right motor
+    with mock_rig(tmp_path, right_motor_inverted=True) as the_rig:  # a mirrored right motor
         driver = await opened(the_rig)
         try:
             await driver.set_wheel_speeds(5.0, 5.0)

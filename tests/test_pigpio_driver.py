@@ -100,7 +100,7 @@ async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool,
 
 
 async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
-    with running_rig(tmp_path, left_invert=True) as the_rig:  # a mirrored left motor
+    with running_rig(tmp_path, left_motor_inverted=True) as the_rig:  # a mirrored left motor
         driver = make_driver(the_rig)
         await driver.open()
         try:

@@ -224,7 +224,8 @@ async def test_open_loop_mode_writes_raw_pwm(serial_rig: Rig) -> None:
 
 async def test_inverted_side_flips_command_and_encoder(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
-    drv = make_driver(serial_rig, invert_left=True, poll_rate=100.0)
+    drv = make_driver(serial_rig, left_motor_inverted=True, left_encoder_inverted=True,
+                      poll_rate=100.0)
     await drv.open()
     try:
         await drv.set_wheel_speeds(5.0, 5.0)

@@ -64,6 +64,7 @@ async def _measure(interface: str, connect: Connection, count: int) -> list[Benc
     async with connect as (driver, emulator):
         seen: Frames = deque(maxlen=64)
         right = emulator.axis("right")
+        right_sign = -1 if driver.settings.right_motor_inverted else 1
 
         def record(node: int, cmd: int, data: bytes, t_mono: float) -> None:
             if node == right.node_id and cmd == CMD_SET_INPUT_VEL:
@@ -71,7 +72,7 @@ async def _measure(interface: str, connect: Connection, count: int) -> list[Benc
 
         async def arrival(speed: float, since: float) -> float | None:
             # the right motor is mirrored: its frame carries the negated turns per second
-            payload = encode_set_input_vel(right.direction * speed / (2 * math.pi))[:4]
+            payload = encode_set_input_vel(right_sign * speed / (2 * math.pi))[:4]
             return await _arrival(seen, payload, since)
 
         emulator.frame_hooks.append(record)

@@ -11,7 +11,7 @@ from drivers.l298n import mock_pin_factory
 from drivers.quadrature import quadrature_levels
 from sim.motor_model import MotorPair
 from sim.pigpiod_emulator import Wiring, l298n_driver_wiring
-from sim.wiring import EMULATORS, Emulated
+from sim.wiring import EMULATORS, Emulated, mounted
 from tests.rigs import FULL_DUTY_SPEED, Cleanup, Rig, nothing_to_clean, rig_motors, section
 
 
@@ -75,7 +75,7 @@ class MockPinRig(Rig):
         self.bridge = bridge
 
     def observed_targets(self) -> tuple[float, float]:
-        left, right = self.bridge.duties()
+        left, right = self.motors.wiring.wheel_duties(*self.bridge.duties())
         return left * FULL_DUTY_SPEED, right * FULL_DUTY_SPEED
 
     async def strand(self, speed_rad_s: float = 10.0) -> Cleanup:
@@ -98,8 +98,9 @@ def mock_pin_rig(workdir: Path | None = None, motors: MotorPair | None = None,
                                 "encoders": True, "encoder_counts_per_rev": steps} | overrides)
     factory = mock_pin_factory()
     factory.reset()
-    bridge = MockPinBridge(factory, l298n_driver_wiring(options),
-                           motors or rig_motors("l298n")).start()
+    motors = motors or rig_motors("l298n")
+    motors.wiring = mounted(options)
+    bridge = MockPinBridge(factory, l298n_driver_wiring(options), motors).start()
     try:
         yield MockPinRig(options, bridge)
     finally:
