@@ -1,4 +1,4 @@
-# The `arbiterd` command line: run, check, status, safe-stop, bench, simulate, lidar, record.
+# The `arbiterd` command line: run, check, status, safe-stop, test-motors, bench, simulate, ...
 from __future__ import annotations
 
 import argparse
@@ -253,6 +253,16 @@ def cmd_safe_stop(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_test_motors(args: argparse.Namespace) -> int:
+    setup_logging("warning")
+    from daemon.bringup.cli import test_motors
+
+    try:
+        return test_motors(_load(args), args)
+    except ConfigError as exc:
+        return _report_config_error(exc, args)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from daemon.bench.runner import run_suites
 
@@ -310,6 +320,15 @@ def build_parser() -> argparse.ArgumentParser:
     safe.add_argument("--sim", action="store_true",
                       help="the simulated robot ran: nothing to zero (the unit passes it)")
     safe.set_defaults(func=cmd_safe_stop)
+    motors = sub.add_parser("test-motors", help="bring-up: spin each wheel, read the encoders, "
+                            "say what is miswired and the config lines that fix it")
+    motors.add_argument("--config")
+    motors.add_argument("--sim", action="store_true",
+                        help="the simulated hardware of [sim] driver (with [sim] miswire)")
+    motors.add_argument("--yes", action="store_true",
+                        help="the wheels are off the ground: do not ask")
+    motors.add_argument("--json", action="store_true", help="print one JSON object")
+    motors.set_defaults(func=cmd_test_motors)
     bench = sub.add_parser("bench", help="run the benchmark suite")
     bench.add_argument("--json", action="store_true", help="one JSON object per figure")
     bench.add_argument("--quick", action="store_true", help="shorter runs")
