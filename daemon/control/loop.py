@@ -106,8 +106,12 @@ class ControlLoop:
 
     async def start(self, *, realtime: bool = True) -> None:
         """Open the driver and start ticking in real time; with ``realtime=False`` nobody
-        ticks but the caller (:meth:`tick`, the lockstep runner of ``arbiterd simulate``)."""
-        await self.driver.open()
+        ticks but the caller (:meth:`tick`, the lockstep runner of ``arbiterd simulate``).
+        Missing hardware is not fatal: the driver is faulted and reconnects with back-off."""
+        try:
+            await self.driver.open()
+        except DriverError as exc:
+            await self._on_fault(f"{self.driver.name()} driver not available: {exc}")
         self._last_step = self.clock()
         if not realtime:
             return
