@@ -49,6 +49,17 @@ CONTROL_OPTIONS: Options = {
     "reconnect_max_s": Option(float, 10.0, "longest driver reconnect delay (back-off cap), s",
                               above=0.0, maxval=600.0),
     "allow_fault_injection": Option(bool, False, "enable POST /api/debug/stall (tests only)"),
+    "wheel_mismatch_time_s": Option(float, 0.5, "stop the robot (e-stop) when a wheel's measured "
+                                    "speed misses its command for this long, s (0 disables "
+                                    "it; needs encoders)", minval=0.0, maxval=60.0),
+    "wheel_mismatch_tolerance": Option(float, 0.5, "how far a wheel may miss its command, as a "
+                                       "fraction of the commanded speed", minval=0.0,
+                                       maxval=10.0),
+    "wheel_mismatch_min_rad_s": Option(float, 1.5, "and always this much, rad/s (encoder "
+                                       "resolution)", minval=0.0, maxval=1000.0),
+    "wheel_mismatch_lag_s": Option(float, 0.3, "how long a wheel may take to follow a new "
+                                   "command (motor response and measuring), s", minval=0.0,
+                                   maxval=10.0),
 }
 
 

@@ -135,6 +135,7 @@ async def test_driver_contract(rig: Rig, tmp_path: Path) -> None:
         assert time.monotonic() - start <= TIMEOUT_S + 0.5, "deadman stop too late"
         assert loop.decision.reason in ("deadman: no valid command", "idle")
         assert loop.fault is None and loop.driver.health()["status"] == "ok"
+        assert loop.wheel_guard.trips == 0, loop.wheel_guard.tripped  # no false wheel-mismatch stop
     finally:
         await loop.stop()
     assert close_to(rig.observed_targets(), (0.0, 0.0), tolerance)

@@ -89,6 +89,8 @@ def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonProcess) -> None:
     code, metrics = daemon.get("/api/sim/metrics")
     assert code == 200 and metrics["path_length_m"] == pytest.approx(1.0, abs=0.1), metrics
     check_scan_matches_world(daemon, truth)
+    code, health = daemon.get("/api/health")  # no false wheel-mismatch stop on the way
+    assert code == 200 and health["components"]["control"]["wheel_guard"]["trips"] == 0
 
 
 def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.metronome import Metronome
 from daemon.control.odometry import Odometry
 from daemon.control.supervisor import StallSupervisor
+from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from daemon.latency import LatencyTracker
 from daemon.telemetry import CommandEvent, LatencyReport, OdomSample
 from drivers import DriverError, MotorDriver
@@ -101,6 +102,9 @@ class ControlLoop:
         self.supervisor = StallSupervisor(driver, self._stall_stop_s(control["stall_stop_s"]))
         self._ticks = 0
         self._stopping = False
+        #: measured wheel speeds, and the stop when they miss the command (a miswired wheel)
+        self.wheel_guard = WheelGuard(GuardSettings.from_control(control))
+        self.status_extras["measured_wheel_speeds_rad_s"] = self.wheel_guard.status
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -202,6 +206,7 @@ class ControlLoop:
         self.arbiter.release_estop()
         self.invalidations += 1
         self.bus.publish("command", CommandEvent(time.time(), "", "estop_release"))
+        self.wheel_guard.reset()
 
     # -- tick path -----------------------------------------------------------------------
 
@@ -302,6 +307,8 @@ class ControlLoop:
                 reading = await self.driver.read_encoders()
             except DriverError as exc:
                 await self._on_fault(str(exc))
+        if (mismatch := self.wheel_guard.update(reading, self.wheels, now)) is not None:
+            await self._stop_for(f"wheel mismatch: {mismatch}")
         if reading is not None:
             self.odometry.update_from_encoders(reading.left_rad, reading.right_rad,
                                                reading.t_mono)
@@ -347,6 +354,15 @@ class ControlLoop:
         await self.driver.try_zero()  # where the hardware still listens
         self.wheels = (0.0, 0.0)
         self._reconnect_task = asyncio.create_task(self._reconnect(), name="driver-reconnect")
+
+    async def _stop_for(self, reason: str) -> None:
+        """Zero the wheels now and latch the e-stop (released by POST /api/estop)."""
+        log.error("%s; motors stopped", reason)
+        self.arbiter.engage_estop(reason)
+        self.linear.reset()
+        self.angular.reset()
+        async with self._lock:
+            await self._write(0.0, 0.0)
 
     async def _reconnect(self) -> None:
         control = self.config["control"]
@@ -398,7 +414,8 @@ class ControlLoop:
 
     def health(self) -> dict[str, Any]:
         stall = self.supervisor.health()
-        status = "error" if self.fault or stall["stalled"] else "ok"
+        status = "error" if self.fault or stall["stalled"] or self.wheel_guard.tripped else "ok"
         return {"status": status, "fault": self.fault, "faults": self.faults,
                 "reconnects": self.reconnects, "driver": self.driver.health(),
-                "estop": self.arbiter.estop_engaged, **stall}
+                "estop": self.arbiter.estop_engaged, "wheel_guard": self.wheel_guard.health(),
+                **stall}

@@ -1,0 +1,125 @@
+# Measured wheel speeds from the encoders, and a guard that stops the robot when they disagree
+# with the command for too long (a motor reversed against its encoder, a stall, a runaway).
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from drivers import EncoderReading
+
+SIDES = ("left", "right")
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """``[control] wheel_mismatch_*``: how far and how long a wheel may miss its command."""
+
+    time_s: float = 0.5  # 0 disables the guard
+    tolerance: float = 0.5  # fraction of the commanded speed
+    min_rad_s: float = 1.5  # and always this much, rad/s
+    lag_s: float = 0.3  # a wheel may still be at any command of this long ago
+    window_s: float = 0.15  # speeds are measured over this long
+
+    @classmethod
+    def from_control(cls, control: dict[str, Any]) -> GuardSettings:
+        return cls(control["wheel_mismatch_time_s"], control["wheel_mismatch_tolerance"],
+                   control["wheel_mismatch_min_rad_s"], control["wheel_mismatch_lag_s"])
+
+
+class WheelGuard:
+    """Differentiates encoder readings into wheel speeds (rad/s, over ``window_s``) and trips
+    once a wheel has stayed outside the commands of the last ``lag_s`` (widened by
+    ``tolerance`` of the largest and ``min_rad_s``) for ``time_s``, so a ramp never trips it.
+    A trip latches until :meth:`reset` (the e-stop release)."""
+
+    def __init__(self, settings: GuardSettings) -> None:
+        self.settings = settings
+        self.measured: tuple[float, float] | None = None
+        self.tripped: str | None = None
+        self.trips = 0
+        self._readings: deque[EncoderReading] = deque()
+        self._since: list[float | None] = [None, None]
+        self._commands: deque[tuple[float, tuple[float, float]]] = deque()
+
+    def update(self, reading: EncoderReading | None, commanded: tuple[float, float],
+               now: float) -> str | None:
+        """Take this tick's reading and the wheel speeds last written; the reason when the
+        guard trips now."""
+        if reading is None:
+            self.forget()
+            return None
+        self._measure(reading)
+        self._remember(commanded, now)
+        if self.measured is None or self.tripped or self.settings.time_s <= 0:
+            return None
+        for index, side in enumerate(SIDES):
+            reason = self._check(index, side, commanded[index], now)
+            if reason:
+                self.tripped = reason
+                self.trips += 1
+                return reason
+        return None
+
+    def _measure(self, reading: EncoderReading) -> None:
+        readings = self._readings
+        if readings and reading.t_mono <= readings[-1].t_mono:
+            return  # the driver has not read the encoders again since
+        readings.append(reading)
+        while len(readings) > 2 and reading.t_mono - readings[1].t_mono >= self.settings.window_s:
+            readings.popleft()
+        first = readings[0]
+        span = reading.t_mono - first.t_mono
+        if span >= self.settings.window_s / 2:
+            self.measured = ((reading.left_rad - first.left_rad) / span,
+                             (reading.right_rad - first.right_rad) / span)
+
+    def _remember(self, commanded: tuple[float, float], now: float) -> None:
+        self._commands.append((now, commanded))
+        while now - self._commands[0][0] > self.settings.lag_s:
+            self._commands.popleft()
+
+    def _check(self, index: int, side: str, commanded: float, now: float) -> str | None:
+        assert self.measured is not None
+        measured = self.measured[index]
+        recent = [wheels[index] for _, wheels in self._commands]
+        low, high = min(recent), max(recent)
+        margin = self.settings.tolerance * max(abs(low), abs(high)) + self.settings.min_rad_s
+        if low - margin <= measured <= high + margin:
+            self._since[index] = None
+            return None
+        since = self._since[index] = self._since[index] or now
+        if now - since < self.settings.time_s:
+            return None
+        return (f"{side} wheel measured {measured:+.2f} rad/s while commanded {commanded:+.2f} "
+                f"rad/s for {now - since:.2f} s ({_likely(measured, commanded)}); check it with "
+                f"`arbiterd test-motors`, then release the e-stop")
+
+    def forget(self) -> None:
+        """No reading (fault, reconnect): start measuring afresh."""
+        self._readings.clear()
+        self.measured = None
+        self._since = [None, None]
+        self._commands.clear()
+
+    def reset(self) -> None:
+        """The e-stop was released: a fresh start."""
+        self.tripped = None
+        self.forget()
+
+    def status(self) -> dict[str, float] | None:
+        if self.measured is None:
+            return None
+        return {"left": round(self.measured[0], 4), "right": round(self.measured[1], 4)}
+
+    def health(self) -> dict[str, Any]:
+        return {"enabled": self.settings.time_s > 0, "tripped": self.tripped,
+                "trips": self.trips}
+
+
+def _likely(measured: float, commanded: float) -> str:
+    if measured * commanded < 0:
+        return "turning against the command: a motor reversed against its encoder?"
+    if abs(measured) < abs(commanded):
+        return "too slow: stalled, blocked or unpowered?"
+    return "too fast: a runaway speed loop or a wrong counts_per_rev?"

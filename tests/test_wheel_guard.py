@@ -1,0 +1,127 @@
+# Measured wheel speeds in /api/status and the wheel-mismatch guard: it stops a miswired robot
+# within its configured time, and never trips on a healthy one driving around.
+from __future__ import annotations
+
+import random
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.control.wheel_guard import GuardSettings, WheelGuard
+from drivers import EncoderReading
+from tests.conftest import close_to, wait_for
+from tests.daemon_proc import DaemonProcess
+
+TIME_S = 0.5
+
+
+def readings(speeds: tuple[float, float], seconds: float,
+             rate: float = 50.0) -> Iterator[tuple[float, EncoderReading]]:
+    for step in range(round(seconds * rate) + 1):
+        t = step / rate
+        yield t, EncoderReading(speeds[0] * t, speeds[1] * t, t)
+
+
+def test_a_wheel_turning_against_its_command_trips_after_the_configured_time() -> None:
+    guard = WheelGuard(GuardSettings(time_s=TIME_S))
+    trips = [(t, reason) for t, reading in readings((-4.0, 4.0), 2.0)
+             if (reason := guard.update(reading, (4.0, 4.0), t))]
+    assert len(trips) == 1, "a trip latches"
+    t, reason = trips[0]
+    assert TIME_S <= t <= TIME_S + 0.2  # the first measurement needs half a window
+    assert reason.startswith("left wheel measured -4.00 rad/s while commanded +4.00")
+    assert "against the command" in reason and guard.status() == {"left": -4.0, "right": 4.0}
+    guard.reset()
+    assert guard.tripped is None and guard.status() is None
+
+
+@pytest.mark.parametrize("speeds, likely", [((0.0, 4.0), "stalled"), ((4.0, 12.0), "too fast")])
+def test_a_stall_and_a_runaway_trip_too(speeds: tuple[float, float], likely: str) -> None:
+    guard = WheelGuard(GuardSettings(time_s=TIME_S))
+    reasons = [r for t, reading in readings(speeds, 1.0) if (r := guard.update(reading,
+                                                                                (4.0, 4.0), t))]
+    assert len(reasons) == 1 and likely in reasons[0]
+
+
+def test_a_wheel_within_tolerance_or_a_short_miss_never_trips() -> None:
+    guard = WheelGuard(GuardSettings(time_s=TIME_S))
+    assert not any(guard.update(r, (4.0, 4.0), t) for t, r in readings((3.0, 5.5), 3.0))
+    short = WheelGuard(GuardSettings(time_s=TIME_S))
+    for t, reading in readings((-4.0, 4.0), 0.4):
+        assert short.update(reading, (4.0, 4.0), t) is None
+    assert short.update(None, (4.0, 4.0), 0.5) is None  # a fault: measured afresh
+    assert short.status() is None
+    disabled = WheelGuard(GuardSettings(time_s=0.0))
+    assert not any(disabled.update(r, (4.0, 4.0), t) for t, r in readings((-4.0, 4.0), 2.0))
+
+
+# -- in the simulated robot ------------------------------------------------------------------
+
+
+def status(daemon: DaemonProcess) -> dict[str, Any]:
+    code, body = daemon.get("/api/status")
+    assert code == 200, body
+    return body  # type: ignore[no-any-return]
+
+
+def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonProcess:
+    toml = (f'[sim]\ndriver = "{driver}"\nmiswire = {miswire!r}\nlidar = false\n'
+            f'[control]\nwheel_mismatch_time_s = {TIME_S}\n').replace("'", '"')
+    return DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False)
+
+
+def test_the_guard_stops_a_robot_with_a_reversed_motor(tmp_path: Path) -> None:
+    with sim_daemon(tmp_path, "pigpio", ["left_motor_reversed"]) as daemon:
+        start = status(daemon)["ground_truth"]["theta"]
+        while (code := daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0]) == 200:
+            time.sleep(0.05)
+        assert code == 409  # refused: the e-stop latched
+        code, health = daemon.get("/api/health")
+        control = health["components"]["control"]
+        assert code == 503 and control["status"] == "error", health
+        reason = control["wheel_guard"]["tripped"]
+        assert reason.startswith("left wheel measured -") and "against the command" in reason
+        assert status(daemon)["estop"]["engaged"]
+        wait_for(lambda: close_to(status(daemon)["ground_truth"]["w"], 0.0, 1e-3),
+                 "the robot to stop")
+        # it spun in place (0.2 m/s per wheel, opposite ways) for about TIME_S, not longer
+        turned = abs(status(daemon)["ground_truth"]["theta"] - start)
+        assert turned < (0.4 / 0.30) * (TIME_S + 0.5), turned
+        # the reset: release the e-stop; then only a fresh command moves the robot again
+        assert daemon.post("/api/estop", {"engaged": False})[0] == 200
+        assert daemon.get("/api/health")[0] == 200
+        assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0] == 200
+
+
+@pytest.mark.parametrize("driver", ["serial", "l298n"])
+def test_no_false_trip_while_wandering(driver: str, tmp_path: Path) -> None:
+    """Random drive: forward, reverse, turns, stops, into walls; measured speeds follow the
+    command and the guard never trips."""
+    rng = random.Random(7)
+    with sim_daemon(tmp_path, driver, []) as daemon:
+        for _ in range(16):
+            v, w = rng.uniform(-0.4, 0.6), rng.uniform(-1.5, 1.5)
+            if rng.random() < 0.2:
+                v = w = 0.0
+            for _ in range(10):
+                assert daemon.post("/api/cmd_vel", {"linear": {"x": v},
+                                                    "angular": {"z": w}})[0] == 200
+                time.sleep(0.05)
+        samples = []
+        for step in range(40):  # a steady arc: measured beside commanded
+            assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.3},
+                                                "angular": {"z": 0.5}})[0] == 200
+            time.sleep(0.05)
+            if step >= 20:
+                now = status(daemon)
+                samples.append((now["wheel_speeds_rad_s"], now["measured_wheel_speeds_rad_s"]))
+        code, health = daemon.get("/api/health")
+        assert code == 200 and health["components"]["control"]["wheel_guard"]["trips"] == 0
+    # the sim's encoder noise (odom_noise) makes single measurements jitter; their mean agrees
+    for side in ("left", "right"):
+        commanded = sum(c[side] for c, _ in samples) / len(samples)
+        measured = sum(m[side] for _, m in samples) / len(samples)
+        assert close_to(measured, commanded, 0.4), (side, samples)
