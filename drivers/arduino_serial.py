@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from base.options import Options
+from base.ports import open_error
 from drivers.base import (
     DriverFault,
     EncoderReading,
@@ -232,6 +233,7 @@ class SerialSettings:
     poll_rate: float
     timeout_s: float
     reset_wait_s: float
+    boot_timeout_s: float
     keepalive_s: float
     left_motor_inverted: bool
     right_motor_inverted: bool
@@ -246,6 +248,27 @@ def _as_fault() -> Iterator[None]:
         yield
     except ProtocolError as exc:
         raise DriverFault(str(exc)) from exc
+
+
+def _read_counts(fd: int, within_s: float) -> str:
+    """Read one reply line: "counts" (an answer to 'e'), "garbled", or "none" in time."""
+    splitter, end = LineSplitter(), time.monotonic() + within_s
+    while (left := end - time.monotonic()) > 0:
+        if not select.select([fd], [], [], left)[0]:
+            break
+        try:
+            data = os.read(fd, 256)
+        except BlockingIOError:
+            continue
+        except OSError as exc:
+            raise DriverFault(f"serial port vanished: {exc}") from None
+        try:
+            for raw in splitter.feed(data):
+                parse_counts(decode_line(raw))
+                return "counts"
+        except ProtocolError:
+            return "garbled"
+    return "none"
 
 
 class SerialBridgeDriver(MotorDriver):
@@ -280,7 +303,9 @@ class SerialBridgeDriver(MotorDriver):
         "poll_rate": option(float, 0.0, "encoder polls per second; 0 = pid_rate", minval=0),
         "timeout_s": option(float, 0.25, "seconds to wait for a reply before faulting", above=0),
         "reset_wait_s": option(float, 2.0, "seconds to wait after opening the port while the "
-                               "board resets", minval=0),
+                               "board resets, before the first byte", minval=0),
+        "boot_timeout_s": option(float, 3.0, "then keep asking 'e' for this long until the "
+                                 "board answers (a bootloader still running), s", minval=0),
         "keepalive_s": option(float, 0.5, "re-send a held non-zero speed after this many "
                               "seconds (the firmware auto-stops after 2 s)", above=0),
         **inversion_options(),
@@ -319,7 +344,7 @@ class SerialBridgeDriver(MotorDriver):
         self.fault = None
         try:
             await asyncio.sleep(self.settings.reset_wait_s)
-            port.reset_input_buffer()
+            await asyncio.to_thread(self._await_boot, port)
             self._link = BridgeLink(port, self.report_fault)
             await self._handshake()
         except BaseException:
@@ -331,11 +356,42 @@ class SerialBridgeDriver(MotorDriver):
     def _open_port(self) -> Any:
         import serial  # pyserial; imported here so the module imports without it
 
+        path = self.settings.port
         try:
-            return serial.Serial(self.settings.port, self.settings.baudrate, timeout=0,
-                                 write_timeout=0, exclusive=True)
+            return serial.Serial(path, self.settings.baudrate, timeout=0, write_timeout=0,
+                                 exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DriverFault(f"cannot open serial port {self.settings.port}: {exc}") from None
+            raise DriverFault(f"cannot open serial port {path}: {open_error(path, exc)}") \
+                from None
+
+    def _await_boot(self, port: Any) -> None:
+        """Ask 'e' until the board answers with its counts: a bootloader (an Uno's takes
+        1.6-2 s) drops what it hears, so the first probes may go unanswered."""
+        s, fd = self.settings, port.fileno()
+        deadline = time.monotonic() + s.boot_timeout_s
+        attempts, garbled = 0, False
+        while True:
+            port.reset_input_buffer()
+            os.write(fd, encode_command(READ_ENCODERS))
+            attempts += 1
+            answer = _read_counts(fd, s.timeout_s)
+            if answer == "counts":
+                break
+            garbled = garbled or answer == "garbled"
+            if time.monotonic() >= deadline:
+                raise DriverFault(self._late_board(garbled))
+        if attempts > 1:  # a late answer to an earlier probe must not reach the link
+            _read_counts(fd, s.timeout_s)
+            port.reset_input_buffer()
+
+    def _late_board(self, garbled: bool) -> str:
+        s = self.settings
+        heard = "only garbled replies" if garbled else "no reply"
+        return (f"{heard} to 'e' from the board on {s.port} within {s.reset_wait_s:g} s + "
+                f"{s.boot_timeout_s:g} s after opening the port: a board that boots slower "
+                f"needs a larger [driver.serial] reset_wait_s (now {s.reset_wait_s:g}); else "
+                f"check baudrate ({s.baudrate}, the firmware's BAUDRATE) and that it runs "
+                "ROSArduinoBridge")
 
     async def _handshake(self) -> None:
         """Check the board answers, take an encoder baseline, set the gains, stop the motors."""

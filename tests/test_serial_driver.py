@@ -190,7 +190,9 @@ async def test_open_sends_gains_and_leaves_motors_stopped(serial_rig: Rig) -> No
     await drv.open()
     try:
         assert emulator.opens == 1 and emulator.firmware.gains == (7, 3, 1, 40)
-        assert [c.text for c in emulator.firmware.history][:3] == ["e", "u 7:3:1:40", "m 0 0"]
+        # the boot probe, the encoder baseline, the gains, the motors stopped
+        assert [c.text for c in emulator.firmware.history][:4] == ["e", "e", "u 7:3:1:40",
+                                                                   "m 0 0"]
         assert emulator.motors.targets() == (0.0, 0.0)
         assert drv.health()["status"] == "ok"
     finally:
@@ -261,14 +263,19 @@ async def test_held_speed_outlives_the_firmware_auto_stop(serial_rig: Rig) -> No
 async def test_open_waits_for_the_board_reset(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
     emulator.boot_s = 0.3
-    impatient = make_driver(serial_rig, reset_wait_s=0.0, timeout_s=0.1)
-    with pytest.raises(DriverFault, match="no reply to 'e'"):
+    impatient = make_driver(serial_rig, reset_wait_s=0.0, boot_timeout_s=0.0, timeout_s=0.1)
+    with pytest.raises(DriverFault, match=r"no reply to 'e' .* needs a larger "
+                                          r"\[driver.serial\] reset_wait_s \(now 0\)"):
         await impatient.open()
     assert emulator.bytes_dropped > 0
     patient = make_driver(serial_rig, reset_wait_s=0.6)
     await patient.open()
     assert patient.health()["status"] == "ok"
     await patient.close()
+    asking = make_driver(serial_rig, reset_wait_s=0.0, boot_timeout_s=2.0, timeout_s=0.1)
+    await asking.open()  # it asks again until the bootloader is done
+    assert asking.health()["status"] == "ok"
+    await asking.close()
 
 
 async def test_missing_port_is_a_fault_naming_it(tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
+from base.ports import open_error
 from sensors.rplidar import protocol as p
 from sensors.rplidar.protocol import Ans, Conf, StreamParser
 
@@ -44,16 +45,18 @@ class SerialPort(Protocol):
 
 
 def open_serial(path: str, baudrate: int, timeout: float = 0.05) -> SerialPort:
-    """Open ``path`` with DTR deasserted from the start (an A1's motor spins with DTR low)."""
+    """Open ``path`` exclusively, with DTR deasserted from the start (an A1's motor spins with
+    DTR low). A port another process has locked is refused, naming that process."""
     import serial  # pyserial
 
     port = serial.Serial()
     port.port, port.baudrate, port.timeout, port.write_timeout = path, baudrate, timeout, 1.0
+    port.exclusive = True
     port.dtr = False
     try:
         port.open()
     except (serial.SerialException, OSError) as exc:
-        raise PortGone(f"cannot open {path}: {exc}") from exc
+        raise PortGone(f"cannot open {path}: {open_error(path, exc)}") from exc
     return port
 
 

@@ -1,0 +1,115 @@
+# Errors that say what to do: a busy port names the process holding it, a missing one lists the
+# devices present, a late board names reset_wait_s, an old key spelling names the new one.
+from __future__ import annotations
+
+import errno
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from base import ports
+from daemon.config import ConfigError, load_config
+from drivers import DriverFault, create_driver
+from drivers.arduino_serial import SerialBridgeDriver
+from sim.arduino_emulator import ArduinoEmulator
+from sim.rplidar_emulator import RplidarEmulator
+from tests.conftest import DaemonProcess, wait_for
+from tests.daemon_proc import REPO
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "daemon.cli", *args], capture_output=True,
+                          text=True, cwd=REPO, timeout=60)
+
+
+def test_a_port_the_daemon_holds_is_named_with_the_daemon_and_what_to_do(
+        tmp_path: Path) -> None:
+    arduino, lidar_link = tmp_path / "arduino", tmp_path / "rplidar"
+    toml = (f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{arduino}"\n'
+            f'reset_wait_s = 0.05\n[lidar]\nenabled = true\nport = "{lidar_link}"\n')
+    with ArduinoEmulator(arduino), RplidarEmulator(lidar_link).start(), \
+            DaemonProcess(tmp_path, toml) as daemon:
+        wait_for(lambda: daemon.get("/api/health")[0] == 200, "the daemon to hold both ports")
+        assert daemon.proc is not None
+        pid = daemon.proc.pid
+        info = cli("lidar", "info", "--port", str(lidar_link))
+        assert info.returncode == 69
+        assert (f"arbiterd (pid {pid}) is using {lidar_link} — stop the service (sudo "
+                "systemctl stop arbiterd) or use `arbiterd status`") in info.stderr
+        check = cli("check", "--config", str(daemon.config_path))
+        assert check.returncode == 69
+        assert (f"[driver] serial: cannot open serial port {arduino}: arbiterd (pid {pid}) is "
+                f"using {arduino}") in check.stderr
+        assert f"[lidar] {lidar_link}: cannot open {lidar_link}: arbiterd (pid {pid})" \
+            in check.stderr
+        assert daemon.get("/api/health")[0] == 200, "probing must not disturb the daemon"
+
+
+async def test_a_missing_port_lists_the_devices_present_and_the_dialout_hint(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "ttyACM0").touch()
+    monkeypatch.setattr(ports, "CANDIDATE_PATTERNS", (str(tmp_path / "ttyACM*"),))
+    driver = SerialBridgeDriver({"port": str(tmp_path / "arduino")}, max_wheel_speed=10.0)
+    with pytest.raises(DriverFault) as caught:
+        await driver.open()
+    assert str(caught.value) == (
+        f"cannot open serial port {tmp_path / 'arduino'}: {tmp_path / 'arduino'} does not "
+        f"exist; serial devices present: {tmp_path / 'ttyACM0'}; the user running arbiterd "
+        "needs the dialout group to open serial ports (sudo usermod -aG dialout $USER, then "
+        "log in again)")
+
+
+def test_no_permission_gives_the_dialout_hint(tmp_path: Path) -> None:
+    device = tmp_path / "ttyUSB0"
+    device.touch()
+    text = ports.open_error(device, OSError(errno.EACCES, "Permission denied"))
+    assert text.startswith("permission denied; the user running arbiterd needs the dialout")
+
+
+def test_check_still_exits_69_without_the_board(tmp_path: Path) -> None:
+    path = tmp_path / "a.toml"
+    path.write_text(f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{tmp_path / "x"}"\n')
+    done = cli("check", "--config", str(path))
+    assert done.returncode == 69 and "does not exist; serial devices present" in done.stderr
+
+
+async def test_the_emulator_and_the_driver_connect_on_their_defaults(tmp_path: Path) -> None:
+    """The standalone emulator's bootloader takes 2.0 s (its --boot default, like an Uno) and
+    the driver waits reset_wait_s = 2.0 s: it keeps asking until the board answers."""
+    with ArduinoEmulator(tmp_path / "arduino", boot_s=2.0) as board:
+        driver = SerialBridgeDriver({"port": str(board.link)}, max_wheel_speed=10.0)
+        await driver.open()
+        try:
+            assert driver.health()["status"] == "ok"
+        finally:
+            await driver.close()
+
+
+async def test_a_board_answering_garbage_points_at_the_baud_rate(tmp_path: Path) -> None:
+    with ArduinoEmulator(tmp_path / "arduino") as board:
+        board.garbage = True
+        driver = SerialBridgeDriver({"port": str(board.link), "reset_wait_s": 0.0,
+                                     "boot_timeout_s": 0.3}, max_wheel_speed=10.0)
+        with pytest.raises(DriverFault, match=r"only garbled replies to 'e' .*reset_wait_s "
+                                              r"\(now 0\); else check baudrate \(57600"):
+            await driver.open()
+
+
+def test_old_spellings_of_the_direction_keys_name_the_new_ones(tmp_path: Path) -> None:
+    path = tmp_path / "old.toml"
+    path.write_text("[driver.serial]\ninvert_left = true\n[driver.odrive_can]\n"
+                    "right_inverted = false\n[driver.pigpio]\nleft_encoder_invert = true\n")
+    with pytest.raises(ConfigError) as caught:
+        load_config(path, env={})
+    problems = "\n".join(caught.value.problems)
+    assert ("[driver.serial] invert_left: renamed; did you mean left_motor_inverted = true and "
+            "left_encoder_inverted = true?") in problems
+    assert "[driver.odrive_can] right_inverted: renamed; did you mean right_motor_inverted" \
+        in problems
+    assert "[driver.pigpio] left_encoder_invert: renamed; did you mean left_encoder_inverted?" \
+        in problems
+    with pytest.raises(ValueError, match=r"\[driver.l298n\] left_invert: renamed; did you mean "
+                                         r"left_motor_inverted\?"):
+        create_driver("l298n", {"left_invert": True}, max_wheel_speed=1.0)
