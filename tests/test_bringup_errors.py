@@ -41,9 +41,9 @@ def test_a_port_the_daemon_holds_is_named_with_the_daemon_and_what_to_do(
         check = cli("check", "--config", str(daemon.config_path))
         assert check.returncode == 69
         assert (f"[driver] serial: cannot open serial port {arduino}: arbiterd (pid {pid}) is "
-                f"using {arduino}") in check.stderr
+                f"using {arduino}") in check.stdout
         assert f"[lidar] {lidar_link}: cannot open {lidar_link}: arbiterd (pid {pid})" \
-            in check.stderr
+            in check.stdout
         assert daemon.get("/api/health")[0] == 200, "probing must not disturb the daemon"
 
 
@@ -72,7 +72,7 @@ def test_check_still_exits_69_without_the_board(tmp_path: Path) -> None:
     path = tmp_path / "a.toml"
     path.write_text(f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{tmp_path / "x"}"\n')
     done = cli("check", "--config", str(path))
-    assert done.returncode == 69 and "does not exist; serial devices present" in done.stderr
+    assert done.returncode == 69 and "does not exist; serial devices present" in done.stdout
 
 
 async def test_the_emulator_and_the_driver_connect_on_their_defaults(tmp_path: Path) -> None:
