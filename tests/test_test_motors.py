@@ -5,8 +5,11 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
+import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -157,3 +160,49 @@ def test_a_wrong_counts_per_rev_gets_its_line() -> None:
 def test_a_wheel_that_does_not_turn_is_not_blamed_on_the_encoder() -> None:
     finding = diagnose("left", Spin(3.0, 0.0, 0.0), 2 * math.pi)
     assert finding.diagnosis == "no_counts" and "did not turn the wheel" in finding.notes[0]
+
+
+def read_until(fd: int, text: str, seen: bytearray, within_s: float = 20.0) -> None:
+    """Read the terminal's output until ``text`` appears (after what was already matched)."""
+    deadline = time.monotonic() + within_s
+    while text.encode() not in seen:
+        assert time.monotonic() < deadline, f"no {text!r} on the terminal: {bytes(seen)!r}"
+        if select.select([fd], [], [], 0.1)[0]:
+            seen += os.read(fd, 4096)
+    del seen[:seen.index(text.encode()) + len(text)]
+
+
+def test_at_a_terminal_a_person_turns_the_wheels_by_hand(tmp_path: Path) -> None:
+    """The interactive path on "hardware" (an emulated Arduino in closed loop whose left motor
+    is wired backwards): the person confirms, turns each wheel one revolution when asked, and
+    gets the diagnosis; no setting can fix a motor against its encoder under the firmware's
+    PID, so it says which wires to swap."""
+    pair = MotorPair(wiring=PairWiring.build(miswire=["left_motor_reversed"]))
+    pair.left.counts_per_rev = pair.right.counts_per_rev = 1440
+    master, slave = os.openpty()
+    with ArduinoEmulator(tmp_path / "arduino", pair):
+        path = tmp_path / "hw.toml"
+        path.write_text(f'[driver]\ntype = "serial"\n[driver.serial]\nport = '
+                        f'"{tmp_path / "arduino"}"\nreset_wait_s = 0.05\n')
+        proc = subprocess.Popen([sys.executable, "-m", "daemon.cli", "test-motors", "--config",
+                                 str(path), "--json"], stdin=slave, stderr=slave,
+                                stdout=subprocess.PIPE, text=True, cwd=REPO)
+        os.close(slave)
+        try:
+            seen = bytearray()
+            read_until(master, "Are both wheels off the ground? [y/N] ", seen)
+            os.write(master, b"y\n")
+            for index, side in enumerate(("LEFT", "RIGHT")):
+                read_until(master, f"Mark the {side} tyre", seen)
+                read_until(master, "(s to skip): ", seen)
+                pair.turn_by_hand(index, 2 * math.pi)
+                os.write(master, b"\n")
+            out, _ = proc.communicate(timeout=30)
+        finally:
+            proc.kill()
+            os.close(master)
+    result = json.loads(out)
+    assert result["left"]["diagnosis"] == "motor_reversed", result
+    assert result["left"]["counts_per_rev"] == pytest.approx(1440, rel=0.02)
+    assert result["right"]["diagnosis"] == "ok" and result["fix"] == []
+    assert any("swap the left motor's two wires" in step for step in result["rewire"])
