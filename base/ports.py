@@ -75,7 +75,9 @@ def open_error(device: str | Path, exc: BaseException) -> str:
     code = getattr(exc, "errno", None)
     text = str(exc)
     if code in (errno.EBUSY, errno.EAGAIN) or "exclusively lock" in text:
-        return busy_message(device) or f"another process holds {device} (it locked it)"
+        return busy_message(device) or (
+            f"another process has locked {device} (one this user may not see); if it is the "
+            "arbiterd service: stop it (sudo systemctl stop arbiterd) or use `arbiterd status`")
     if code == errno.ENOENT or "No such file or directory" in text or not os.path.exists(device):
         return missing_message(device)
     if code == errno.EACCES or "Permission denied" in text:
