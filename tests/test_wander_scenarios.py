@@ -39,6 +39,7 @@ def test_twenty_seeds_of_ten_minutes_wander() -> None:
     for run in runs:
         assert run["seconds"] == SECONDS and run["autonomy"]["mode"] == "wander", table
         assert run["collisions"] == 0, table
+        assert run["wheel_guard"]["trips"] == 0, run["wheel_guard"]  # no false mismatch stop
         assert run["mean_speed_m_s"] >= 0.25, table
         assert 0.0 < run["coverage"]["fraction"] <= 1.0, table
         assert run["min_clearance_m"] > 0.0, table

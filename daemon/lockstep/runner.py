@@ -234,6 +234,7 @@ class Lockstep:
                          "transitions": autonomy["transitions"],
                          "state_times_s": autonomy["state_times_s"]},
             "safety": self._safety_report(),
+            "wheel_guard": self.control.wheel_guard.health(),
             "commands": {"sent": self.sender.sent, "refused": self.sender.refused},
             "lidar_revolutions": self.lidar.delivered,
             "final": {"x": round(state.x, 4), "y": round(state.y, 4),
