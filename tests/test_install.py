@@ -426,7 +426,8 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     assert "ARBITERD_ARGS=\n" in (out / "arbiterd.env").read_text()
     assert 'type = "serial"' in (out / "arbiterd.toml").read_text()
     body = json.loads((out / "health.json").read_text())
-    assert (body["status"], body["mode"], body["driver"]) == ("ok", "hardware", "serial"), body
+    assert (body["status"], body["mode"], body["driver"]) == ("ok", "hardware", "serial"), \
+        json.dumps(body)
     status = (out / f"step{len(steps) - 1}.out").read_text()
     assert ": ok (" in status and "hardware mode, driver serial" in status, status
     check = (out / "step2.out").read_text()

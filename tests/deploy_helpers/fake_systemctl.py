@@ -6,7 +6,8 @@
 # <root>/var/log and <root>/run/fake-systemd). Absolute paths in the unit's command lines are
 # taken inside the root, and $VARS come from its EnvironmentFile, as systemd would expand them.
 # Like systemd for a Type=notify unit, `start` waits for READY=1 on NOTIFY_SOCKET (or the
-# process's exit: then it fails); User=/Group= are honoured when that user exists. A file
+# process's exit: then it fails); User=/Group= are honoured when that user exists, and
+# StateDirectory= is created and passed as $STATE_DIRECTORY. A file
 # <state>/fail-<verb> makes the next call of that verb fail once (and is removed).
 from __future__ import annotations
 
@@ -49,7 +50,24 @@ def environment() -> dict[str, str]:
                 if line.strip() and not line.startswith("#") and "=" in line:
                     key, _, value = line.partition("=")
                     env[key.strip()] = value.strip()
+    for name in unit_lines("StateDirectory"):
+        env["STATE_DIRECTORY"] = str(state_directory(name))
     return env
+
+
+def state_directory(name: str) -> Path:
+    """StateDirectory=: /var/lib/<name> in the root, created and owned by User= as systemd
+    does before ExecStart."""
+    path = ROOT / "var/lib" / name
+    path.mkdir(parents=True, exist_ok=True)
+    users = unit_lines("User")
+    if users and os.geteuid() == 0:
+        try:
+            entry = pwd.getpwnam(users[0])
+        except KeyError:  # a staging root: the service user exists only on the robot
+            return path
+        os.chown(path, entry.pw_uid, entry.pw_gid)
+    return path
 
 
 def command(key: str, env: dict[str, str]) -> list[str]:
