@@ -20,6 +20,7 @@ from daemon.bench.rosbridge_attacks import run_attack
 from daemon.bench.rosbridge_flood import Window, measure
 from daemon.config import env_name
 from daemon.rosbridge import limits as limits_module
+from daemon.rosbridge import session as session_module
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.codec import fragments
 from daemon.rosbridge.graph import BridgeGraph
@@ -171,13 +172,29 @@ async def test_per_client_budgets_name_their_config_key(
             assert "max_services_per_client" in await refusal(client, "srv1")
             assert "max_fragment_sets_per_client" in await refusal(client, "frag1")
         async with connect(robot.ws_url) as flooder:
-            for i in range(60):  # a burst of 40, then 20 a second
-                await flooder.send(op="set_level", level="error", id=f"op{i}")
-            refused = await flooder.expect(lambda m: "ops_per_second" in m.get("msg", ""),
-                                           what="a refusal for the request rate")
-            assert "too many requests" in refused["msg"]
+            for i in range(60):  # a burst of 40, then 20 a second: held back, not lost
+                await flooder.send(op="call_service", service="/rosapi/get_time", id=f"op{i}")
+            told = await flooder.expect(lambda m: "ops_per_second" in m.get("msg", ""),
+                                        what="a status about the request rate")
+            assert "too many requests" in told["msg"]
+            await flooder.count("service_response", 60)
             session = next(c for c in bridge(robot).clients.values() if c.over_rate)
-            assert 0 < session.over_rate <= 20
+            assert 15 <= session.over_rate <= 20
+
+
+async def test_a_client_kept_over_its_request_rate_is_closed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    set_limits(monkeypatch, ops_per_second=5, ops_burst=5)
+    monkeypatch.setattr(session_module, "THROTTLE_CLOSE_S", 0.5)
+    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as flooder, \
+            connect(robot.ws_url) as polite:
+        for i in range(50):
+            await flooder.send(op="set_level", level="error", id=f"op{i}")
+        closed = await flooder.ws.receive(timeout=10)
+        while closed.type == aiohttp.WSMsgType.TEXT:
+            closed = await flooder.ws.receive(timeout=10)
+        assert flooder.ws.close_code == 1008
+        assert (await polite.call("/rosapi/get_time"))["result"] is True
 
 
 async def test_calls_to_a_silent_provider_time_out(tmp_path: Path,

@@ -23,6 +23,9 @@ from daemon.bench.rosbridge_attacks import run_attack
 SUITE = "rosbridge-flood"
 TOKEN = "bench-token"
 MINUTES_ENV = "ARBITERD_BENCH_FUZZ_MINUTES"  # the long run: minutes of fuzzing (0 = skip)
+# a token (the flooders are without it); the mock driver's command history is a test
+# instrument that grows for half an hour, not part of a daemon on hardware: keep it short
+CONFIG = f'[security]\ntoken = "{TOKEN}"\n[driver.mock]\nhistory = 100\n'
 
 
 class LoopProbe:
@@ -96,6 +99,16 @@ async def flood(url: str, seconds: float) -> Any:
                    "--fragment-size", "1"))
 
 
+async def clients_gone(daemon: Any, within_s: float = 60.0) -> None:
+    """Wait until the server has let every client go (a flooder's buffered requests are
+    worked off at its request rate, or it is closed for it)."""
+    bridge = next(c for c in daemon.components if c.name == "rosbridge")
+    for _ in range(int(within_s * 10)):
+        if not bridge.clients:
+            return
+        await asyncio.sleep(0.1)
+
+
 async def fuzz_rss(daemon: Any, url: str, minutes: float) -> tuple[float, float, int]:
     """RSS after a warm-up fuzz, then after ``minutes`` more; and the inputs sent."""
     await run_attack(url, "fuzz", "--seconds", "20", "--seed", "7")
@@ -110,12 +123,13 @@ async def _run(quick: bool, minutes: float) -> list[BenchResult]:
     idle: list[Window] = []
     loaded: list[Window] = []
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
-        async with bench_daemon(Path(tmp), f'[security]\ntoken = "{TOKEN}"\n') as (daemon, url):
+        async with bench_daemon(Path(tmp), CONFIG) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
             for _ in range(rounds):  # idle and flood alternate: both see the same machine
                 idle.append(await measure(daemon, None, seconds))
                 loaded.append(await measure(daemon, flood(url, seconds), seconds))
+                await clients_gone(daemon)
             rss = await fuzz_rss(daemon, url, minutes) if minutes > 0 else None
             stop.set()
             await scans

@@ -111,7 +111,9 @@ class RosbridgeServer:
                 "port": self.bound_port, "clients": len(self.clients),
                 "connections": self.connections, "refused": dict(self.refused),
                 "dropped_messages": sum(c.outbox.dropped for c in self.clients.values()),
-                "protocol_errors": sum(c.errors for c in self.clients.values())}
+                "throttled_requests": sum(c.over_rate for c in self.clients.values()),
+                "protocol_errors": sum(c.errors for c in self.clients.values()),
+                "pending_calls": len(self.graph.pending)}
 
     # -- admission ----------------------------------------------------------------------------
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import orjson
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 from daemon.control.api import STAMP_FIELDS, parse_stamp
 from daemon.control.commands import CommandError, parse_twist
@@ -53,7 +53,7 @@ log = logging.getLogger("arbiterd.rosbridge")
 
 COMPRESSIONS = ("none", "png", "cbor", "cbor-raw")
 REFUSAL_REPEAT_S = 0.5  # the same refused-command status at most this often per client
-SLICE_DROPPED = 64  # frames dropped over the request rate between yields to the loop
+THROTTLE_CLOSE_S = 10.0  # a client held to its request rate this long without a break goes
 
 Clock = Callable[[], float]
 
@@ -119,7 +119,8 @@ class ClientSession:
         self.errors = 0
         self.last_received = clock()
         self._bucket = TokenBucket(limits.ops_per_second, limits.ops_burst, clock)
-        self.over_rate = 0  # frames dropped for the request rate
+        self.over_rate = 0  # frames held back for the request rate
+        self._throttled_since: float | None = None
         self._refusals: dict[str, float] = {}
         self._ops: dict[str, OpHandler] = {op: getattr(self, f"op_{op}") for op in OPS}
 
@@ -147,7 +148,8 @@ class ClientSession:
             async for message in self.ws:
                 t_recv = self.last_received = self.clock()
                 if message.type in (WSMsgType.TEXT, WSMsgType.BINARY):
-                    await self._take(message.data, t_recv)
+                    if not await self._take(message.data, t_recv):
+                        break
                 elif message.type == WSMsgType.ERROR:
                     self.bad_input(logging.INFO, f"rosbridge client {self.id} ({self.peer}): "
                                    f"refused frame: {self.ws.exception()}; closed")
@@ -155,21 +157,36 @@ class ClientSession:
         finally:
             writer.cancel()
 
-    async def _take(self, data: str | bytes, t_recv: float) -> None:
-        """One frame from the socket, within the client's request rate (over it, the frame
-        is dropped unread, and told once a while). Frames already buffered are read without
-        suspending, so the loop gets a turn after each one handled."""
-        if not self._bucket.take():
-            self.over_rate += 1
-            self._say_once("ops_per_second", over_limit(
-                f"too many requests: {self.over_rate} dropped so far",
-                self.limits.ops_per_second, "ops_per_second").message, None)
-            if self.over_rate % SLICE_DROPPED == 0:
-                await asyncio.sleep(0)
-            return
+    async def _take(self, data: str | bytes, t_recv: float) -> bool:
+        """Handle one frame from the socket at no more than the client's request rate: over
+        it, reading pauses (TCP pushes back on the client), the client is told once a while,
+        and a client kept over it for THROTTLE_CLOSE_S is closed. The loop gets a turn after
+        every frame (frames already buffered are otherwise read without suspending). False
+        when the client is closed."""
+        wait = self._bucket.reserve(1.0)
+        if wait > 0:
+            if not await self._throttle(wait, t_recv):
+                return False
+        else:
+            self._throttled_since = None
         await self.handle_text(data, t_recv)
         await self.writer.send_inline(self.transport)
         await asyncio.sleep(0)
+        return True
+
+    async def _throttle(self, wait: float, now: float) -> bool:
+        self.over_rate += 1
+        if self._throttled_since is None:
+            self._throttled_since = now
+        if now - self._throttled_since > THROTTLE_CLOSE_S:
+            await self.ws.close(code=WSCloseCode.POLICY_VIOLATION,
+                                message=b"too many requests ([rosbridge] ops_per_second)")
+            return False
+        self._say_once("ops_per_second", over_limit(
+            f"too many requests: reading paused ({self.over_rate} requests held back so far)",
+            self.limits.ops_per_second, "ops_per_second").message, None)
+        await asyncio.sleep(wait)
+        return True
 
     async def handle_text(self, text: str | bytes, t_recv: float, nested: bool = False) -> None:
         """Handle one frame; every refusal is answered here, with the request's ``id``."""
