@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import logging
 import os
 import statistics
 import sys
@@ -16,7 +15,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from daemon.bench import BenchResult, percentile_ms
+from daemon.bench import BenchResult, percentile_ms, run_quietly
 from daemon.bench.rosbridge import _publish_scans, bench_daemon
 from daemon.bench.rosbridge_attacks import run_attack
 
@@ -171,17 +170,7 @@ def _rss_results(start: float, end: float, inputs: int, minutes: float) -> list[
 
 def run(quick: bool) -> list[BenchResult]:
     minutes = float(os.environ.get(MINUTES_ENV, "0" if quick else "1"))
-    return run_quietly(quick, minutes)
-
-
-def run_quietly(quick: bool, minutes: float) -> list[BenchResult]:
-    arbiterd_log = logging.getLogger("arbiterd")
-    level = arbiterd_log.level
-    arbiterd_log.setLevel(logging.ERROR)
-    try:
-        return asyncio.run(_run(quick, minutes))
-    finally:
-        arbiterd_log.setLevel(level)
+    return run_quietly(_run(quick, minutes))
 
 
 def main(argv: list[str]) -> int:
@@ -193,7 +182,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
-    print(format_table(run_quietly(args.quick, args.minutes)))
+    print(format_table(run_quietly(_run(args.quick, args.minutes))))
     return 0
 
 
