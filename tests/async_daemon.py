@@ -81,14 +81,26 @@ async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[Daem
         process = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "daemon.cli", "run", "--config", str(config), cwd=REPO,
             stdout=asyncio.subprocess.DEVNULL, stderr=log_file)
-        try:
-            async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=5)) as session:
-                client = DaemonClient(process, port, session)
-                await client.wait_health("ok", within_s=20.0)
-                yield client
-                process.send_signal(signal.SIGTERM)
-                assert await asyncio.wait_for(process.wait(), 10) == 0
-        finally:
-            if process.returncode is None:
-                process.kill()
-                await process.wait()
+        async with reaped(process), aiohttp.ClientSession(
+                timeout=aiohttp.ClientTimeout(total=5)) as session:
+            client = DaemonClient(process, port, session)
+            await client.wait_health("ok", within_s=20.0)
+            yield client
+            await terminate_cleanly(process)
+
+
+@contextlib.asynccontextmanager
+async def reaped(process: asyncio.subprocess.Process) -> AsyncIterator[None]:
+    """Kill ``process`` when the block ends with it still running (a failed test)."""
+    try:
+        yield
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()
+
+
+async def terminate_cleanly(process: asyncio.subprocess.Process) -> None:
+    """SIGTERM, and require the process to exit 0 within 10 s."""
+    process.send_signal(signal.SIGTERM)
+    assert await asyncio.wait_for(process.wait(), 10) == 0

@@ -22,7 +22,13 @@ from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
 from sim.wiring import EMULATORS
-from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
+from tests.async_daemon import (
+    DaemonClient,
+    driver_daemon_config,
+    reaped,
+    spawn_daemon,
+    terminate_cleanly,
+)
 from tests.conftest import close_to, eventually
 from tests.daemon_proc import REPO, free_port
 from tests.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
@@ -386,7 +392,7 @@ async def test_standalone_emulator_process_with_signal_switches() -> None:
     process = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "sim.pigpiod_emulator", "--port", "0", cwd=REPO,
         stdout=asyncio.subprocess.PIPE)
-    try:
+    async with reaped(process):
         assert process.stdout is not None
         banner = (await asyncio.wait_for(process.stdout.readline(), 20)).decode()
         match = re.search(r"listening on ([\d.]+):(\d+)", banner)
@@ -411,9 +417,4 @@ async def test_standalone_emulator_process_with_signal_switches() -> None:
         await eventually(reopened, "a reconnect after the restart", within_s=5.0,
                          interval_s=0.05)
         await driver.close()
-        process.send_signal(signal.SIGTERM)
-        assert await asyncio.wait_for(process.wait(), 10) == 0
-    finally:
-        if process.returncode is None:
-            process.kill()
-            await process.wait()
+        await terminate_cleanly(process)
