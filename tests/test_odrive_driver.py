@@ -320,13 +320,31 @@ def _reading_matches(driver: ODriveCanDriver, motors: MotorPair) -> bool:
 # -- faults ------------------------------------------------------------------------------------
 
 
+async def driving(odrive: Rig, make_driver: Callable[..., ODriveCanDriver],
+                  left: float, right: float) -> ODriveCanDriver:
+    """A driver opened (short start-up timeout) and driving the emulated wheels."""
+    driver = make_driver(startup_timeout_s=0.5)
+    await driver.open()
+    await drives(odrive, driver, left, right)
+    return driver
+
+
+async def drives(odrive: Rig, driver: ODriveCanDriver, left: float, right: float) -> None:
+    await driver.set_wheel_speeds(left, right)
+    await eventually(lambda: odrive.observed_targets() == pytest.approx((left, right)))
+
+
+async def reopens_still_then_drives(odrive: Rig, driver: ODriveCanDriver, speed: float) -> None:
+    """After a fault: open() again leaves the wheels still until a fresh command drives them."""
+    await driver.open()
+    assert odrive.observed_targets() == (0.0, 0.0)
+    await drives(odrive, driver, speed, speed)
+
+
 async def test_heartbeat_loss_faults_zeroes_and_recovers(
         odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
-    driver = make_driver(startup_timeout_s=0.5)
-    await driver.open()
-    await driver.set_wheel_speeds(6.0, 6.0)
-    await eventually(lambda: odrive.observed_targets() == pytest.approx((6.0, 6.0)))
+    driver = await driving(odrive, make_driver, 6.0, 6.0)
 
     emulator.set_heartbeat(False)
     reason = await eventually(lambda: driver.fault, what="the heartbeat loss to be noticed")
@@ -344,23 +362,17 @@ async def test_heartbeat_loss_faults_zeroes_and_recovers(
     await driver.close()
 
     emulator.set_heartbeat(True)
-    await driver.open()
+    await reopens_still_then_drives(odrive, driver, 2.0)
     assert driver.fault is None and driver.health()["status"] == "ok"
-    assert odrive.observed_targets() == (0.0, 0.0)  # still until a fresh command
     reading = await driver.read_encoders()
     assert reading is not None
     assert close_to((reading.left_rad, reading.right_rad), odrive.motors.positions(), 0.05)
-    await driver.set_wheel_speeds(2.0, 2.0)
-    await eventually(lambda: odrive.observed_targets() == pytest.approx((2.0, 2.0)))
 
 
 async def test_axis_error_faults_and_reopen_clears_it_once_the_cause_is_gone(
         odrive: Rig, make_driver: Callable[..., ODriveCanDriver]) -> None:
     emulator = odrive.emulator
-    driver = make_driver(startup_timeout_s=0.5)
-    await driver.open()
-    await driver.set_wheel_speeds(4.0, -4.0)
-    await eventually(lambda: odrive.observed_targets() == pytest.approx((4.0, -4.0)))
+    driver = await driving(odrive, make_driver, 4.0, -4.0)
 
     emulator.inject_axis_error(cansimple.ERROR_MOTOR_FAILED, RIGHT_NODE, persistent=True)
     reason = await eventually(lambda: driver.fault, what="the axis error to be noticed")
@@ -374,11 +386,9 @@ async def test_axis_error_faults_and_reopen_clears_it_once_the_cause_is_gone(
     await driver.close()
 
     emulator.clear_error_condition()
-    await driver.open()  # Clear_Errors clears the latched error, then the axis arms again
+    # open() sends Clear_Errors: the latched error is cleared, then the axis arms again
+    await reopens_still_then_drives(odrive, driver, 1.0)
     assert emulator.axis("right").axis_error == 0
-    assert odrive.observed_targets() == (0.0, 0.0)
-    await driver.set_wheel_speeds(1.0, 1.0)
-    await eventually(lambda: odrive.observed_targets() == pytest.approx((1.0, 1.0)))
 
 
 async def test_node_off_the_bus_faults_and_reconnects_when_back(
