@@ -363,27 +363,28 @@ class Fuzzer:
 # -- the worker command line -------------------------------------------------------------------
 
 
+# attack => its numeric options: (flag, type, default)
+ATTACK_OPTIONS: dict[str, list[tuple[str, type, float]]] = {
+    "advertise-many": [("--topics", int, 1500), ("--per-client", int, 100),
+                       ("--fragment-size", int, 1)],
+    "subscribe-flood": [("--count", int, 10_000), ("--seconds", float, 0.0)],
+    "scan-subscribers": [("--clients", int, 3), ("--seconds", float, 3.0),
+                         ("--fragment-size", int, 1)],
+    "fuzz": [("--seconds", float, 10.0), ("--seed", int, 1), ("--workers", int, 4)],
+}
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m daemon.bench.rosbridge_attacks")
     top.add_argument("--url", required=True)
     sub = top.add_subparsers(dest="attack", required=True)
-    adv = sub.add_parser("advertise-many")
-    adv.add_argument("--topics", type=int, default=1500)
-    adv.add_argument("--per-client", type=int, default=100)
-    adv.add_argument("--fragment-size", type=int, default=1)
-    flood = sub.add_parser("subscribe-flood")
-    flood.add_argument("--count", type=int, default=10_000)
-    flood.add_argument("--seconds", type=float, default=0.0)
-    scan = sub.add_parser("scan-subscribers")
-    scan.add_argument("--clients", type=int, default=3)
-    scan.add_argument("--seconds", type=float, default=3.0)
-    scan.add_argument("--fragment-size", type=int, default=1)
-    fuzz = sub.add_parser("fuzz")
-    fuzz.add_argument("--seconds", type=float, default=10.0)
-    fuzz.add_argument("--seed", type=int, default=1)
-    fuzz.add_argument("--workers", type=int, default=4)
-    fuzz.add_argument("--only", action="append", help="fuzz only this category (repeatable)",
-                      choices=[*TEXT_CATEGORIES, "binary", "wire"])
+    for name, options in ATTACK_OPTIONS.items():
+        attack_parser = sub.add_parser(name)
+        for flag, kind, default in options:
+            attack_parser.add_argument(flag, type=kind, default=kind(default))
+    sub.choices["fuzz"].add_argument("--only", action="append",
+                                     help="fuzz only this category (repeatable)",
+                                     choices=[*TEXT_CATEGORIES, "binary", "wire"])
     return top
 
 
