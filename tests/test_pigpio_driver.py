@@ -46,6 +46,17 @@ def make_driver(the_rig: Rig, **overrides: object) -> PigpioDriver:
     return PigpioDriver(the_rig.options | overrides, max_wheel_speed=MAX_WHEEL_SPEED)
 
 
+@contextlib.asynccontextmanager
+async def opened(the_rig: Rig, **overrides: object) -> AsyncIterator[PigpioDriver]:
+    """A driver on the rig, open for the block and closed after it."""
+    driver = make_driver(the_rig, **overrides)
+    await driver.open()
+    try:
+        yield driver
+    finally:
+        await driver.close()
+
+
 # -- pure parts ------------------------------------------------------------------------------------
 
 
@@ -107,13 +118,9 @@ async def test_forward_reverse_turn_stop_reach_the_bridges(hardware_pwm: bool,
 
 async def test_per_side_inversion_matches_a_mirrored_motor(tmp_path: Path) -> None:
     with running_rig(tmp_path, left_motor_inverted=True) as the_rig:  # a mirrored left motor
-        driver = make_driver(the_rig)
-        await driver.open()
-        try:
+        async with opened(the_rig) as driver:
             await driver.set_wheel_speeds(5.0, 5.0)
             assert close_to(the_rig.observed_targets(), (5.0, 5.0), 0.02)
-        finally:
-            await driver.close()
 
 
 async def test_unchanged_pins_are_not_rewritten(tmp_path: Path) -> None:
@@ -281,9 +288,7 @@ async def settled_counts_nonzero(driver: PigpioDriver) -> None:
 
 async def test_a_hung_pigpiod_times_out_into_a_fault(tmp_path: Path) -> None:
     with running_rig(tmp_path, timeout=0.2, watch_interval=0.0) as the_rig:
-        driver = make_driver(the_rig)
-        await driver.open()
-        try:
+        async with opened(the_rig) as driver:
             await driver.set_wheel_speeds(5.0, 5.0)
             the_rig.emulator.unresponsive = True
             with pytest.raises(DriverFault, match="lost: write failed"):
@@ -294,8 +299,6 @@ async def test_a_hung_pigpiod_times_out_into_a_fault(tmp_path: Path) -> None:
             await driver.open()
             await driver.set_wheel_speeds(3.0, 3.0)
             assert close_to(the_rig.observed_targets(), (3.0, 3.0), 0.02)
-        finally:
-            await driver.close()
 
 
 async def test_safe_stop_from_a_fresh_process_zeroes_running_motors(tmp_path: Path) -> None:
