@@ -11,6 +11,7 @@ from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
 
 from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
+from daemon.messages.convert import to_json
 from daemon.security import Security
 
 log = logging.getLogger("arbiterd.http")
@@ -42,15 +43,7 @@ def json_response(data: Any, status: int = 200) -> web.Response:
 
 
 def _dumps(data: Any) -> str:
-    return json.dumps(data, allow_nan=False, default=_default)
-
-
-def _default(value: Any) -> Any:
-    if hasattr(value, "to_json"):
-        return value.to_json()
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    return json.dumps(data, allow_nan=False, default=to_json)
 
 
 def error_response(status: int, message: str, detail: Any = None,

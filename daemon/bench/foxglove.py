@@ -19,8 +19,9 @@ import aiohttp
 import numpy as np
 
 from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly, scan_subscribers
+from daemon.messages.convert import scan_msg
+from daemon.messages.definitions import LASER_SCAN
 from daemon.rosbridge.outbox import SharedMessage
-from daemon.rosbridge.topics import LASER_SCAN, scan_msg
 from sensors.scan import LaserScan
 
 SUITE = "foxglove"

@@ -6,21 +6,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.rosbridge import cdr
-from daemon.rosbridge.binary import scan_arrays, scan_cdr
-from daemon.rosbridge.msgtypes import stamp
-from daemon.rosbridge.topics import (
-    LASER_SCAN,
-    LOG,
-    ODOMETRY,
-    STRING,
-    TF_MESSAGE,
-    header,
-    latency_msg,
-    log_msg,
-    odometry_msg,
-    tf_msg,
-)
+from daemon.messages import cdr
+from daemon.messages.convert import header, latency_msg, log_msg, odometry_msg, tf_msg
+from daemon.messages.definitions import LASER_SCAN, LOG, ODOMETRY, STRING, TF_MESSAGE
+from daemon.messages.msgtypes import stamp
+from daemon.messages.scans import scan_arrays, scan_cdr
 from daemon.telemetry import CommandEvent
 
 COMMAND = "arbiterd_msgs/msg/Command"

@@ -16,8 +16,8 @@ from typing import IO, Any
 from mcap.writer import CompressionType, Writer
 
 from daemon import __version__
+from daemon.messages.msgtypes import full_text
 from daemon.recorder.channels import Channel
-from daemon.rosbridge.msgtypes import full_text
 
 log = logging.getLogger("arbiterd.recorder")
 

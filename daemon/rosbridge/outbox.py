@@ -9,7 +9,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.rosbridge import binary, cdr
+from daemon.messages import cbor, cdr, scans
+from daemon.rosbridge import binary
 from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
 EVENT_QUEUE = 100  # messages kept per event topic (every message counts) with queue_length 0
@@ -55,7 +56,7 @@ class SharedMessage:
         msg = self._binary_msgs.get(compression)
         if msg is None:
             if compression == "cbor":
-                msg = binary.cbor_msg(type_name, self._values(type_name))
+                msg = cbor.cbor_msg(type_name, self._values(type_name))
             else:  # the server clock at (first) send, as rosbridge's cbor-raw carries it
                 msg = binary.cbor_raw_msg(self._cdr(type_name), time.time())
             self._binary_msgs[compression] = msg
@@ -65,10 +66,10 @@ class SharedMessage:
         """The message as a dict for the binary encoders (robot data: their own conversion)."""
         if self._convert is None:
             return self._source
-        return binary.BINARY_CONVERT.get(type_name, self._convert)(self._source)
+        return scans.BINARY_CONVERT.get(type_name, self._convert)(self._source)
 
     def _cdr(self, type_name: str) -> bytes:
-        direct = binary.BINARY_CDR.get(type_name) if self._convert is not None else None
+        direct = scans.BINARY_CDR.get(type_name) if self._convert is not None else None
         if direct is not None:
             return direct(self._source)
         return cdr.encode(type_name, self._values(type_name))

@@ -5,7 +5,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from daemon.rosbridge.msgtypes import MessageError, full_text, normalize_type, stamp
+from daemon.messages.msgtypes import MessageError, full_text, normalize_type, stamp
 
 ROS_DISTRO = "arbiterd"
 

@@ -11,12 +11,13 @@ from typing import TYPE_CHECKING, Any
 
 from aiohttp import WSCloseCode, web
 
+from daemon.messages.convert import log_msg
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.session import ClientSession
-from daemon.rosbridge.topics import log_msg, robot_topics
+from daemon.rosbridge.topics import robot_topics
 
 if TYPE_CHECKING:
     from daemon.component import DaemonContext

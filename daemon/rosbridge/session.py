@@ -13,6 +13,8 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from daemon.control.api import STAMP_FIELDS, parse_stamp
 from daemon.control.commands import CommandError, parse_twist
+from daemon.messages.definitions import TWIST, TWIST_STAMPED
+from daemon.messages.msgtypes import MessageError, check_message, has_type, normalize_type
 from daemon.rosbridge import access, rosapi
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.codec import (
@@ -35,7 +37,6 @@ from daemon.rosbridge.codec import (
 )
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog, TokenBucket
-from daemon.rosbridge.msgtypes import MessageError, check_message, has_type, normalize_type
 from daemon.rosbridge.outbox import (
     FragmentedReply,
     Outbox,
@@ -43,7 +44,7 @@ from daemon.rosbridge.outbox import (
     SubscribeOptions,
     TopicQueue,
 )
-from daemon.rosbridge.topics import AUTONOMY_MODE, COMMAND_TOPICS, TWIST, TWIST_STAMPED
+from daemon.rosbridge.topics import AUTONOMY_MODE, COMMAND_TOPICS
 from daemon.rosbridge.writer import Writer
 
 if TYPE_CHECKING:

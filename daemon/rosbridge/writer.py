@@ -8,8 +8,8 @@ from collections.abc import Callable, Iterator
 
 from aiohttp import web
 
+from daemon.messages.cdr import CdrError
 from daemon.rosbridge.binary import BINARY_COMPRESSIONS
-from daemon.rosbridge.cdr import CdrError
 from daemon.rosbridge.codec import Id, fragment_count, fragments, over_limit
 from daemon.rosbridge.limits import Limits, Pacer
 from daemon.rosbridge.outbox import FragmentedReply, Outbox, SharedMessage, TopicQueue

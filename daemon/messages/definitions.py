@@ -134,3 +134,13 @@ MSG_TEXT: dict[str, str] = {
         "# why it was not applied (empty when accepted)\n"
         "string error\n"),
 }
+
+# names of the types the daemon itself publishes or accepts
+TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+STRING = "std_msgs/msg/String"
+BOOL = "std_msgs/msg/Bool"
+ODOMETRY = "nav_msgs/msg/Odometry"
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+LOG = "rcl_interfaces/msg/Log"

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.rosbridge.msgtypes import Field, get_type
+from daemon.messages.msgtypes import Field, get_type
 
 #: the 4-byte encapsulation header of little-endian plain CDR (rosbridge's cbor-raw, MCAP "cdr")
 ENCAPSULATION = b"\x00\x01\x00\x00"

@@ -1,0 +1,124 @@
+# Daemon telemetry as ROS 2 messages (dicts of the message's fields), and the JSON fallback.
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any, Protocol
+
+import numpy as np
+import orjson
+
+from daemon.messages.msgtypes import stamp
+from daemon.telemetry import LatencyReport, OdomSample
+
+
+class ScanLike(Protocol):
+    """What /scan needs from a lidar revolution (sensor_msgs/LaserScan field names)."""
+
+    stamp: float
+    frame_id: str
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    time_increment: float
+    scan_time: float
+    range_min: float
+    range_max: float
+    ranges: Any
+    intensities: Any
+
+
+def header(t: float, frame_id: str) -> dict[str, Any]:
+    return {"stamp": stamp(t), "frame_id": frame_id}
+
+
+def quaternion_z(theta: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(theta / 2), "w": math.cos(theta / 2)}
+
+
+def covariance(diagonal: list[float]) -> list[float]:
+    matrix = [0.0] * 36
+    for i, value in enumerate(diagonal[:6]):
+        matrix[i * 7] = float(value)
+    return matrix
+
+
+def odometry_msg(sample: OdomSample) -> dict[str, Any]:
+    zero = {"x": 0.0, "y": 0.0, "z": 0.0}
+    return {
+        "header": header(sample.stamp, sample.frame_id),
+        "child_frame_id": sample.child_frame_id,
+        "pose": {"pose": {"position": {"x": sample.x, "y": sample.y, "z": 0.0},
+                          "orientation": quaternion_z(sample.theta)},
+                 "covariance": covariance(sample.pose_covariance_diagonal)},
+        "twist": {"twist": {"linear": {"x": sample.linear_x, "y": 0.0, "z": 0.0},
+                            "angular": {**zero, "z": sample.angular_z}},
+                  "covariance": covariance(sample.twist_covariance_diagonal)},
+    }
+
+
+def tf_msg(sample: OdomSample) -> dict[str, Any]:
+    return {"transforms": [{
+        "header": header(sample.stamp, sample.frame_id),
+        "child_frame_id": sample.child_frame_id,
+        "transform": {"translation": {"x": sample.x, "y": sample.y, "z": 0.0},
+                      "rotation": quaternion_z(sample.theta)},
+    }]}
+
+
+RANGE_DECIMALS = 4  # 0.1 mm: finer than any RPLIDAR reports; halves the JSON work per scan
+
+
+def float_list(values: Any, decimals: int | None = None) -> list[Any]:
+    """A float sequence (numpy or list) as JSON-ready floats, non-finite -> None."""
+    array = np.asarray(values if values is not None else [], dtype=np.float64).ravel()
+    if decimals is not None:
+        array = np.round(array, decimals)
+    out: list[Any] = array.tolist()
+    if not np.isfinite(array).all():
+        for i in np.flatnonzero(~np.isfinite(array)).tolist():
+            out[i] = None
+    return out
+
+
+def scan_msg(scan: ScanLike) -> dict[str, Any]:
+    return {
+        "header": header(float(scan.stamp), getattr(scan, "frame_id", "laser")),
+        **{key: float(getattr(scan, key)) for key in (
+            "angle_min", "angle_max", "angle_increment", "time_increment", "scan_time",
+            "range_min", "range_max")},
+        "ranges": float_list(scan.ranges, RANGE_DECIMALS),
+        "intensities": float_list(getattr(scan, "intensities", None)),
+    }
+
+
+def json_string_msg(payload: Any) -> dict[str, Any]:
+    """A std_msgs/String carrying ``payload`` as JSON (non-finite floats as null)."""
+    data = orjson.dumps(payload, default=to_json, option=orjson.OPT_SERIALIZE_NUMPY)
+    return {"data": data.decode()}
+
+
+def latency_msg(report: LatencyReport) -> dict[str, Any]:
+    return json_string_msg(report.to_json())
+
+
+def to_json(value: Any) -> Any:
+    """The JSON fallback of orjson and json: ``to_json()`` objects and numpy arrays."""
+    if hasattr(value, "to_json"):
+        return value.to_json()
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+LOG_LEVELS = ((logging.CRITICAL, 50), (logging.ERROR, 40), (logging.WARNING, 30),
+              (logging.INFO, 20))
+
+
+def log_msg(record: logging.LogRecord) -> dict[str, Any]:
+    level = next((ros for py, ros in LOG_LEVELS if record.levelno >= py), 10)
+    return {"stamp": stamp(record.created), "level": level, "name": record.name,
+            "msg": record.getMessage(), "file": record.pathname, "function": record.funcName,
+            "line": record.lineno}
+
+
