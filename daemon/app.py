@@ -5,41 +5,39 @@ import asyncio
 import logging
 import signal
 import time
-from collections.abc import Callable
 from typing import Any
 
-from aiohttp import web
-
-from daemon import __version__, console, lidar
-from daemon.autonomy import component as autonomy
+from base.config import Config, ConfigError
+from daemon import __version__
 from daemon.bus import Bus
-from daemon.component import Component, DaemonContext, worst
-from daemon.config import Config, ConfigError, build_driver
-from daemon.control.api import ControlApi
+from daemon.component import Component, DaemonContext, Plugs, worst
+from daemon.components import COMPONENTS
+from daemon.config import build_driver
 from daemon.control.loop import ControlLoop
-from daemon.http_api import Access, HttpServer, json_response
+from daemon.http_api import HttpServer
+from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
-from daemon.metrics import prometheus_text
+from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
-from daemon.recorder import component as recorder
-from daemon.rosbridge import server as rosbridge_server
-from daemon.safety import component as safety
+from daemon.safety.component import scan_points
 from daemon.security import Security
+from daemon.settings import DriverSettings, LimitsSettings, RobotSettings, SecuritySettings
+from daemon.simulator import SimRuntime
+from daemon.telemetry import HEALTH, HEALTH_CHANGE, ROBOT_INFO
+from daemon.topics import TopicTable
 from drivers import DriverError
+from sim.settings import SimSettings
 
 log = logging.getLogger("arbiterd")
 
 EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 
-# component name => factory; it takes the DaemonContext and returns a Component, or None when
-# its config section disables it. Started in this order.
-COMPONENTS: dict[str, Callable[[DaemonContext], Component | None]] = {
-    "lidar": lidar.create,
-    "collision_monitor": safety.create,
-    "autonomy": autonomy.create,
-    "rosbridge": rosbridge_server.create,
-    "recorder": recorder.create,
-}
+
+def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
+    """What counts as a health change: statuses and problem texts, not counters."""
+    components = health.get("components", {})
+    return (health.get("status"), health.get("state"),
+            *((name, c.get("status"), problem(c)) for name, c in sorted(components.items())))
 
 
 class StartupError(Exception):
@@ -57,10 +55,12 @@ class Daemon:
         self.started_mono = time.monotonic()
         self.bus = Bus()
         self.latency = LatencyTracker()
-        sec = config["security"]
-        self.security = Security(config.token, sec["allowed_origins"],
-                                 sec["read_requires_token"], sec["allowed_hosts"])
+        sec = config.get(SecuritySettings)
+        self.security = Security(config.token, sec.allowed_origins, sec.read_requires_token,
+                                 sec.allowed_hosts)
         self.components: list[Component] = []
+        self._plugs: list[Plugs] = []
+        self._health_digest: tuple[Any, ...] | None = None
         self.exit_code = EXIT_OK
         self.shutdown_reason = ""
         self._shutdown_requested: asyncio.Event | None = None
@@ -73,14 +73,13 @@ class Daemon:
 
     def _driver_name(self) -> str:
         if self.mode == "sim":
-            return str(self.config["sim"]["driver"])
-        return str(self.config["driver"]["type"])
+            return self.config.get(SimSettings).driver
+        return self.config.get(DriverSettings).type
 
-    def _start_simulator(self) -> Any:
-        from daemon.simulator import SimRuntime
-
+    def _start_simulator(self) -> SimRuntime:
         try:
-            runtime = SimRuntime(self.config)
+            runtime = SimRuntime(self.config, [use for spec in COMPONENTS
+                                               for use in spec.devices_used(self.config)])
         except ValueError as exc:  # a [sim] value that is wrong only together with others
             raise ConfigError([f"{self.config.source}: {exc}"]) from exc
         try:
@@ -93,38 +92,27 @@ class Daemon:
     def _build(self) -> DaemonContext:
         runtime = self._start_simulator() if self.mode == "sim" else None
         self.driver_name = self._driver_name()
-        control = self.config["control"]
         driver = build_driver(self.config, self.driver_name)
-        loop = ControlLoop(self.config, driver, self.bus, self.latency)
-        http_cfg = self.config["http"]
-        http = HttpServer(http_cfg, self.security)
-        ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
-                            self.mode)
-        ControlApi(loop, http, control["allow_fault_injection"])
-        loop.on_tick.append(self.notifier.tick)
-        self._add_own_routes(http)
-        if http_cfg["console"]:
-            console.register(http, self.config)
-        self.components = [loop]
         if runtime is not None:
             runtime.attach(driver)
-            runtime.register(http, self.bus, loop.status_extras)
-            self.components.insert(0, runtime)
-        for name, factory in COMPONENTS.items():
-            component = factory(ctx)
-            if component is not None:
-                self.components.append(component)
-                log.debug("component %s configured", name)
-        if http_cfg["enabled"]:
-            self.components.append(http)
+        loop = ControlLoop(self.config, driver, self.bus, self.latency)
+        loop.on_tick.add(self.notifier.tick)
+        http = HttpServer(self.config.get(HttpSettings), self.security)
+        ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
+                            self.mode, TopicTable(), scan_points(self.config), self,
+                            Plugs(loop, self.bus), sim=runtime)
+        for spec in COMPONENTS:
+            scoped = ctx.scoped()
+            self._plugs.append(scoped.plugs)
+            component = spec.create(scoped)
+            if component is None:
+                continue
+            for route in component.routes():
+                http.add_route(route.method, route.path, route.handler, access=route.access)
+            ctx.topics.declare(component.name, component.topics())
+            self.components.append(component)
+            log.debug("component %s configured", spec.name)
         return ctx
-
-    def _add_own_routes(self, http: HttpServer) -> None:
-        health_access: Access = "open" if self.config["security"]["open_health"] else "read"
-        http.add_route("GET", "/api/health", self._get_health, access=health_access)
-        http.add_route("GET", "/api/latency", self._get_latency, access="read")
-        http.add_route("GET", "/api/robot_info", self._get_robot_info, access="read")
-        http.add_route("GET", "/metrics", self._get_metrics, access="read")
 
     # -- running -------------------------------------------------------------------------
 
@@ -195,6 +183,8 @@ class Daemon:
                 await component.stop()
             except Exception:
                 log.exception("stopping %s failed", component.name)
+        for plugs in reversed(self._plugs):
+            plugs.release()
         log.info("stopped")
 
     def _install_signal_handlers(self) -> None:
@@ -206,9 +196,16 @@ class Daemon:
         """Once a second: recompute health state, publish it and /robot_info."""
         while True:
             self._update_state()
-            self.bus.publish("health", self.health())
-            self.bus.publish("robot_info", self.robot_info())
+            self._publish_health(self.health())
+            self.bus.publish(ROBOT_INFO, self.robot_info())
             await asyncio.sleep(1.0)
+
+    def _publish_health(self, health: dict[str, Any]) -> None:
+        self.bus.publish(HEALTH, health)
+        digest = health_digest(health)
+        if digest != self._health_digest:
+            self._health_digest = digest
+            self.bus.publish(HEALTH_CHANGE, {"t": time.time(), **health})
 
     # -- reporting -----------------------------------------------------------------------
 
@@ -216,15 +213,19 @@ class Daemon:
         out = {}
         for component in self.components:
             try:
-                out[component.name] = component.health()
+                health = component.health()
             except Exception as exc:
-                out[component.name] = {"status": "error", "error": f"health failed: {exc}"}
+                health = {"status": "error", "error": f"health failed: {exc}"}
+            if health is not None:
+                out[component.name] = health
         return out
 
     def overall_status(self, health: dict[str, dict[str, Any]]) -> str:
         statuses = []
         for component in self.components:
-            status = health.get(component.name, {}).get("status", "error")
+            if component.name not in health:
+                continue  # nothing to report
+            status = health[component.name].get("status", "error")
             statuses.append(status if component.core or status != "error" else "degraded")
         return worst(statuses)
 
@@ -247,8 +248,6 @@ class Daemon:
             parts.append(f"driver fault: {self.ctx.control.fault}")
         if self.ctx and self.ctx.control.arbiter.estop_engaged:
             parts.append("e-stop engaged")
-        for note in (self.ctx.extras.get("status_notes", []) if self.ctx else []):
-            parts.append(note)
         return ", ".join(parts)
 
     def health(self) -> dict[str, Any]:
@@ -259,13 +258,15 @@ class Daemon:
                 "driver": self.driver_name, "components": components}
 
     def robot_info(self) -> dict[str, Any]:
-        robot, limits = self.config["robot"], self.config["limits"]
+        robot = self.config.get(RobotSettings)
         info: dict[str, Any] = {
-            "name": robot["name"], "version": __version__, "mode": self.mode,
+            "name": robot.name, "version": __version__, "mode": self.mode,
             "driver": self.driver_name,
-            "geometry": {k: robot[k] for k in ("wheel_separation", "wheel_radius",
-                                               "base_frame_id", "odom_frame_id")},
-            "limits": dict(limits),
+            "geometry": {"wheel_separation": robot.wheel_separation,
+                         "wheel_radius": robot.wheel_radius,
+                         "base_frame_id": robot.base_frame_id,
+                         "odom_frame_id": robot.odom_frame_id},
+            "limits": dict(self.config[LimitsSettings.SECTION]),
         }
         for key, supplier in (self.ctx.robot_info.items() if self.ctx else ()):
             try:
@@ -273,19 +274,3 @@ class Daemon:
             except Exception as exc:
                 info[key] = {"error": str(exc)}
         return info
-
-    async def _get_health(self, request: web.Request) -> web.Response:
-        body = self.health()
-        return json_response(body, status=503 if body["status"] == "error" else 200)
-
-    async def _get_latency(self, request: web.Request) -> web.Response:
-        return json_response(self.latency.stats())
-
-    async def _get_robot_info(self, request: web.Request) -> web.Response:
-        return json_response(self.robot_info())
-
-    async def _get_metrics(self, request: web.Request) -> web.Response:
-        text = prometheus_text(self.health(), self.latency.stats(),
-                               self.latency.metrics.registry)
-        return web.Response(text=text, content_type="text/plain", charset="utf-8")
-

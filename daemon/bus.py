@@ -1,17 +1,27 @@
-# In-process publish/subscribe of telemetry: latest value per topic plus callbacks.
+# In-process publish/subscribe of telemetry: typed keys, latest value per key, callbacks.
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 log = logging.getLogger(__name__)
 
-Callback = Callable[[Any], None]
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class BusKey(Generic[T]):
+    """A bus topic and the type of what travels on it (Home Assistant's ``SignalType``):
+    ``ODOM: BusKey[OdomSample] = BusKey("odom")``. Its owner declares it; publishers and
+    subscribers import it, so a wrong payload type is a type error, not a runtime surprise."""
+
+    name: str
 
 
 class Bus:
-    """Synchronous fan-out of internal telemetry (``odom``, ``scan``, ``latency_report``, ...).
+    """Synchronous fan-out of internal telemetry (odometry, scans, latency reports, ...).
 
     ``publish`` runs in the publisher's context (the control tick, the lidar reader), so every
     callback must be quick and never block: a slow consumer copies the message into its own
@@ -20,31 +30,35 @@ class Bus:
     """
 
     def __init__(self) -> None:
-        self._subscribers: dict[str, list[Callback]] = {}
+        self._subscribers: dict[str, list[Callable[[Any], None]]] = {}
         self._latest: dict[str, Any] = {}
 
-    def subscribe(self, topic: str, callback: Callback) -> Callable[[], None]:
-        """Call ``callback(message)`` on every publish to ``topic``; returns an unsubscriber."""
-        self._subscribers.setdefault(topic, []).append(callback)
+    def subscribe(self, key: BusKey[T], callback: Callable[[T], None]) -> Callable[[], None]:
+        """Call ``callback(message)`` on every publish to ``key``; returns an unsubscriber."""
+        self._subscribers.setdefault(key.name, []).append(callback)
 
         def unsubscribe() -> None:
-            callbacks = self._subscribers.get(topic, [])
+            callbacks = self._subscribers.get(key.name, [])
             if callback in callbacks:
                 callbacks.remove(callback)
 
         return unsubscribe
 
-    def publish(self, topic: str, message: Any) -> None:
-        self._latest[topic] = message
-        for callback in tuple(self._subscribers.get(topic, ())):
+    def publish(self, key: BusKey[T], message: T) -> None:
+        self._latest[key.name] = message
+        for callback in tuple(self._subscribers.get(key.name, ())):
             try:
                 callback(message)
             except Exception:
-                log.exception("subscriber of %s failed", topic)
+                log.exception("subscriber of %s failed", key.name)
 
-    def latest(self, topic: str) -> Any | None:
-        """The last message published on ``topic``, or ``None``."""
-        return self._latest.get(topic)
+    def latest(self, key: BusKey[T]) -> T | None:
+        """The last message published on ``key``, or ``None``."""
+        message: T | None = self._latest.get(key.name)
+        return message
+
+    def subscribers(self, key: BusKey[Any]) -> int:
+        return len(self._subscribers.get(key.name, ()))
 
     def topics(self) -> list[str]:
         return sorted(set(self._latest) | set(self._subscribers))

@@ -17,9 +17,13 @@ from typing import Any
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
+from daemon.http_settings import HttpSettings
 from daemon.recorder import cli as record_cli
 from daemon.recorder.paths import listing_directory
+from daemon.recorder.settings import RecordSettings
+from daemon.settings import LoggingSettings
 from sensors.rplidar import cli as lidar_cli
+from sensors.rplidar.settings import LidarSettings
 
 EXIT_BROKEN_PIPE = 141  # what a shell reports for a command killed by SIGPIPE
 LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING,
@@ -91,7 +95,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         setup_logging()
         return _report_config_error(exc, args)
-    setup_logging(config["logging"]["level"], config["logging"]["timestamps"])
+    logging_settings = config.get(LoggingSettings)
+    setup_logging(logging_settings.level, logging_settings.timestamps)
     return asyncio.run(Daemon(config).run())
 
 
@@ -130,7 +135,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def _probed(config: Config) -> str:
     what = f"driver {config['driver']['type']}"
-    if config["lidar"]["enabled"]:
+    if config.get(LidarSettings).enabled:
         what += f", lidar on {config['lidar']['port']}"
     return what
 
@@ -196,7 +201,8 @@ def _status_url(args: argparse.Namespace) -> tuple[str, str]:
         print(f"arbiterd status: {exc.problems[0]}; asking {DEFAULT_URL} "
               "(sudo arbiterd status reads the configured port)", file=sys.stderr)
         return DEFAULT_URL, ""
-    host, port = config["http"]["host"], config["http"]["port"]
+    http = config.get(HttpSettings)
+    host, port = http.host, http.port
     if host in ("", "0.0.0.0", "::", "[::]"):
         host = "127.0.0.1"
     elif ":" in host and not host.startswith("["):
@@ -288,7 +294,7 @@ def cmd_record(args: argparse.Namespace) -> int:
             config = _load(args)
         except ConfigError as exc:
             return _report_config_error(exc, args)
-        directory = listing_directory(config["record"])
+        directory = listing_directory({"directory": config.get(RecordSettings).directory})
     return record_cli.run(args, directory or Path("."))
 
 

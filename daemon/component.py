@@ -1,29 +1,54 @@
-# The component contract every part of the running daemon follows.
+# The component contract: what every part of the running daemon declares, and what it is given.
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
+
+from base.config import Config, SectionSettings
+from daemon.bus import Bus, BusKey
+from daemon.hooks import HookMap, Remove
+from daemon.topics import Access, Topic, TopicTable
 
 if TYPE_CHECKING:
-    from daemon.bus import Bus
-    from daemon.config import Config
+    from aiohttp import web
+
+    from daemon.control.guard import MotionGuard
     from daemon.control.loop import ControlLoop
     from daemon.http_api import HttpServer
     from daemon.latency import LatencyTracker
     from daemon.security import Security
+    from daemon.simulator import SimRuntime
+    from sensors.scan import ScanPoints
+
+T = TypeVar("T")
+S = TypeVar("S", bound=SectionSettings)
 
 #: Health statuses, from best to worst.
 STATUSES = ("ok", "degraded", "error")
 
+Handler = Callable[["web.Request"], Any]
+
+
+@dataclass(frozen=True)
+class Route:
+    """An HTTP route a component serves, with who may call it (one middleware enforces it)."""
+
+    method: str
+    path: str
+    handler: Handler
+    access: Access
+
 
 @runtime_checkable
 class Component(Protocol):
-    """A part of the daemon with a lifecycle and a health report.
+    """A part of the daemon with a lifecycle, a health report and what it declares.
 
     ``core`` components must start for the daemon to become ready (``READY=1``); a failing
     non-core component only degrades health. ``health()`` returns a dict whose ``"status"`` is
-    one of :data:`STATUSES`; the rest is component-specific and shown in ``/api/health``.
+    one of :data:`STATUSES` (the rest is shown in ``/api/health``), or None for a component
+    with nothing to report. ``routes()`` and ``topics()`` are read once, after it is built.
     """
 
     name: str
@@ -33,7 +58,34 @@ class Component(Protocol):
 
     async def stop(self) -> None: ...
 
-    def health(self) -> dict[str, Any]: ...
+    def health(self) -> dict[str, Any] | None: ...
+
+    def routes(self) -> Sequence[Route]: ...
+
+    def topics(self) -> Sequence[Topic]: ...
+
+
+class BaseComponent:
+    """Defaults for the optional parts of :class:`Component`: nothing to start, stop, serve or
+    publish, and an ``ok`` health."""
+
+    name: str = ""
+    core: bool = False
+
+    async def start(self) -> None:
+        return None
+
+    async def stop(self) -> None:
+        return None
+
+    def health(self) -> dict[str, Any] | None:
+        return {"status": "ok"}
+
+    def routes(self) -> Sequence[Route]:
+        return ()
+
+    def topics(self) -> Sequence[Topic]:
+        return ()
 
 
 def worst(statuses: list[str]) -> str:
@@ -41,9 +93,68 @@ def worst(statuses: list[str]) -> str:
     return max(statuses, key=STATUSES.index, default="ok")
 
 
+class Reports(Protocol):
+    """The daemon's own reports, for the component that serves them."""
+
+    def health(self) -> dict[str, Any]: ...
+
+    def robot_info(self) -> dict[str, Any]: ...
+
+
+class Plugs:
+    """Registrations into the control loop and the bus, each remembered so that
+    :meth:`release` takes them all out (newest first). The daemon gives every component its
+    own; so does the lockstep simulator, which builds components without the rest."""
+
+    def __init__(self, control: ControlLoop, bus: Bus) -> None:
+        self.control = control
+        self.bus = bus
+        self._undo: list[Remove] = []
+
+    def release(self) -> None:
+        while self._undo:
+            self._undo.pop()()
+
+    def _keep(self, remove: Remove) -> Remove:
+        self._undo.append(remove)
+        return remove
+
+    def subscribe(self, key: BusKey[T], callback: Callable[[T], None]) -> Remove:
+        return self._keep(self.bus.subscribe(key, callback))
+
+    def on_tick(self, callback: Callable[[float, bool], None]) -> Remove:
+        """``callback(now, on_time)`` after every control tick."""
+        return self._keep(self.control.on_tick.add(callback))
+
+    def add_tick_source(self, callback: Callable[[float], None]) -> Remove:
+        """``callback(now)`` at the start of every tick, before the step (internal sources)."""
+        return self._keep(self.control.tick_sources.add(callback))
+
+    def on_command(self, callback: Callable[[str], None]) -> Remove:
+        """``callback(source)`` after every accepted command from a source."""
+        return self._keep(self.control.on_command.add(callback))
+
+    def add_status(self, name: str, supplier: Callable[[], Any]) -> Remove:
+        """A field of ``/api/status``."""
+        return self._keep(self.control.status_fields.add(name, supplier))
+
+    def set_guard(self, guard: MotionGuard) -> Remove:
+        """The guard between the arbiter and the limiter (the collision monitor)."""
+        return self._keep(self.control.set_guard(guard))
+
+    def add(self, remove: Remove) -> Remove:
+        """Any other registration's remover, to be called on release."""
+        return self._keep(remove)
+
+
 @dataclass
 class DaemonContext:
-    """What components get to build themselves and plug into the daemon."""
+    """What a component gets to build itself and plug into the daemon.
+
+    ``plugs`` remembers every hook a component registers; the daemon gives each component its
+    own :meth:`scoped` copy and releases its plugs after the component stopped, so nothing a
+    component hooked in outlives it.
+    """
 
     config: Config
     bus: Bus
@@ -52,5 +163,48 @@ class DaemonContext:
     security: Security
     latency: LatencyTracker
     mode: str
-    robot_info: dict[str, Callable[[], Any]] = field(default_factory=dict)
-    extras: dict[str, Any] = field(default_factory=dict)
+    topics: TopicTable
+    #: one scan -> robot-frame points converter for everyone (each revolution converted once)
+    scan_points: ScanPoints
+    reports: Reports
+    plugs: Plugs
+    #: the simulated world and emulators (``run --sim``), else None
+    sim: SimRuntime | None = None
+    #: extra fields of /api/robot_info and /robot_info, by name
+    robot_info: HookMap[Callable[[], Any]] = field(default_factory=HookMap)
+
+    def settings(self, settings: type[S]) -> S:
+        return self.config.get(settings)
+
+    def scoped(self) -> DaemonContext:
+        return dataclasses.replace(self, plugs=Plugs(self.control, self.bus))
+
+    def add_robot_info(self, name: str, supplier: Callable[[], Any]) -> Remove:
+        return self.plugs.add(self.robot_info.add(name, supplier))
+
+
+
+@dataclass(frozen=True)
+class DeviceUse:
+    """A device (``drivers.device_registry.DEVICES``) a component uses, configured by the keys
+    of ``section``. Under ``arbiterd run --sim`` its emulator is started and the options that
+    reach it (a port, an address) are written into that section before the component is built."""
+
+    device: str
+    section: str
+
+
+@dataclass(frozen=True)
+class ComponentSpec:
+    """One row of the component table: a name, the typed settings of the config section it
+    owns (None: it reads only the core sections), the factory that builds it from the
+    context (None when its section disables it), and the devices the configuration makes it
+    use."""
+
+    name: str
+    create: Callable[[DaemonContext], Component | None]
+    settings: type[SectionSettings] | None = None
+    devices: Callable[[Config], Sequence[DeviceUse]] | None = None
+
+    def devices_used(self, config: Config) -> list[DeviceUse]:
+        return list(self.devices(config)) if self.devices is not None else []

@@ -5,45 +5,37 @@ import difflib
 import os
 import tomllib
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from base.config import BUILTIN, Config, ConfigError, SectionSettings
 from base.options import Options, defaults
-from daemon import settings
+from daemon.components import COMPONENTS
+from daemon.control.kinematics import DiffDrive
+from daemon.settings import CORE_SETTINGS, CORE_SETTINGS_LAST, LimitsSettings, RobotSettings
 from drivers import DRIVERS, MotorDriver, create_driver, driver_class
 from drivers.base import renamed_hint
-from sensors.rplidar.settings import LIDAR_OPTIONS
-from sim.settings import SIM_OPTIONS
 
 DEFAULT_PATH = Path("/etc/arbiterd/arbiterd.toml")
-BUILTIN = "<built-in defaults>"
 ENV_PREFIX = "ARBITERD_"
 
-# section => its Options; each component owns its section.
-SECTIONS: dict[str, Options] = {
-    "robot": settings.ROBOT_OPTIONS,
-    "control": settings.CONTROL_OPTIONS,
-    "limits": settings.LIMITS_OPTIONS,
-    "driver": settings.DRIVER_OPTIONS,
-    "lidar": LIDAR_OPTIONS,
-    "collision_monitor": settings.COLLISION_MONITOR_OPTIONS,
-    "autonomy": settings.AUTONOMY_OPTIONS,
-    "http": settings.HTTP_OPTIONS,
-    "rosbridge": settings.ROSBRIDGE_OPTIONS,
-    "record": settings.RECORD_OPTIONS,
-    "security": settings.SECURITY_OPTIONS,
-    "sim": SIM_OPTIONS,
-    "logging": settings.LOGGING_OPTIONS,
-}
+
+def _section_settings() -> dict[str, type[SectionSettings]]:
+    """Section => its typed settings: the core sections, then each component's own."""
+    table = {settings.SECTION: settings for settings in CORE_SETTINGS}
+    for spec in COMPONENTS:
+        if spec.settings is not None:
+            if spec.settings.SECTION in table:
+                raise ValueError(f"[{spec.settings.SECTION}] is declared twice")
+            table[spec.settings.SECTION] = spec.settings
+    table.update((settings.SECTION, settings) for settings in CORE_SETTINGS_LAST)
+    return table
 
 
-class ConfigError(Exception):
-    """One or more configuration problems; each names the file, section and key."""
-
-    def __init__(self, problems: list[str]) -> None:
-        super().__init__("\n".join(problems))
-        self.problems = problems
+#: section => its typed settings class, derived from the component table
+SETTINGS: dict[str, type[SectionSettings]] = _section_settings()
+#: section => its Options
+SECTIONS: dict[str, Options] = {name: settings.OPTIONS for name, settings in SETTINGS.items()}
 
 
 class ConfigUnreadable(ConfigError):
@@ -73,38 +65,14 @@ def _who_may_read(path: Path) -> str:
     return "only root may read it"
 
 
-@dataclass
-class Config:
-    """Validated configuration: every section with every key, defaults filled in."""
-
-    sections: dict[str, dict[str, Any]]
-    source: str = BUILTIN
-    sim: bool = True
-    token: str = ""
-    warnings: list[str] = field(default_factory=list)
-
-    def __getitem__(self, section: str) -> dict[str, Any]:
-        return self.sections[section]
-
-    def driver_options(self, name: str | None = None) -> dict[str, Any]:
-        """The ``[driver.<name>]`` section (default: the configured driver type)."""
-        return self.sections[f"driver.{name or self['driver']['type']}"]
-
-    def as_dict(self) -> dict[str, Any]:
-        return {name: dict(values) for name, values in self.sections.items()}
-
-
 def wheel_speed_clamp(config: Config) -> float:
     """The effective ``[robot] max_wheel_speed``, rad/s: as set, or (0) the fastest wheel speed
     the velocity limits can ask for."""
-    robot, limits = config["robot"], config["limits"]
-    if robot["max_wheel_speed"]:
-        return float(robot["max_wheel_speed"])
-    half_track = robot["wheel_separation"] * robot["wheel_separation_multiplier"] / 2.0
-    radius = robot["wheel_radius"] * min(robot["left_wheel_radius_multiplier"],
-                                         robot["right_wheel_radius_multiplier"])
-    fastest = limits["linear.x.max_velocity"] + limits["angular.z.max_velocity"] * half_track
-    return float(fastest / radius)
+    robot, limits = config.get(RobotSettings), config.get(LimitsSettings)
+    if robot.max_wheel_speed:
+        return robot.max_wheel_speed
+    return DiffDrive.from_settings(robot).max_wheel_speed(limits.linear_x_max_velocity,
+                                                          limits.angular_z_max_velocity)
 
 
 def build_driver(config: Config, name: str | None = None) -> MotorDriver:

@@ -4,21 +4,22 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-from collections.abc import Awaitable, Callable, Mapping
-from typing import Any, Literal
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from typing import Any
 
 from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
 
+from daemon.component import ComponentSpec, DaemonContext, Route
 from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
+from daemon.http_settings import HttpSettings
 from daemon.messages.convert import to_json
 from daemon.security import Security
+from daemon.topics import ACCESS_LEVELS, Access, Topic
 
 log = logging.getLogger("arbiterd.http")
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-Access = Literal["open", "read", "drive"]
-ACCESS_LEVELS: tuple[Access, ...] = ("open", "read", "drive")
 MAX_JSON_DEPTH = 32
 MAX_INT_DIGITS = 64
 READ_CHUNK = 65536
@@ -218,13 +219,13 @@ class HttpServer:
     name = "http"
     core = True
 
-    def __init__(self, options: Mapping[str, Any], security: Security) -> None:
-        self.host = str(options["host"])
-        self.port = int(options["port"])
-        self.max_body_bytes = int(options["max_body_bytes"])
-        self.body_timeout_s = float(options["body_timeout_s"])
-        self.idle_timeout_s = float(options["idle_timeout_s"])
-        self.max_connections = int(options["max_connections"])
+    def __init__(self, options: HttpSettings, security: Security) -> None:
+        self.host = options.host
+        self.port = options.port
+        self.max_body_bytes = options.max_body_bytes
+        self.body_timeout_s = options.body_timeout_s
+        self.idle_timeout_s = options.idle_timeout_s
+        self.max_connections = options.max_connections
         self.guard = Guard(security)
         self.app = web.Application(middlewares=[_errors, self.guard.middleware],
                                    client_max_size=self.max_body_bytes)
@@ -278,6 +279,12 @@ class HttpServer:
         if self._accept_errors is not None:
             self._accept_errors.uninstall()
 
+    def routes(self) -> Sequence[Route]:
+        return ()
+
+    def topics(self) -> Sequence[Topic]:
+        return ()
+
     def health(self) -> dict[str, Any]:
         running = self._runner is not None
         server = self._runner.server if self._runner else None
@@ -285,3 +292,11 @@ class HttpServer:
                 "connections": len(server.connections) if server else 0,
                 "connections_refused": getattr(server, "refused", 0),
                 "accept_errors": self._accept_errors.count if self._accept_errors else 0}
+
+
+def create(ctx: DaemonContext) -> HttpServer | None:
+    """The server every route is added to (built first, started last, stopped first)."""
+    return ctx.http if ctx.settings(HttpSettings).enabled else None
+
+
+COMPONENT = ComponentSpec("http", create, HttpSettings)

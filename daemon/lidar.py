@@ -1,39 +1,44 @@
-# The daemon's "lidar" component: runs the device manager, publishes "scan", serves /api/scan.
+# The daemon's "lidar" component: runs the device manager, publishes /scan, serves /api/scan.
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
+from collections.abc import Sequence
 from typing import Any
 
 from aiohttp import web
 
-from base.options import defaults
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.http_api import ApiError
+from daemon.messages.convert import scan_msg
+from daemon.messages.definitions import LASER_SCAN
+from daemon.telemetry import SCAN
+from daemon.topics import Topic, TopicOut
 from sensors.rplidar.assembler import Revolution, ScanGeometry, to_laser_scan
 from sensors.rplidar.client import open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig, OpenPort
-from sensors.rplidar.settings import LIDAR_OPTIONS
+from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan
 
 log = logging.getLogger(__name__)
 
 
-def manager_config(options: dict[str, Any]) -> ManagerConfig:
+def manager_config(options: LidarSettings) -> ManagerConfig:
     return ManagerConfig(
-        port=options["port"], baudrate=options["baudrate"], scan_mode=options["scan_mode"],
-        motor_pwm=options["motor_pwm"], request_timeout=options["request_timeout_s"],
-        revolution_timeout=options["revolution_timeout_s"],
-        reconnect_max=options["reconnect_max_s"], error_retry=options["error_retry_s"])
+        port=options.port, baudrate=options.baudrate, scan_mode=options.scan_mode,
+        motor_pwm=options.motor_pwm, request_timeout=options.request_timeout_s,
+        revolution_timeout=options.revolution_timeout_s,
+        reconnect_max=options.reconnect_max_s, error_retry=options.error_retry_s)
 
 
-class LidarComponent:
+class LidarComponent(BaseComponent):
     """Non-core: a missing or failing lidar degrades health, it never stops the daemon."""
 
     name = "lidar"
     core = False
 
-    def __init__(self, bus: Any, options: dict[str, Any],
+    def __init__(self, bus: Any, options: LidarSettings,
                  open_port: OpenPort = open_serial) -> None:
         self.bus = bus
         self.options = options
@@ -51,6 +56,12 @@ class LidarComponent:
     def health(self) -> dict[str, Any]:
         return self.manager.snapshot()
 
+    def routes(self) -> Sequence[Route]:
+        return (Route("GET", "/api/scan", self.get_scan, "read"),)
+
+    def topics(self) -> Sequence[Topic]:
+        return (TopicOut("/scan", LASER_SCAN, SCAN, scan_msg, "per revolution"),)
+
     def info(self) -> dict[str, Any]:
         s = self.manager.state
         return {"model": s.model, "firmware": s.firmware, "hardware": s.hardware,
@@ -58,11 +69,11 @@ class LidarComponent:
 
     def geometry(self) -> ScanGeometry:
         plan = self.manager.plan
-        range_max = self.options["range_max"] or (plan.max_distance_m if plan else 0) or 12.0
-        return ScanGeometry(frame_id=self.options["frame_id"], inverted=self.options["inverted"],
-                            angle_offset_deg=self.options["angle_offset_deg"],
-                            bins=self.options["angle_bins"], range_min=self.options["range_min"],
-                            range_max=range_max)
+        o = self.options
+        range_max = o.range_max or (plan.max_distance_m if plan else 0) or 12.0
+        return ScanGeometry(frame_id=o.frame_id, inverted=o.inverted,
+                            angle_offset_deg=o.angle_offset_deg, bins=o.angle_bins,
+                            range_min=o.range_min, range_max=range_max)
 
     def _on_revolution(self, rev: Revolution) -> None:
         """Reader thread: convert here (numpy, off the event loop), hand over to the loop."""
@@ -75,26 +86,22 @@ class LidarComponent:
 
     def _publish(self, scan: LaserScan) -> None:
         self.latest = scan
-        self.bus.publish("scan", scan)
+        self.bus.publish(SCAN, scan)
 
     async def get_scan(self, request: web.Request) -> web.Response:
         if self.latest is None:
-            raise _api_error(404, "no scan yet", self.manager.state.state)
+            raise ApiError(404, "no scan yet", {"lidar_state": self.manager.state.state})
         return web.json_response(self.latest.to_json())
 
 
-def _api_error(status: int, message: str, detail: Any) -> Exception:
-    return ApiError(status, message, {"lidar_state": detail})
-
-
-def create(ctx: Any) -> LidarComponent | None:
+def create(ctx: DaemonContext) -> LidarComponent | None:
     """Build the lidar component from ``[lidar]``; None when disabled."""
-    options = defaults(LIDAR_OPTIONS) | dict(ctx.config["lidar"])
-    if not options["enabled"]:
+    options = ctx.settings(LidarSettings)
+    if not options.enabled:
         return None
     component = LidarComponent(ctx.bus, options)
-    ctx.http.add_route("GET", "/api/scan", component.get_scan, access="read")
-    robot_info = getattr(ctx, "robot_info", None)
-    if isinstance(robot_info, dict):
-        robot_info["lidar"] = component.info
+    ctx.add_robot_info("lidar", component.info)
     return component
+
+
+COMPONENT = ComponentSpec("lidar", create, LidarSettings)

@@ -1,9 +1,10 @@
-# Option tables of the daemon's own config sections ([robot], [control], [limits], [driver], ...).
+# The core config sections ([robot], [control], [limits], [driver], [security], [logging]).
 from __future__ import annotations
 
-import math
-from typing import Any
+from dataclasses import dataclass
+from typing import ClassVar
 
+from base.config import SectionSettings
 from base.options import Option, Options
 from drivers.registry import DRIVERS
 
@@ -89,26 +90,6 @@ DRIVER_OPTIONS: Options = {
     "type": Option(str, "mock", "motor driver", choices=tuple(DRIVERS)),
 }
 
-HTTP_OPTIONS: Options = {
-    "enabled": Option(bool, True, "serve the HTTP API"),
-    "host": Option(str, "0.0.0.0", "HTTP listen address"),
-    "port": Option(int, 8085, "HTTP listen port", minval=1, maxval=65535),
-    "max_body_bytes": Option(int, 65536, "largest accepted request body (after "
-                             "Content-Encoding), bytes; larger gets 413", minval=64,
-                             maxval=16 * 1024 * 1024),
-    "body_timeout_s": Option(float, 10.0, "a request body must arrive within this long, s; "
-                             "slower gets 408", above=0.0, maxval=300.0),
-    "idle_timeout_s": Option(float, 15.0, "close a connection that sends no complete request "
-                             "line and headers for this long after it opened or after the "
-                             "last answer (keep-alive and header-read timeout), s",
-                             above=0.0, maxval=3600.0),
-    "max_connections": Option(int, 256, "most open HTTP connections; one more closes the "
-                              "oldest idle one (keep it well under LimitNOFILE)",
-                              minval=4, maxval=65536),
-    "console": Option(bool, True, "serve the web console at / (its files are open; what moves "
-                      "the robot still needs the token)"),
-}
-
 SECURITY_OPTIONS: Options = {
     "token": Option(str, "", "bearer token required to move the robot ('' = none)"),
     "token_file": Option(str, "", "file holding the token (first line); '' = none"),
@@ -127,129 +108,106 @@ LOGGING_OPTIONS: Options = {
     "timestamps": Option(bool, False, "prefix log lines with a timestamp (journald adds its own)"),
 }
 
-ROSBRIDGE_OPTIONS: Options = {
-    "enabled": Option(bool, True, "serve the rosbridge v2 WebSocket"),
-    "host": Option(str, "0.0.0.0", "rosbridge listen address"),
-    "port": Option(int, 9090, "rosbridge listen port", minval=1, maxval=65535),
-    "max_clients": Option(int, 32, "most simultaneous WebSocket clients", minval=1,
-                          maxval=1024),
-    "reserved_clients": Option(int, 4, "of max_clients, slots only clients with the token may "
-                               "take (when a token is configured)", minval=0, maxval=1024),
-    "max_message_bytes": Option(int, 1048576, "largest accepted incoming message (one frame, "
-                                "or one message joined from fragments), bytes",
-                                minval=1024, maxval=64 * 1048576),
-    "idle_timeout": Option(float, 60.0, "close a connection without the token that has sent "
-                           "nothing and set nothing up (no subscription, topic or service) "
-                           "for this long, s (0 = never)", minval=0.0, maxval=86400.0),
-    "ops_per_second": Option(float, 1000.0, "requests one client may send per second, "
-                             "sustained", above=0.0, maxval=1e9),
-    "ops_burst": Option(int, 2000, "requests one client may send at once above the sustained "
-                        "rate", minval=1, maxval=1_000_000_000),
-    "max_topics_per_client": Option(int, 100, "topics one client may advertise", minval=1,
-                                    maxval=100_000),
-    "max_subscriptions_per_client": Option(int, 256, "subscriptions one client may hold "
-                                           "(each subscribe id counts)", minval=1,
-                                           maxval=100_000),
-    "max_services_per_client": Option(int, 32, "services one client may advertise", minval=1,
-                                      maxval=10_000),
-    "max_pending_calls_per_client": Option(int, 64, "calls of one client waiting for "
-                                           "another client's answer", minval=1,
-                                           maxval=100_000),
-    "call_timeout": Option(float, 30.0, "a call forwarded to a client-provided service fails "
-                           "after this long; also the longest 'timeout' a call may ask for, s",
-                           above=0.0, maxval=3600.0),
-    "max_fragment_sets_per_client": Option(int, 8, "fragmented incoming messages one client "
-                                           "may have unfinished", minval=1, maxval=1024),
-    "max_fragment_bytes_per_client": Option(int, 2 * 1048576, "bytes of unfinished incoming "
-                                            "fragments one client may hold, all sets together "
-                                            "(UTF-8, plus 64 per fragment)", minval=1024,
-                                            maxval=256 * 1048576),
-    "max_fragments_per_message": Option(int, 100_000, "most fragments of one message, "
-                                        "incoming ('total') or outgoing (fragment_size)",
-                                        minval=1, maxval=100_000_000),
-    "max_queue_length": Option(int, 100, "largest queue_length a subscription may ask for",
-                               minval=1, maxval=100_000),
-    "fragments_per_second": Option(float, 20_000.0, "outgoing fragments per second, all clients "
-                                   "together (each costs CPU on the robot's event loop)",
-                                   above=0.0, maxval=1e9),
-}
+
+@dataclass(frozen=True)
+class RobotSettings(SectionSettings):
+    """[robot], typed."""
+
+    SECTION: ClassVar[str] = "robot"
+    OPTIONS: ClassVar[Options] = ROBOT_OPTIONS
+
+    name: str
+    wheel_separation: float
+    wheel_radius: float
+    wheel_separation_multiplier: float
+    left_wheel_radius_multiplier: float
+    right_wheel_radius_multiplier: float
+    max_wheel_speed: float
+    base_frame_id: str
+    odom_frame_id: str
 
 
-def _footprint_check(value: list[Any]) -> str | None:
-    """``[]`` or ``[[x, y], ...]`` with at least 3 corners (each item is checked alone too)."""
-    if value and all(isinstance(item, list) for item in value):
-        if len(value) < 3:
-            return f"a polygon needs at least 3 [x, y] corners, got {len(value)}"
-        return None
-    if len(value) != 2 or not all(isinstance(v, int | float) and not isinstance(v, bool)
-                                  and math.isfinite(v) for v in value):
-        return f"expected a corner [x, y] of two finite numbers, got {value!r}"
-    return None
+@dataclass(frozen=True)
+class ControlSettings(SectionSettings):
+    """[control], typed."""
+
+    SECTION: ClassVar[str] = "control"
+    OPTIONS: ClassVar[Options] = CONTROL_OPTIONS
+
+    update_rate: float
+    cmd_vel_timeout: float
+    open_loop: bool
+    publish_rate: float
+    enable_odom_tf: bool
+    pose_covariance_diagonal: list[float]
+    twist_covariance_diagonal: list[float]
+    stall_stop_s: float
+    late_tick_ms: float
+    reconnect_min_s: float
+    reconnect_max_s: float
+    allow_fault_injection: bool
+    wheel_mismatch_time_s: float
+    wheel_mismatch_tolerance: float
+    wheel_mismatch_min_rad_s: float
+    wheel_mismatch_lag_s: float
 
 
-COLLISION_MONITOR_OPTIONS: Options = {
-    "enabled": Option(bool, True, "keep the robot out of what the lidar sees (acts only when "
-                      "[lidar] is enabled; false disables it, with a warning)"),
-    "footprint_radius": Option(float, 0.2, "radius of the robot's round footprint, m (used "
-                               "when footprint is empty)", above=0.0, maxval=5.0),
-    "footprint": Option(list, [], "polygon footprint [[x, y], ...] in the robot frame, m "
-                        "(x forward, y left; the origin inside); [] = the round footprint",
-                        item=list, check=_footprint_check),
-    "stop_margin_m": Option(float, 0.10, "stop zone: obstacles this close to the footprint "
-                            "stop any motion toward them, m", minval=0.0, maxval=2.0),
-    "slowdown_margin_m": Option(float, 0.35, "slowdown zone: obstacles this close to the "
-                                "footprint slow motion toward them, m", minval=0.0, maxval=5.0),
-    "slowdown_ratio": Option(float, 0.5, "speed factor in the slowdown zone", above=0.0,
-                             maxval=1.0),
-    "time_before_collision_s": Option(float, 1.0, "approach: project the commanded motion "
-                                      "this far ahead and limit speed so the robot can stop "
-                                      "before the stop zone", above=0.0, maxval=10.0),
-    "reaction_time_s": Option(float, 0.1, "approach: delay from a lower target to the wheels "
-                              "slowing (motor and driver response), s; one control period "
-                              "is added", minval=0.0, maxval=2.0),
-    "min_points": Option(int, 1, "lidar points needed inside a zone before it counts (noise "
-                         "filter)", minval=1, maxval=100),
-    "source_timeout_s": Option(float, 0.5, "a scan older than this is stale: stale_action "
-                               "applies, it never counts as no obstacle", above=0.0,
-                               maxval=10.0),
-    "stale_action": Option(str, "stop", "what a stale or missing scan does: stop, or slowdown "
-                           "(slowdown_ratio, still limited by the last scan)",
-                           choices=("stop", "slowdown")),
-}
+@dataclass(frozen=True)
+class LimitsSettings(SectionSettings):
+    """[limits], typed."""
 
-AUTONOMY_OPTIONS: Options = {
-    "mode": Option(str, "off", "behaviour at start: off, or wander (drives by itself)",
-                   choices=("off", "wander")),
-    "cruise_speed": Option(float, 0.6, "wander: forward speed in the open, m/s", above=0.0,
-                           maxval=5.0),
-    "turn_speed": Option(float, 1.5, "wander: turning rate in place, rad/s", above=0.0,
-                         maxval=10.0),
-    "clearance_m": Option(float, 0.25, "wander: distance it keeps from obstacles (beyond the "
-                          "collision monitor's footprint), m", minval=0.0, maxval=3.0),
-    "look_ahead_m": Option(float, 1.6, "wander: free distance ahead at which it starts "
-                           "avoiding, m", above=0.0, maxval=10.0),
-    "decision_rate": Option(float, 10.0, "decisions per second", minval=1.0, maxval=100.0),
-    "seed": Option(int, 0, "seed of the wander heading changes (0 = random)", minval=0),
-}
+    SECTION: ClassVar[str] = "limits"
+    OPTIONS: ClassVar[Options] = LIMITS_OPTIONS
 
-RECORD_COMPRESSIONS = ("zstd", "lz4", "none")
+    linear_x_max_velocity: float
+    linear_x_max_acceleration: float
+    linear_x_max_deceleration: float
+    linear_x_emergency_deceleration: float
+    linear_x_max_jerk: float
+    angular_z_max_velocity: float
+    angular_z_max_acceleration: float
+    angular_z_max_deceleration: float
+    angular_z_emergency_deceleration: float
+    angular_z_max_jerk: float
 
-RECORD_OPTIONS: Options = {
-    "enabled": Option(bool, False, "record /odom, /tf, /scan, commands, latency reports, log "
-                      "lines and health changes to MCAP files (the flight recorder)"),
-    "directory": Option(str, "", "where the MCAP files go; '' = recordings/ in the service's "
-                        "state directory ($STATE_DIRECTORY, /var/lib/arbiterd under systemd), "
-                        "else in ~/.local/state/arbiterd"),
-    "max_file_mb": Option(float, 64.0, "start a new file when the current one reaches this "
-                          "size, MB", minval=1.0, maxval=4096.0),
-    "max_file_s": Option(float, 900.0, "start a new file when the current one covers this "
-                         "long, s", minval=10.0, maxval=86400.0),
-    "max_total_mb": Option(float, 1024.0, "cap on all recordings together: the oldest files "
-                           "are deleted first, MB", minval=2.0, maxval=1048576.0),
-    "compression": Option(str, "zstd", "chunk compression", choices=RECORD_COMPRESSIONS),
-    "flush_interval_s": Option(float, 1.0, "chunks are closed and written at least this "
-                               "often: what a crash or power cut can lose, s",
-                               minval=0.05, maxval=1.0),
-    "queue_size": Option(int, 10000, "messages waiting for the writer thread; when full, "
-                         "new ones are dropped and counted", minval=100, maxval=1000000),
-}
+
+@dataclass(frozen=True)
+class DriverSettings(SectionSettings):
+    """[driver], typed."""
+
+    SECTION: ClassVar[str] = "driver"
+    OPTIONS: ClassVar[Options] = DRIVER_OPTIONS
+
+    type: str
+
+
+@dataclass(frozen=True)
+class SecuritySettings(SectionSettings):
+    """[security], typed."""
+
+    SECTION: ClassVar[str] = "security"
+    OPTIONS: ClassVar[Options] = SECURITY_OPTIONS
+
+    token: str
+    token_file: str
+    allowed_origins: list[str]
+    read_requires_token: bool
+    open_health: bool
+    allowed_hosts: list[str]
+
+
+@dataclass(frozen=True)
+class LoggingSettings(SectionSettings):
+    """[logging], typed."""
+
+    SECTION: ClassVar[str] = "logging"
+    OPTIONS: ClassVar[Options] = LOGGING_OPTIONS
+
+    level: str
+    timestamps: bool
+
+
+#: the sections no component owns (every part of the daemon reads them): these come before
+#: the components' sections in the example config and the docs, and these after them
+CORE_SETTINGS: tuple[type[SectionSettings], ...] = (RobotSettings, LimitsSettings, DriverSettings)
+CORE_SETTINGS_LAST: tuple[type[SectionSettings], ...] = (SecuritySettings, LoggingSettings)

@@ -6,40 +6,51 @@ import logging
 import math
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from aiohttp import web
 
-from daemon.config import Config
-from daemon.http_api import ApiError, HttpServer, json_response, read_json_object
-from daemon.telemetry import OdomSample
+from base.config import Config
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
+from daemon.http_api import ApiError, json_response, read_json_object
+from daemon.messages.convert import odometry_msg
+from daemon.messages.definitions import ODOMETRY
+from daemon.settings import ControlSettings, RobotSettings
+from daemon.telemetry import ODOM_GROUND_TRUTH, OdomSample
+from daemon.topics import Topic, TopicOut
 from sim.motor_model import MotorPair
-from sim.settings import SimConfig
+from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
-from sim.wiring import EMULATORS
+from sim.wiring import DEVICE_EMULATORS, EMULATORS
 from sim.world import Pose
 
 log = logging.getLogger("arbiterd.sim")
 
 
-class SimRuntime:
+class SimRuntime(BaseComponent):
     """Owns the simulated world and the emulator of the chosen ``[sim] driver`` (component
     ``sim``). Built before the driver, so the driver connects to a running emulator."""
 
     name = "sim"
     core = True
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, devices: Sequence[DeviceUse] = ()) -> None:
         self.config = config
+        #: the devices (beside the wheels and the lidar) whose emulators it starts
+        self.devices = list(devices)
+        #: section => the options reaching each device's emulator
+        self.device_options: dict[str, dict[str, Any]] = {}
+        self.settings = config.get(SimSettings)
         self.sim = SimConfig.from_section(config["sim"])
-        self.driver_name: str = config["sim"]["driver"]
+        self.driver_name: str = self.settings.driver
         self.workdir = Path(tempfile.mkdtemp(prefix="arbiterd-sim-"))
-        robot = config["robot"]
+        robot = config.get(RobotSettings)
         self.motors = self._make_motors()
-        self.world = SimWorld(self.sim, wheel_radius=robot["wheel_radius"],
-                              wheel_separation=robot["wheel_separation"], motors=self.motors)
+        self.world = SimWorld(self.sim, wheel_radius=robot.wheel_radius,
+                              wheel_separation=robot.wheel_separation, motors=self.motors)
+        self.bus: Any = None
         self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
         self.driver_options: dict[str, Any] = {}
@@ -61,8 +72,10 @@ class SimRuntime:
             self.sim.miswire)
         self._stops.append(emulated.stop)
         self.driver_options = emulated.options
-        if self.config["sim"]["lidar"]:
+        if self.settings.lidar:
             self._start_lidar()
+        for use in self.devices:
+            self._start_device(use)
         log.info("simulated robot: %s emulator on %s", self.driver_name,
                  self.driver_options or "the mock driver")
 
@@ -72,18 +85,33 @@ class SimRuntime:
 
         lidar = RplidarEmulator(self.workdir / "rplidar", A1, ranges_fn=self.world.scan_ranges,
                                 rotation_hz=self.sim.lidar_rate,
-                                seed=self.config["sim"]["seed"]).start()
+                                seed=self.settings.seed).start()
         self._stops.append(lidar.close)
         self.lidar_options = {"enabled": True, "port": str(lidar.link),
                               "angle_bins": self.sim.lidar_rays,
                               "range_min": self.sim.range_min, "range_max": self.sim.range_max}
 
+    def _start_device(self, use: DeviceUse) -> None:
+        starter = DEVICE_EMULATORS.get(use.device)
+        if starter is None:
+            raise ValueError(f"[{use.section}] device {use.device!r} has no emulator in "
+                             "sim/wiring.py DEVICE_EMULATORS")
+        workdir = self.workdir / use.section
+        workdir.mkdir(exist_ok=True)
+        emulated = starter(workdir, self.config[use.section])
+        self._stops.append(emulated.stop)
+        self.device_options[use.section] = emulated.options
+        log.info("simulated device: %s for [%s] on %s", use.device, use.section,
+                 emulated.options)
+
     def apply_to(self, config: Config) -> None:
         """Point the config's driver (and lidar) at the emulators."""
-        config.sections["driver"]["type"] = self.driver_name
-        config.sections[f"driver.{self.driver_name}"].update(self.driver_options)
+        config.update("driver", {"type": self.driver_name})
+        config.update(f"driver.{self.driver_name}", self.driver_options)
         if self.lidar_options:
-            config.sections["lidar"].update(self.lidar_options)
+            config.update("lidar", self.lidar_options)
+        for section, options in self.device_options.items():
+            config.update(section, options)
 
     def attach(self, driver: Any) -> None:
         """The mock driver has no wire: its commands turn the world's wheels directly."""
@@ -92,11 +120,13 @@ class SimRuntime:
 
     # -- component -----------------------------------------------------------------------
 
-    def register(self, http: HttpServer, bus: Any, status_extras: dict[str, Any]) -> None:
-        self.bus = bus
-        http.add_route("POST", "/api/sim/reset", self._post_reset, access="drive")
-        http.add_route("GET", "/api/sim/metrics", self._get_metrics, access="read")
-        status_extras["ground_truth"] = lambda: self.world.ground_truth().to_json()
+    def routes(self) -> Sequence[Route]:
+        return (Route("POST", "/api/sim/reset", self._post_reset, "drive"),
+                Route("GET", "/api/sim/metrics", self._get_metrics, "read"))
+
+    def topics(self) -> Sequence[Topic]:
+        return (TopicOut("/odom_ground_truth", ODOMETRY, ODOM_GROUND_TRUTH, odometry_msg,
+                         "20 Hz"),)
 
     async def start(self) -> None:
         self._publisher = asyncio.create_task(self._publish_ground_truth(), name="sim-truth")
@@ -115,12 +145,12 @@ class SimRuntime:
                 "lidar": bool(self.lidar_options)}
 
     async def _publish_ground_truth(self) -> None:
-        period = 1.0 / self.config["control"]["publish_rate"]
-        robot = self.config["robot"]
+        period = 1.0 / self.config.get(ControlSettings).publish_rate
+        robot = self.config.get(RobotSettings)
         while True:
             truth = self.world.ground_truth()
-            self.bus.publish("odom_ground_truth", OdomSample(
-                time.time(), robot["odom_frame_id"], robot["base_frame_id"], truth.x, truth.y,
+            self.bus.publish(ODOM_GROUND_TRUTH, OdomSample(
+                time.time(), robot.odom_frame_id, robot.base_frame_id, truth.x, truth.y,
                 truth.theta, truth.v, truth.w))
             await asyncio.sleep(period)
 
@@ -149,3 +179,15 @@ def _parse_pose(body: dict[str, Any]) -> Pose | None:
         values.append(float(value))
     return Pose(*values)
 
+
+def create(ctx: DaemonContext) -> SimRuntime | None:
+    """The simulated world of ``run --sim`` (built before the driver; see :class:`SimRuntime`)."""
+    runtime = ctx.sim
+    if runtime is None:
+        return None
+    runtime.bus = ctx.bus
+    ctx.plugs.add_status("ground_truth", lambda: runtime.world.ground_truth().to_json())
+    return runtime
+
+
+COMPONENT = ComponentSpec("sim", create, SimSettings)

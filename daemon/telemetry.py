@@ -1,8 +1,12 @@
-# Telemetry records the control loop publishes on the bus (odometry, latency reports).
+# The daemon's shared bus keys and the telemetry records that travel on them.
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Any
+
+from daemon.bus import BusKey
+from sensors.scan import LaserScan
 
 
 @dataclass(frozen=True)
@@ -57,3 +61,26 @@ class CommandEvent:
     id: str | int | None = None
     accepted: bool = True
     error: str = ""
+
+
+# -- the keys every part of the daemon shares (a component's own state keys live with it) ------
+
+#: odometry from the control tick, at ``[control] publish_rate``
+ODOM: BusKey[OdomSample] = BusKey("odom")
+#: every motion command as received, and e-stop changes
+COMMAND: BusKey[CommandEvent] = BusKey("command")
+#: one per stamped command, after the driver write
+LATENCY_REPORT: BusKey[LatencyReport] = BusKey("latency_report")
+#: one whole lidar revolution (the lidar component, or the lockstep simulator)
+SCAN: BusKey[LaserScan] = BusKey("scan")
+#: ``/api/health``'s body, once a second
+HEALTH: BusKey[dict[str, Any]] = BusKey("health")
+#: ``/api/health``'s body with its time ``t``, only when a status or problem text changed
+HEALTH_CHANGE: BusKey[dict[str, Any]] = BusKey("health_change")
+#: ``/api/robot_info``'s body, once a second
+ROBOT_INFO: BusKey[dict[str, Any]] = BusKey("robot_info")
+#: the simulated robot's true pose (sim mode only)
+ODOM_GROUND_TRUTH: BusKey[OdomSample] = BusKey("odom_ground_truth")
+#: the daemon's log lines (INFO and up), on the event loop's thread
+LOG_RECORD: BusKey[logging.LogRecord] = BusKey("log")
+

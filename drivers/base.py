@@ -311,22 +311,24 @@ def renamed_hint(key: str) -> str | None:
 
 
 def read_settings(settings: type[S], declared: Options, given: Mapping[str, Any],
-                  name: str) -> S:
+                  name: str, *, section: str | None = None) -> S:
     """The defaults plus ``given``, each key checked against ``declared``, as ``settings``
-    (a dataclass with one field per declared key). A driver may be built without the config
-    loader, so an unknown key or a bad value is a ``ValueError`` naming ``[driver.<name>]``."""
+    (a dataclass with one field per declared key). A driver or device may be built without the
+    config loader, so an unknown key or a bad value is a ``ValueError`` naming its section
+    (``[driver.<name>]`` unless ``section`` says otherwise)."""
+    where = section or f"driver.{name}"
     unknown = sorted(set(given) - set(declared))
     for key in unknown:
         hint = renamed_hint(key)
         if hint:
-            raise ValueError(f"[driver.{name}] {key}: {hint}")
+            raise ValueError(f"[{where}] {key}: {hint}")
     if unknown:
-        raise ValueError(f"[driver.{name}] unknown option(s): {', '.join(unknown)}; "
+        raise ValueError(f"[{where}] unknown option(s): {', '.join(unknown)}; "
                          f"valid: {', '.join(sorted(declared))}")
     values = defaults(declared)
     for key, value in given.items():
         normalised, error = declared[key].validate(value)
         if error:
-            raise ValueError(f"[driver.{name}] {key}: {error}")
+            raise ValueError(f"[{where}] {key}: {error}")
         values[key] = normalised
     return settings(**values)

@@ -64,3 +64,33 @@ def finite_list(values: npt.NDArray[Any]) -> list[float | None]:
         for i in np.flatnonzero(~np.isfinite(as_float)).tolist():
             out[i] = None
     return out
+
+
+class ScanPoints:
+    """LaserScan -> points in the robot frame, through the lidar's mounting pose."""
+
+    def __init__(self, mount_x: float, mount_y: float, mount_yaw_deg: float) -> None:
+        self.x, self.y, self.yaw = mount_x, mount_y, math.radians(mount_yaw_deg)
+        self._key: tuple[float, float, int] | None = None
+        self._cos = self._sin = np.zeros(0)
+        self._last: tuple[LaserScan, tuple[np.ndarray, np.ndarray]] | None = None
+
+    def __call__(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        """The scan's valid returns as (x, y) arrays; the same scan is converted once."""
+        if self._last is not None and self._last[0] is scan:
+            return self._last[1]
+        points = self._convert(scan)
+        self._last = (scan, points)
+        return points
+
+    def _convert(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        ranges = np.asarray(scan.ranges, dtype=np.float64)
+        key = (float(scan.angle_min), float(scan.angle_increment), len(ranges))
+        if key != self._key:
+            angles = scan.angle_min + scan.angle_increment * np.arange(len(ranges)) + self.yaw
+            self._cos, self._sin, self._key = np.cos(angles), np.sin(angles), key
+        valid = np.isfinite(ranges) & (ranges >= scan.range_min)
+        if scan.range_max > 0:
+            valid &= ranges <= scan.range_max
+        r = ranges[valid]
+        return self.x + r * self._cos[valid], self.y + r * self._sin[valid]

@@ -109,10 +109,11 @@ class HBridge:
 
 @dataclass(frozen=True)
 class Wiring:
-    """What is connected to the emulated Pi: two bridges and optional encoders (A, B pins)."""
+    """What is connected to the emulated Pi: two bridges and optional encoders (A, B pins);
+    ``Wiring()`` is a Pi with nothing on its motor pins (servos only)."""
 
-    left: HBridge
-    right: HBridge
+    left: HBridge | None = None
+    right: HBridge | None = None
     left_encoder: tuple[int, int] | None = None
     right_encoder: tuple[int, int] | None = None
 
@@ -562,8 +563,9 @@ class PigpiodEmulator:
     def observed_duties(self) -> tuple[float, float]:
         """Signed duty (-1..1) of each bridge as the pins drive it now."""
         with self.bank.lock:
-            return (self.wiring.left.duty(self.bank.output_level),
-                    self.wiring.right.duty(self.bank.output_level))
+            left, right = (0.0 if bridge is None else bridge.duty(self.bank.output_level)
+                           for bridge in (self.wiring.left, self.wiring.right))
+            return left, right
 
     def emitted_counts(self) -> tuple[int, int]:
         """Encoder edge counts the pins have shown so far (what a perfect listener counted)."""

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
+from base.config import SectionSettings
 from base.options import Option, Options, defaults
 from drivers.registry import DRIVERS
 from sim.motor_model import MISWIRES
@@ -134,3 +135,36 @@ def _check_pairs(values: Mapping[str, Any]) -> None:
                              f"must be <= obstacle_radius_max "
                              f"({values['obstacle_radius_max']})")
 
+
+@dataclass(frozen=True)
+class SimSettings(SectionSettings):
+    """[sim], typed."""
+
+    SECTION: ClassVar[str] = "sim"
+    OPTIONS: ClassVar[Options] = SIM_OPTIONS
+
+    driver: str
+    seed: int
+    world_file: str
+    arena_size: float
+    obstacles: int
+    obstacle_radius_min: float
+    obstacle_radius_max: float
+    start_clearance: float
+    start_pose: list[float]
+    footprint_radius: float
+    physics_rate: float
+    lidar_rate: float
+    lidar_rays: int
+    range_min: float
+    range_max: float
+    noise: bool
+    lidar_noise: float
+    odom_noise: float
+    wheel_slip: float
+    motor_time_constant: float
+    motor_max_speed: float
+    metrics_csv: str
+    metrics_rate: float
+    lidar: bool
+    miswire: list[str]

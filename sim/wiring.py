@@ -140,3 +140,24 @@ EMULATORS: dict[str, EmulatorWiring] = {
     "serial": EmulatorWiring(4096, _start_serial),
     "odrive_can": EmulatorWiring(8192, _start_odrive),
 }
+
+
+# -- devices other than the wheel pair ------------------------------------------------------
+
+#: what starts a device's emulator: a private directory and the device's options
+DeviceStarter = Callable[[Path, Mapping[str, Any]], Emulated]
+
+
+def _start_pigpio_servo(workdir: Path, options: Mapping[str, Any]) -> Emulated:
+    """pigpiod on a loopback port with nothing on its motor pins: the servos' pulses are its
+    pins' state (``bank.pins[gpio].servo_us``)."""
+    from sim.pigpiod_emulator import PigpiodEmulator, Wiring
+
+    pigpiod = PigpiodEmulator(Wiring(), host=LOOPBACK, port=0).start()
+    return Emulated(pigpiod, {"host": LOOPBACK, "port": pigpiod.port}, pigpiod.close)
+
+
+#: device name => the starter of its emulator; one row per name in ``drivers.device_registry``
+DEVICE_EMULATORS: dict[str, DeviceStarter] = {
+    "pigpio_servo": _start_pigpio_servo,
+}

@@ -11,6 +11,7 @@ import aiohttp
 import numpy as np
 import pytest
 
+from daemon.autonomy.component import STATE as AUTONOMY_STATE
 from daemon.autonomy.sectors import Sectors
 from daemon.autonomy.wander import Perception, Wander, WanderSettings
 from daemon.control.commands import Twist
@@ -183,7 +184,7 @@ async def test_estop_stops_wander_and_it_waits_to_be_asked_again(robot: Robot) -
 
 async def test_autonomy_state_is_published_on_change(robot: Robot) -> None:
     states: list[dict[str, Any]] = []
-    robot.ctx.bus.subscribe("autonomy_state", states.append)
+    robot.ctx.bus.subscribe(AUTONOMY_STATE, states.append)
     await request(robot, "POST", "/api/autonomy", {"mode": "wander"})
     await eventually(lambda: any(s["state"] == "CRUISE" for s in states), "a CRUISE state")
     await request(robot, "POST", "/api/autonomy", {"mode": "off"})

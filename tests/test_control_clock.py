@@ -70,8 +70,8 @@ async def test_tick_sources_run_before_the_step_and_commands_are_announced(
     def source(now: float) -> None:
         loop.arbiter.submit("internal", Twist(0.2, 0.0), now, priority=0)
 
-    loop.tick_sources.append(source)
-    loop.on_command.append(seen.append)
+    loop.tick_sources.add(source)
+    loop.on_command.add(seen.append)
     await run_ticks(loop, 0.02)
     assert loop.decision.source == "internal"  # applied in the same tick
     await loop.submit("teleop", Twist(0.1, 0.0), t_recv=loop.clock())

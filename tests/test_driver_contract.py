@@ -100,7 +100,7 @@ angular.z.max_deceleration = 100.0
 angular.z.emergency_deceleration = 100.0
 """)
     config = load_config(toml, env={})
-    config.sections[f"driver.{driver_name}"].update(options)
+    config.update(f"driver.{driver_name}", options)
     return ControlLoop(config, build_driver(config), Bus(), LatencyTracker())
 
 

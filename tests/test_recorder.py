@@ -15,16 +15,23 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from daemon.config import load_config
-from daemon.recorder.channels import bus_channels
+from daemon.messages.convert import odometry_msg, scan_msg, tf_msg
+from daemon.messages.definitions import LASER_SCAN, ODOMETRY, TF_MESSAGE
+from daemon.recorder.channels import channels_by_bus
 from daemon.recorder.files import inspect
 from daemon.recorder.paths import default_directory
 from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
+from daemon.telemetry import ODOM as ODOM_KEY
+from daemon.telemetry import SCAN as SCAN_KEY
 from daemon.telemetry import OdomSample
+from daemon.topics import TopicOut
 from sensors.scan import LaserScan
 from tests.conftest import wait_for
 from tests.daemon_proc import REPO
 
-CHANNELS = bus_channels(sim=False, odom_tf=True)
+CHANNELS = channels_by_bus([TopicOut("/odom", ODOMETRY, ODOM_KEY, odometry_msg, "20 Hz"),
+                            TopicOut("/tf", TF_MESSAGE, ODOM_KEY, tf_msg, "20 Hz"),
+                            TopicOut("/scan", LASER_SCAN, SCAN_KEY, scan_msg, "10 Hz")])
 ODOM = tuple(CHANNELS["odom"])
 SCAN = tuple(CHANNELS["scan"])
 

@@ -49,8 +49,13 @@ def sample_frame(op: str, target: str, rid: str) -> dict[str, Any]:
     return frame
 
 
-def drive_rules() -> list[tuple[str, str]]:
-    return [(op, target) for (op, target), need in TABLE.items() if need == "drive"]
+def drive_rules(robot: Robot) -> list[tuple[str, str]]:
+    """The table's drive rules, and advertising and publishing on every incoming topic the
+    robot's components declare with drive access."""
+    table = [(op, target) for (op, target), need in TABLE.items() if need == "drive"]
+    topics = [(op, topic.name) for topic in robot.ctx.topics.incoming()
+              if topic.access == "drive" for op in ("advertise", "publish")]
+    return table + topics
 
 
 def test_the_table_covers_every_op_the_session_handles() -> None:
@@ -74,9 +79,9 @@ async def no_access_refusals(client: Client) -> list[dict[str, Any]]:
 
 
 async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> None:
-    rules = drive_rules()
-    assert len(rules) >= 6
     async with running_robot(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
+        rules = drive_rules(robot)
+        assert len(rules) >= 13
         async with connect(robot.ws_url) as anonymous:
             for i, (op, target) in enumerate(rules):
                 rid = f"walk-{i}"

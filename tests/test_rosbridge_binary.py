@@ -14,19 +14,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap_ros2._dynamic import generate_dynamic
 
-from daemon.rosbridge import binary, cdr
-from daemon.rosbridge.msgtypes import default_message, full_text, known_types
+from daemon.messages import cbor, cdr, scans
+from daemon.messages.convert import log_msg, odometry_msg, scan_msg, tf_msg
+from daemon.messages.definitions import LASER_SCAN, LOG, ODOMETRY, TF_MESSAGE
+from daemon.messages.msgtypes import default_message, full_text, known_types
+from daemon.rosbridge import binary
 from daemon.rosbridge.outbox import SharedMessage, SubscribeOptions, TopicQueue
-from daemon.rosbridge.topics import (
-    LASER_SCAN,
-    LOG,
-    ODOMETRY,
-    TF_MESSAGE,
-    log_msg,
-    odometry_msg,
-    scan_msg,
-    tf_msg,
-)
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
 from tests.conftest import close_to
@@ -97,7 +90,7 @@ def test_tf_message_round_trips() -> None:
 
 def test_scan_arrays_keep_float32_ranges_and_inf() -> None:
     scan = laser_scan()
-    decoded = decode(LASER_SCAN, cdr.encode(LASER_SCAN, binary.scan_arrays(scan)))
+    decoded = decode(LASER_SCAN, cdr.encode(LASER_SCAN, scans.scan_arrays(scan)))
     assert np.array_equal(np.asarray(decoded.ranges, dtype=np.float32), scan.ranges)
     assert np.isinf(decoded.ranges[0]) and len(decoded.intensities) == 720
     assert close_to(decoded.angle_increment, 2 * math.pi / 720, 1e-7)
@@ -106,7 +99,7 @@ def test_scan_arrays_keep_float32_ranges_and_inf() -> None:
 def test_the_json_shaped_scan_encodes_to_the_same_values() -> None:
     scan = laser_scan(360)
     from_json = decode(LASER_SCAN, cdr.encode(LASER_SCAN, scan_msg(scan)))
-    from_arrays = decode(LASER_SCAN, cdr.encode(LASER_SCAN, binary.scan_arrays(scan)))
+    from_arrays = decode(LASER_SCAN, cdr.encode(LASER_SCAN, scans.scan_arrays(scan)))
     finite = np.isfinite(scan.ranges)
     assert np.allclose(np.asarray(from_json.ranges)[finite], np.asarray(from_arrays.ranges)[finite],
                        atol=1e-4)
@@ -142,21 +135,21 @@ def test_odometry_property(x: float, theta: float, frame: str) -> None:
 
 def test_cbor_values_use_typed_arrays_bytes_and_plain_lists() -> None:
     scan = laser_scan()
-    values = cbor2.loads(binary.cbor_msg(LASER_SCAN, binary.scan_arrays(scan)))
+    values = cbor2.loads(cbor.cbor_msg(LASER_SCAN, scans.scan_arrays(scan)))
     assert values["header"]["stamp"] == {"sec": 1700000001, "nanosec": 500000000}
     tag = values["ranges"]
     assert isinstance(tag, cbor2.CBORTag) and tag.tag == 85
     assert np.array_equal(np.frombuffer(tag.value, "<f4"), scan.ranges)
-    odom = cbor2.loads(binary.cbor_msg(ODOMETRY, odometry_msg(odom_sample())))
+    odom = cbor2.loads(cbor.cbor_msg(ODOMETRY, odometry_msg(odom_sample())))
     assert isinstance(odom["pose"]["covariance"], list) and len(odom["pose"]["covariance"]) == 36
-    raw = cbor2.loads(binary.cbor_msg("std_msgs/msg/UInt8MultiArray", {
+    raw = cbor2.loads(cbor.cbor_msg("std_msgs/msg/UInt8MultiArray", {
         "layout": {"dim": [], "data_offset": 0}, "data": [1, 2, 255]}))
     assert raw["data"] == b"\x01\x02\xff"
 
 
 def test_cbor_values_of_a_json_scan_turn_null_into_nan() -> None:
     scan = laser_scan(10)
-    values = binary.cbor_values(LASER_SCAN, scan_msg(scan))
+    values = cbor.cbor_values(LASER_SCAN, scan_msg(scan))
     ranges = np.frombuffer(values["ranges"].value, "<f4")
     assert np.isnan(ranges[0]) and close_to(float(ranges[1]), float(scan.ranges[1]), 1e-4)
 
@@ -170,7 +163,7 @@ def test_cbor_raw_frame_is_the_rosbridge_publish_op() -> None:
 
 
 def test_cbor_frame_is_the_rosbridge_publish_op() -> None:
-    frame = binary.publish_frame("odom", binary.cbor_msg(ODOMETRY, odometry_msg(odom_sample())))
+    frame = binary.publish_frame("odom", cbor.cbor_msg(ODOMETRY, odometry_msg(odom_sample())))
     body = cbor2.loads(frame)
     assert body["op"] == "publish" and body["topic"] == "odom"
     assert body["msg"]["pose"]["pose"]["position"]["x"] == 1.25
@@ -237,7 +230,7 @@ def test_the_scan_fast_path_writes_what_the_generic_encoder_writes(
         frame_id: str, rays: int, t: float) -> None:
     scan = laser_scan(rays)
     scan.frame_id, scan.stamp = frame_id, t
-    assert binary.scan_cdr(scan) == cdr.encode(LASER_SCAN, binary.scan_arrays(scan))
+    assert scans.scan_cdr(scan) == cdr.encode(LASER_SCAN, scans.scan_arrays(scan))
 
 
 def test_cbor_heads_of_every_width() -> None:

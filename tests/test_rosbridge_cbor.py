@@ -13,8 +13,8 @@ import cbor2
 import numpy as np
 from mcap_ros2._dynamic import generate_dynamic
 
-from daemon.rosbridge.msgtypes import full_text
-from daemon.rosbridge.topics import LASER_SCAN, ODOMETRY
+from daemon.messages.definitions import LASER_SCAN, ODOMETRY
+from daemon.messages.msgtypes import full_text
 from tests.conftest import Robot
 
 TIMEOUT = 10.0

@@ -12,7 +12,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon.rosbridge import msgtypes
+from daemon.messages import msgtypes
+from daemon.messages.convert import odometry_msg, scan_msg
+from daemon.messages.msgtypes import MessageError, check_message, full_text, normalize_type
 from daemon.rosbridge.codec import (
     FRAGMENT_COST,
     Defragmenter,
@@ -25,9 +27,7 @@ from daemon.rosbridge.codec import (
     topic_name,
 )
 from daemon.rosbridge.limits import RateLimitedLog, TokenBucket
-from daemon.rosbridge.msgtypes import MessageError, check_message, full_text, normalize_type
 from daemon.rosbridge.outbox import EVENT_QUEUE, SharedMessage, SubscribeOptions, TopicQueue
-from daemon.rosbridge.topics import odometry_msg, scan_msg
 from daemon.telemetry import OdomSample
 
 

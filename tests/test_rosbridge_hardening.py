@@ -28,6 +28,7 @@ from daemon.rosbridge.limits import Limits, Pacer
 from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.writer import SLICE
+from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 from tests.conftest import Robot, eventually, running_robot
 from tests.test_rosbridge_server import Client, _upgrade_status, connect
@@ -99,7 +100,7 @@ def synthetic_scan(rays: int = 720) -> LaserScan:
 async def scans_at_10_hz(robot: Robot) -> AsyncIterator[None]:
     async def publish() -> None:
         while True:
-            robot.ctx.bus.publish("scan", synthetic_scan())
+            robot.ctx.bus.publish(SCAN, synthetic_scan())
             await asyncio.sleep(0.1)
 
     task = asyncio.create_task(publish())

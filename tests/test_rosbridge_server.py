@@ -14,6 +14,7 @@ from typing import Any
 import aiohttp
 import pytest
 
+from daemon.telemetry import ROBOT_INFO, SCAN
 from tests.conftest import Robot, eventually
 from tests.conftest import running_robot as running_daemon
 
@@ -165,7 +166,7 @@ async def test_estop_topic_latches_and_refuses_commands(robot: Robot) -> None:
 async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> None:
     ticks: list[float] = []
     control = robot.ctx.control
-    control.on_tick.append(lambda now, on_time: ticks.append(now))
+    control.on_tick.add(lambda now, on_time: ticks.append(now))
     drops: list[float] = []  # when the server learned of the disconnect
     drop_source = control.drop_source
 
@@ -224,7 +225,7 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: Robot) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/scan", id="s")
         await client.call("/rosapi/get_time")  # the subscription is in place before publishing
-        robot.ctx.bus.publish("scan", FakeScan())
+        robot.ctx.bus.publish(SCAN, FakeScan())  # type: ignore[arg-type]
         scan = await client.expect(  # not one of the (emulated) lidar's own revolutions
             lambda m: m.get("topic") == "/scan" and
             m["msg"]["header"]["stamp"]["sec"] == int(FakeScan.stamp), what="the fake scan")
@@ -234,7 +235,7 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: Robot) -> None:
 
 
 async def test_robot_info_latest_value_on_subscribe(robot: Robot) -> None:
-    await eventually(lambda: robot.ctx.bus.latest("robot_info"), "a robot_info")
+    await eventually(lambda: robot.ctx.bus.latest(ROBOT_INFO), "a robot_info")
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/robot_info")
         info = await client.op("publish", topic="/robot_info")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from daemon.bench.rosbridge_flood import LoopProbe
+from daemon.telemetry import SCAN
 from tests.conftest import Robot, eventually, running_robot
 from tests.test_rosbridge_hardening import STALL_LIMIT_MS
 from tests.test_rosbridge_server import connect
@@ -75,7 +76,7 @@ class BigScan:
 async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
     count = 0
     while not stop.is_set():
-        robot.ctx.bus.publish("scan", BigScan(time.time()))
+        robot.ctx.bus.publish(SCAN, BigScan(time.time()))  # type: ignore[arg-type]
         count += 1
         await asyncio.sleep(0.1)
     return count

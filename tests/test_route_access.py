@@ -45,12 +45,14 @@ async def status_of(robot: Robot, method: str, path: str, token: str | None = No
 
 
 def test_access_levels_are_checked_at_registration() -> None:
+    from base.options import defaults
     from daemon.http_api import HttpServer
+    from daemon.http_settings import HTTP_OPTIONS, HttpSettings
     from daemon.security import Security
 
-    http = HttpServer({"host": "127.0.0.1", "port": 0, "max_body_bytes": 1024,
-                       "body_timeout_s": 1.0, "idle_timeout_s": 1.0, "max_connections": 8},
-                      Security(""))
+    http = HttpServer(HttpSettings.from_values(defaults(HTTP_OPTIONS) | {
+        "host": "127.0.0.1", "port": 0, "max_body_bytes": 1024, "body_timeout_s": 1.0,
+        "idle_timeout_s": 1.0, "max_connections": 8}), Security(""))
 
     async def handler(request: object) -> object:
         raise AssertionError("never called")

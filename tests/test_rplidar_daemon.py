@@ -13,11 +13,8 @@ import pytest
 from sim.rplidar_emulator import A1, RplidarEmulator
 from tests.daemon_proc import REPO, DaemonProcess, http, wait_for
 
-# Runs `arbiterd run` in-process through daemon.cli.main; registers the lidar component if the
-# daemon's component table does not list it yet (a no-op once it does).
-LAUNCH = ("import sys, daemon.app as app; "
-          "app.COMPONENTS.setdefault('lidar', 'daemon.lidar:create'); "
-          "from daemon.cli import main; sys.exit(main(sys.argv[1:]))")
+# Runs `arbiterd run` through daemon.cli.main in a subprocess of this interpreter.
+LAUNCH = "import sys; from daemon.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
 class LidarDaemon(DaemonProcess):

@@ -10,11 +10,16 @@ from typing import Any
 import numpy as np
 import pytest
 
+from base.config import Config
+from base.options import defaults
 from daemon.bus import Bus
+from daemon.hooks import HookMap
 from daemon.lidar import create
+from daemon.telemetry import SCAN
 from sensors.rplidar.assembler import Revolution
 from sensors.rplidar.client import RplidarClient, open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig
+from sensors.rplidar.settings import LIDAR_OPTIONS, LidarSettings
 from sensors.scan import LaserScan
 from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator
 from tests.conftest import Collector, wait_for
@@ -184,27 +189,27 @@ def test_client_requests_against_the_emulator(tmp_path: Path) -> None:
 # ---------------------------------------------------------------- the daemon component
 
 
-class FakeHttp:
-    def __init__(self) -> None:
-        self.routes: dict[tuple[str, str], Any] = {}
-
-    def add_route(self, method: str, path: str, handler: Any, access: str = "drive") -> None:
-        self.routes[(method, path)] = handler
-
-
 class FakeCtx:
+    """What the lidar component's create() reads from a DaemonContext."""
+
     def __init__(self, port: str, enabled: bool = True) -> None:
-        self.config = {"lidar": {"enabled": enabled, "port": port, "baudrate": 115200,
-                                 "scan_mode": "express", "angle_bins": 360,
-                                 "frame_id": "lidar_link"}}
+        lidar = defaults(LIDAR_OPTIONS) | {"enabled": enabled, "port": port,
+                                          "baudrate": 115200, "scan_mode": "express",
+                                          "angle_bins": 360, "frame_id": "lidar_link"}
+        self.config = Config({"lidar": lidar})
         self.bus = Bus()
-        self.http = FakeHttp()
-        self.robot_info: dict[str, Any] = {}
+        self.robot_info: HookMap[Any] = HookMap()
         self.mode = "sim"
+
+    def settings(self, settings: type[LidarSettings]) -> LidarSettings:
+        return self.config.get(settings)
+
+    def add_robot_info(self, name: str, supplier: Any) -> Any:
+        return self.robot_info.add(name, supplier)
 
 
 def test_create_returns_none_when_disabled() -> None:
-    assert create(FakeCtx("/dev/null", enabled=False)) is None
+    assert create(FakeCtx("/dev/null", enabled=False)) is None  # type: ignore[arg-type]
 
 
 async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None:
@@ -212,9 +217,10 @@ async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None
 
     with RplidarEmulator(tmp_path / "lidar", A1, ranges_fn=lambda a, t: np.full(len(a), 2.0)):
         ctx = FakeCtx(str(tmp_path / "lidar"))
-        component = create(ctx)
+        component = create(ctx)  # type: ignore[arg-type]
         assert component is not None and component.name == "lidar" and not component.core
-        handler = ctx.http.routes[("GET", "/api/scan")]
+        handler = {(r.method, r.path): r.handler for r in component.routes()}[
+            ("GET", "/api/scan")]
         with pytest.raises(ApiError) as err:
             await handler(None)
         assert err.value.status == 404
@@ -226,7 +232,7 @@ async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None
             if len(scans) >= 2:
                 two.set()
 
-        ctx.bus.subscribe("scan", keep)
+        ctx.bus.subscribe(SCAN, keep)
         await component.start()
         try:
             await asyncio.wait_for(two.wait(), 5.0)

@@ -5,7 +5,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from daemon.settings import COLLISION_MONITOR_OPTIONS
+from daemon.safety.settings import COLLISION_MONITOR_OPTIONS
 from tests.conftest import DaemonProcess, wait_for
 from tests.daemon_proc import REPO
 

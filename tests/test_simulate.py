@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from daemon.settings import COLLISION_MONITOR_OPTIONS
+from daemon.safety.settings import COLLISION_MONITOR_OPTIONS
 from tests.daemon_proc import REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"

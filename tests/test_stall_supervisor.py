@@ -146,7 +146,7 @@ async def test_a_blocked_event_loop_cannot_keep_the_robot_driving(tmp_path: Path
         assert control.supervisor.stall_stops == 1 and driver.emergency_stops == 1
 
         ticks: list[float] = []
-        control.on_tick.append(lambda now, on_time: ticks.append(now))
+        control.on_tick.add(lambda now, on_time: ticks.append(now))
         await eventually(lambda: len(ticks) >= 25, "the control tick to run again")
         assert all(still((c.left_rad_s, c.right_rad_s)) for c in driver.commands
                    if c.t_mono >= zeroed.t_mono), "the wheels moved after the stall stop"

@@ -4,27 +4,37 @@ from __future__ import annotations
 import logging
 import math
 import random
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from aiohttp import web
 
+from base.config import Config
 from daemon.autonomy.sectors import Sectors
+from daemon.autonomy.settings import AutonomySettings
 from daemon.autonomy.wander import Perception, Wander, WanderSettings
-from daemon.bus import Bus
-from daemon.config import Config
+from daemon.bus import BusKey
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.control.commands import Twist
-from daemon.control.loop import ControlLoop
 from daemon.http_api import ApiError, json_response, read_json_object
-from daemon.safety.component import ScanPoints, StatePublisher, scan_points, shared_points
-from sensors.scan import LaserScan
+from daemon.messages.convert import json_string_msg
+from daemon.messages.definitions import STRING
+from daemon.safety.component import StatePublisher, scan_points
+from daemon.safety.settings import CollisionMonitorSettings
+from daemon.settings import LimitsSettings
+from daemon.telemetry import SCAN
+from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from sensors.rplidar.settings import LidarSettings
+from sensors.scan import LaserScan, ScanPoints
 
 log = logging.getLogger("arbiterd.autonomy")
 
 SOURCE = "autonomy"
 PRIORITY = 0  # below every client
 MODES = ("off", "wander")
-STATE_TOPIC = "autonomy_state"
+#: the behaviour's state, on change and once a second
+STATE: BusKey[dict[str, Any]] = BusKey("autonomy_state")
 PUBLISH_EVERY_S = 1.0
 SECTORS = 48
 #: the tight corridor is the footprint grown by the stop margin and this much (m)
@@ -34,15 +44,13 @@ SCAN_TIMEOUT_S = 0.5
 
 
 def wander_settings(config: Config) -> WanderSettings:
-    a = config["autonomy"]
-    return WanderSettings(cruise_speed=min(a["cruise_speed"],
-                                           config["limits"]["linear.x.max_velocity"]),
-                          turn_speed=min(a["turn_speed"],
-                                         config["limits"]["angular.z.max_velocity"]),
-                          look_ahead=a["look_ahead_m"])
+    a, limits = config.get(AutonomySettings), config.get(LimitsSettings)
+    return WanderSettings(cruise_speed=min(a.cruise_speed, limits.linear_x_max_velocity),
+                          turn_speed=min(a.turn_speed, limits.angular_z_max_velocity),
+                          look_ahead=a.look_ahead_m)
 
 
-class AutonomyComponent:
+class AutonomyComponent(BaseComponent):
     """Runs :class:`Wander` from the control tick when the mode is ``wander``.
 
     Its commands go through the arbiter (lowest priority) and so through the collision
@@ -55,23 +63,22 @@ class AutonomyComponent:
     name = "autonomy"
     core = False
 
-    def __init__(self, config: Config, control: ControlLoop, bus: Bus,
-                 *, lidar: bool, seed: int | None = None,
+    def __init__(self, config: Config, plugs: Plugs, *, lidar: bool, seed: int | None = None,
                  points: ScanPoints | None = None) -> None:
-        self.control = control
-        self.bus = bus
+        control = self.control = plugs.control
+        self.bus = plugs.bus
         self.lidar = lidar
         self.clock = control.clock
-        cm = config["collision_monitor"]
+        cm = config.get(CollisionMonitorSettings)
         radius = _footprint_reach(cm)
-        autonomy = config["autonomy"]
-        self.sectors = Sectors(SECTORS, radius + autonomy["clearance_m"],
-                               1.5 * autonomy["look_ahead_m"],
-                               tight_width=radius + cm["stop_margin_m"] + TIGHT_EXTRA_M)
+        autonomy = config.get(AutonomySettings)
+        self.sectors = Sectors(SECTORS, radius + autonomy.clearance_m,
+                               1.5 * autonomy.look_ahead_m,
+                               tight_width=radius + cm.stop_margin_m + TIGHT_EXTRA_M)
         self.points = points or scan_points(config)
-        seed = autonomy["seed"] if seed is None else seed
+        seed = autonomy.seed if seed is None else seed
         self.wander = Wander(wander_settings(config), random.Random(seed or None))
-        self.period = 1.0 / autonomy["decision_rate"]
+        self.period = 1.0 / autonomy.decision_rate
         self.mode = "off"
         self.free: np.ndarray | None = None
         self._scan: LaserScan | None = None
@@ -80,12 +87,11 @@ class AutonomyComponent:
         self._invalidations = control.invalidations
         self._latched = False
         self._published_state = ""
-        control.behaviours[SOURCE] = self.request
-        control.tick_sources.append(self._tick)
-        control.on_command.append(self._on_command)
-        self.publisher = StatePublisher(bus, STATE_TOPIC, self.status, control, PUBLISH_EVERY_S)
-        bus.subscribe("scan", self.on_scan)
-        self._initial_mode = autonomy["mode"]
+        plugs.add_tick_source(self._tick)
+        plugs.on_command(self._on_command)
+        self.publisher = StatePublisher(plugs, STATE, self.status, PUBLISH_EVERY_S)
+        plugs.subscribe(SCAN, self.on_scan)
+        self._initial_mode = autonomy.mode
 
     # -- mode ----------------------------------------------------------------------------------
 
@@ -127,6 +133,11 @@ class AutonomyComponent:
         if refusal is None:
             self.set_mode(mode, reason)
         return refusal
+
+    async def on_mode_message(self, message: Inbound) -> Refusal | None:
+        """``/autonomy/mode`` (std_msgs/String): ``wander`` or ``off``."""
+        refusal = self.request(str(message.msg["data"]), message.sender)
+        return None if refusal is None else Refusal(refusal)
 
     def _on_command(self, source: str) -> None:
         if source != SOURCE and self.mode != "off":
@@ -214,6 +225,15 @@ class AutonomyComponent:
 
     # -- component -----------------------------------------------------------------------------
 
+    def routes(self) -> Sequence[Route]:
+        return (Route("GET", "/api/autonomy", self.get_autonomy, "read"),
+                Route("POST", "/api/autonomy", self.post_autonomy, "drive"))
+
+    def topics(self) -> Sequence[Topic]:
+        return (TopicIn("/autonomy/mode", STRING, self.on_mode_message, "drive", moves=True),
+                TopicOut("/autonomy/state", STRING, STATE, json_string_msg,
+                         "on change + 1 Hz"))
+
     async def start(self) -> None:
         if self._initial_mode != "off":
             refusal = self.refusal(self._initial_mode)
@@ -230,17 +250,16 @@ class AutonomyComponent:
         return {"status": "ok", **self.status()}
 
 
-def _footprint_reach(cm: dict[str, Any]) -> float:
-    if cm["footprint"]:
-        return max(math.hypot(x, y) for x, y in cm["footprint"])
-    return float(cm["footprint_radius"])
+def _footprint_reach(cm: CollisionMonitorSettings) -> float:
+    if cm.footprint:
+        return max(math.hypot(x, y) for x, y in cm.footprint)
+    return float(cm.footprint_radius)
 
 
-def create(ctx: Any) -> AutonomyComponent:
+def create(ctx: DaemonContext) -> AutonomyComponent:
     """The autonomy component (always present; ``mode`` off until asked)."""
-    component = AutonomyComponent(ctx.config, ctx.control, ctx.bus,
-                                  lidar=ctx.config["lidar"]["enabled"],
-                                  points=shared_points(ctx))
-    ctx.http.add_route("GET", "/api/autonomy", component.get_autonomy, access="read")
-    ctx.http.add_route("POST", "/api/autonomy", component.post_autonomy, access="drive")
-    return component
+    return AutonomyComponent(ctx.config, ctx.plugs, lidar=ctx.settings(LidarSettings).enabled,
+                             points=ctx.scan_points)
+
+
+COMPONENT = ComponentSpec("autonomy", create, AutonomySettings)

@@ -20,7 +20,7 @@ def run(quick: bool) -> list[BenchResult]:
 
 async def _run(quick: bool) -> list[BenchResult]:
     config = load_config(None, env={})
-    config.sections["driver"]["type"] = "mock"
+    config.update("driver", {"type": "mock"})
     latency = LatencyTracker(window=100000)
     loop = ControlLoop(config, build_driver(config, "mock"), Bus(), latency)
     await loop.start()

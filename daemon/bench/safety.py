@@ -11,6 +11,7 @@ import numpy as np
 
 from daemon.bench import BenchResult
 from daemon.bus import Bus
+from daemon.component import Plugs
 from daemon.config import Config, build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
@@ -18,6 +19,7 @@ from daemon.latency import LatencyTracker, summarize
 from daemon.lockstep.runner import Lockstep
 from daemon.safety.component import SafetyComponent, monitor_settings
 from daemon.safety.monitor import CollisionMonitor
+from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 from sim.raycast import RayCaster, ray_angles
 from sim.settings import SimConfig
@@ -41,7 +43,7 @@ def _simulate_once(seconds: float, seed: int) -> tuple[float, float, float]:
     """Wall and CPU real-time factors of one wander run, and the bare world's factor over
     the same simulated time (the in-run baseline)."""
     config = load_config(None, sim=True, env={})
-    config.sections["sim"]["seed"] = seed
+    config.update("sim", {"seed": seed})
     runner = Lockstep(config, autonomy="wander")
     wall, cpu = time.perf_counter(), time.process_time()
     asyncio.run(runner.run(seconds))
@@ -149,7 +151,7 @@ async def _latency_p99(count: int, *, monitor: bool) -> float:
     bus = Bus()
     loop = ControlLoop(config, build_driver(config, "mock"), bus, latency)
     if monitor:
-        SafetyComponent(config, loop, bus, latency.metrics.registry)
+        SafetyComponent(config, Plugs(loop, bus), latency.metrics.registry)
     await loop.start()
     feeder = asyncio.create_task(_feed_scans(bus))
     try:
@@ -176,7 +178,7 @@ async def _feed_scans(bus: Bus) -> None:
     index = 0
     while True:
         ranges = caster.cast(0.0, 0.0, 0.05 * index).astype(np.float32)
-        bus.publish("scan", LaserScan(stamp=time.time() - 0.1, angle_min=0.0,
+        bus.publish(SCAN, LaserScan(stamp=time.time() - 0.1, angle_min=0.0,
                                       angle_max=step * 359, angle_increment=step,
                                       scan_time=0.1, range_min=0.1, range_max=10.0,
                                       ranges=ranges))

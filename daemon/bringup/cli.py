@@ -16,6 +16,7 @@ from typing import Any
 from daemon.bringup import motors
 from daemon.bringup.motors import NO_HAND_TURN, SIDES
 from daemon.config import Config, ConfigError, build_driver
+from daemon.settings import DriverSettings
 from drivers import DriverError
 from sim.motor_model import MotorPair
 
@@ -105,8 +106,8 @@ def simulated_hardware(config: Config) -> Iterator[MotorPair]:
     workdir = Path(tempfile.mkdtemp(prefix="arbiterd-test-motors-"))
     emulated = wiring.start(pair, workdir, config.driver_options(sim.driver), sim.miswire)
     try:
-        config.sections["driver"]["type"] = sim.driver
-        config.sections[f"driver.{sim.driver}"].update(emulated.options)
+        config.update("driver", {"type": sim.driver})
+        config.update(f"driver.{sim.driver}", emulated.options)
         yield pair
     finally:
         emulated.stop()
@@ -129,7 +130,7 @@ def _observer(config: Config, pair: MotorPair | None) -> motors.Observer:
     if pair is not None:
         return SimObserver(pair)
     if sys.stdin.isatty():
-        return PersonObserver(config["driver"]["type"] not in NO_HAND_TURN)
+        return PersonObserver(config.get(DriverSettings).type not in NO_HAND_TURN)
     return NobodyObserver()
 
 

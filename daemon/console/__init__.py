@@ -3,15 +3,19 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from typing import TYPE_CHECKING
 
 from aiohttp import web
 
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
+from daemon.http_settings import HttpSettings
+from daemon.rosbridge.settings import RosbridgeSettings
+
 if TYPE_CHECKING:
-    from daemon.config import Config
-    from daemon.http_api import Handler, HttpServer
+    from daemon.http_api import Handler
 
 # The console's files (in daemon/console/static/): the page is served at /, every other one at
 # /console/<name>. Nothing else is served: a request names an entry of this table or gets 404,
@@ -102,11 +106,28 @@ class Console:
                 sum(len(f.gzipped) for f in self.files.values()))
 
 
-def register(http: HttpServer, config: Config) -> Console:
-    """Adds the console's two routes (GET, and so HEAD), open to everyone: the page asks for
-    the token itself, and holds nothing secret."""
-    rosbridge = config["rosbridge"]
-    console = Console(rosbridge["port"] if rosbridge["enabled"] else None)
-    for path, handler in console.routes():
-        http.add_route("GET", path, handler, access="open")
-    return console
+class ConsoleComponent(BaseComponent):
+    """The console as a component: two open routes (GET, and so HEAD), nothing to report."""
+
+    name = "console"
+
+    def __init__(self, console: Console) -> None:
+        self.console = console
+
+    def health(self) -> None:
+        return None
+
+    def routes(self) -> Sequence[Route]:
+        return [Route("GET", path, handler, "open") for path, handler in self.console.routes()]
+
+
+def create(ctx: DaemonContext) -> ConsoleComponent | None:
+    """The console, unless ``[http] console = false``. Its routes are open to everyone: the
+    page asks for the token itself, and holds nothing secret."""
+    if not ctx.settings(HttpSettings).console:
+        return None
+    rosbridge = ctx.settings(RosbridgeSettings)
+    return ConsoleComponent(Console(rosbridge.port if rosbridge.enabled else None))
+
+
+COMPONENT = ComponentSpec("console", create)

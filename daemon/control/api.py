@@ -1,42 +1,133 @@
-# HTTP endpoints of the control component: status, cmd_vel, e-stop, and the stall fault hook.
+# The "control" component: the control loop's lifecycle, its HTTP endpoints and its topics.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
+import orjson
 from aiohttp import web
 
-from daemon.control.commands import CommandError, finite_number, parse_twist
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
+from daemon.control.commands import (
+    STAMP_FIELDS,
+    CommandError,
+    Twist,
+    finite_number,
+    parse_stamp,
+    parse_twist,
+)
 from daemon.control.loop import ControlLoop
 from daemon.http_api import ApiError, HttpServer, json_object, json_response
+from daemon.messages.convert import command_msg, latency_msg, odometry_msg, tf_msg
+from daemon.messages.definitions import (
+    BOOL,
+    COMMAND,
+    ODOMETRY,
+    STRING,
+    TF_MESSAGE,
+    TWIST,
+    TWIST_STAMPED,
+)
+from daemon.settings import ControlSettings
+from daemon.telemetry import COMMAND as COMMAND_KEY
+from daemon.telemetry import LATENCY_REPORT, ODOM
+from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 
-STAMP_FIELDS = ("id", "t_sent")
 
+class ControlComponent(BaseComponent):
+    """The control loop as a component (``control``, core): it starts and stops the loop,
+    serves status, cmd_vel and the e-stop over HTTP, and declares the command topics and the
+    odometry it publishes."""
 
-def parse_stamp(body: dict[str, Any], prefix: str = "") -> tuple[str | int | None, float | None]:
-    """The optional ``id`` (string or integer) and ``t_sent`` (client wall clock, ms)."""
-    cmd_id = body.get("id")
-    if cmd_id is not None and (isinstance(cmd_id, bool) or not isinstance(cmd_id, str | int)):
-        raise CommandError(f"{prefix}id: expected a string or integer")
-    t_sent = body.get("t_sent")
-    if t_sent is not None:
-        t_sent = finite_number(t_sent, f"{prefix}t_sent")
-    return cmd_id, t_sent
+    name = "control"
+    core = True
 
-
-class ControlApi:
-    """Registers the control endpoints on the HTTP server."""
-
-    def __init__(self, control: ControlLoop, http: HttpServer,
-                 allow_fault_injection: bool) -> None:
+    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings) -> None:
         self.control = control
+        self.settings = settings
         self.read_json = http.read_json
         self.read_json_body = http.read_json_body
-        http.add_route("GET", "/api/status", self.get_status, access="read")
-        http.add_route("POST", "/api/cmd_vel", self.post_cmd_vel, access="drive")
-        http.add_route("POST", "/api/estop", self.post_estop, access="drive")
-        if allow_fault_injection:
-            http.add_route("POST", "/api/debug/stall", self.post_stall, access="drive")
+
+    async def start(self) -> None:
+        await self.control.start()
+
+    async def stop(self) -> None:
+        await self.control.stop()
+
+    def health(self) -> dict[str, Any]:
+        return self.control.health()
+
+    def routes(self) -> Sequence[Route]:
+        routes = [Route("GET", "/api/status", self.get_status, "read"),
+                  Route("POST", "/api/cmd_vel", self.post_cmd_vel, "drive"),
+                  Route("POST", "/api/estop", self.post_estop, "drive")]
+        if self.settings.allow_fault_injection:
+            routes.append(Route("POST", "/api/debug/stall", self.post_stall, "drive"))
+        return routes
+
+    def topics(self) -> Sequence[Topic]:
+        topics: list[Topic] = [
+            TopicIn("/cmd_vel", TWIST, self.on_cmd_vel, "drive", (TWIST, TWIST_STAMPED),
+                    moves=True),
+            TopicIn("/stamped_cmd_vel", STRING, self.on_stamped_cmd_vel, "drive", moves=True),
+            TopicIn("/estop", BOOL, self.on_estop, "drive", moves=True),
+            TopicOut("/odom", ODOMETRY, ODOM, odometry_msg, "20 Hz"),
+            TopicOut("/latency_reports", STRING, LATENCY_REPORT, latency_msg, "per command",
+                     state=False),
+            TopicOut("/commands", COMMAND, COMMAND_KEY, command_msg, "per command",
+                     bridge=False, state=False),
+        ]
+        if self.settings.enable_odom_tf:
+            topics.append(TopicOut("/tf", TF_MESSAGE, ODOM, tf_msg, "20 Hz"))
+        return topics
+
+    # -- topics ------------------------------------------------------------------------------
+
+    async def on_cmd_vel(self, message: Inbound) -> Refusal | None:
+        """``/cmd_vel``: a Twist, or a TwistStamped."""
+        try:
+            if message.type == TWIST_STAMPED:
+                twist = parse_twist(message.msg["twist"], prefix="twist.")
+            else:
+                twist = parse_twist(message.msg)
+        except CommandError as exc:
+            return Refusal(f"msg.{exc}; not applied")
+        return await self._submit(message, twist)
+
+    async def on_stamped_cmd_vel(self, message: Inbound) -> Refusal | None:
+        """``/stamped_cmd_vel``: a std_msgs/String of JSON ``{linear, angular, id, t_sent}``."""
+        try:
+            try:
+                body = orjson.loads(message.msg["data"])  # refuses NaN, Infinity, overflow
+            except ValueError as exc:
+                raise CommandError(f"data: not a JSON command: {exc}") from None
+            if not isinstance(body, dict):
+                raise CommandError("data: expected a JSON object")
+            twist = parse_twist(body, extra=STAMP_FIELDS, prefix="data.")
+            cmd_id, t_sent = parse_stamp(body, "data.")
+        except CommandError as exc:
+            return Refusal(f"msg.{exc}; not applied")
+        return await self._submit(message, twist, cmd_id, t_sent)
+
+    async def _submit(self, message: Inbound, twist: Twist, cmd_id: str | int | None = None,
+                      t_sent: float | None = None) -> Refusal | None:
+        applied = await self.control.submit(message.source, twist, t_recv=message.t_recv,
+                                            cmd_id=cmd_id, t_sent_ms=t_sent)
+        if applied.accepted:
+            return None
+        return Refusal(f"command refused: {applied.error or 'command not applied'}",
+                       repeats=True)
+
+    async def on_estop(self, message: Inbound) -> Refusal | None:
+        """``/estop``: std_msgs/Bool, true latches, false releases."""
+        if message.msg["data"]:
+            await self.control.engage_estop(message.sender)
+        else:
+            self.control.release_estop()
+        return None
+
+    # -- HTTP --------------------------------------------------------------------------------
 
     async def get_status(self, request: web.Request) -> web.Response:
         return json_response(self.control.status())
@@ -89,3 +180,10 @@ class ControlApi:
             raise ApiError(422, "seconds: must be in (0, 30]")
         time.sleep(seconds)  # noqa: ASYNC251 - the stall is the point
         return json_response({"stalled_s": seconds})
+
+
+def create(ctx: DaemonContext) -> ControlComponent:
+    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings))
+
+
+COMPONENT = ComponentSpec("control", create, ControlSettings)

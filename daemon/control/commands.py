@@ -78,3 +78,18 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
         raise CommandError(f"{prefix}{field}: a differential-drive base cannot move "
                            f"along this axis; must be 0, got {value}")
     return Twist(lx, az)
+
+
+STAMP_FIELDS = ("id", "t_sent")
+
+
+def parse_stamp(body: Mapping[str, Any],
+                prefix: str = "") -> tuple[str | int | None, float | None]:
+    """The optional ``id`` (string or integer) and ``t_sent`` (client wall clock, ms)."""
+    cmd_id = body.get("id")
+    if cmd_id is not None and (isinstance(cmd_id, bool) or not isinstance(cmd_id, str | int)):
+        raise CommandError(f"{prefix}id: expected a string or integer")
+    t_sent = body.get("t_sent")
+    if t_sent is not None:
+        t_sent = finite_number(t_sent, f"{prefix}t_sent")
+    return cmd_id, t_sent

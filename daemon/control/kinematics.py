@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from daemon.settings import RobotSettings
 
 
 @dataclass(frozen=True)
@@ -16,10 +19,10 @@ class DiffDrive:
     right_wheel_radius_multiplier: float = 1.0
 
     @classmethod
-    def from_config(cls, robot: dict[str, Any]) -> DiffDrive:
-        return cls(robot["wheel_separation"], robot["wheel_radius"],
-                   robot["wheel_separation_multiplier"], robot["left_wheel_radius_multiplier"],
-                   robot["right_wheel_radius_multiplier"])
+    def from_settings(cls, robot: RobotSettings) -> DiffDrive:
+        return cls(robot.wheel_separation, robot.wheel_radius,
+                   robot.wheel_separation_multiplier, robot.left_wheel_radius_multiplier,
+                   robot.right_wheel_radius_multiplier)
 
     @property
     def separation(self) -> float:

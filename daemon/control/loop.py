@@ -9,8 +9,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from base.config import Config
 from daemon.bus import Bus
-from daemon.config import Config
 from daemon.control.arbiter import Arbiter, Decision
 from daemon.control.clock import MONOTONIC, Clock
 from daemon.control.commands import Twist
@@ -21,8 +21,10 @@ from daemon.control.metronome import Metronome
 from daemon.control.odometry import Odometry
 from daemon.control.supervisor import StallSupervisor
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
+from daemon.hooks import HookList, HookMap, Remove
 from daemon.latency import LatencyTracker
-from daemon.telemetry import CommandEvent, LatencyReport, OdomSample
+from daemon.settings import ControlSettings, LimitsSettings, RobotSettings
+from daemon.telemetry import COMMAND, LATENCY_REPORT, ODOM, CommandEvent, LatencyReport, OdomSample
 from drivers import DriverError, MotorDriver
 
 log = logging.getLogger("arbiterd.control")
@@ -42,10 +44,14 @@ class Applied:
     guard_action: str | None = None
 
 
-def axis_limits(limits: dict[str, Any], axis: str) -> AxisLimits:
-    return AxisLimits(limits[f"{axis}.max_velocity"], limits[f"{axis}.max_acceleration"],
-                      limits[f"{axis}.max_deceleration"],
-                      limits[f"{axis}.emergency_deceleration"], limits[f"{axis}.max_jerk"])
+def axis_limits(limits: LimitsSettings, axis: str) -> AxisLimits:
+    """The limits of ``linear_x`` or ``angular_z``."""
+    def get(key: str) -> float:
+        value: float = getattr(limits, f"{axis}_{key}")
+        return value
+
+    return AxisLimits(get("max_velocity"), get("max_acceleration"), get("max_deceleration"),
+                      get("emergency_deceleration"), get("max_jerk"))
 
 
 class ControlLoop:
@@ -56,36 +62,37 @@ class ControlLoop:
 
     def __init__(self, config: Config, driver: MotorDriver, bus: Bus,
                  latency: LatencyTracker, clock: Clock = MONOTONIC) -> None:
-        control = config["control"]
+        control = self.settings = config.get(ControlSettings)
+        self.robot = config.get(RobotSettings)
         self.config = config
         #: the one clock of the control code (virtual in ``arbiterd simulate``)
         self.clock = clock
         self.driver = driver
         self.bus = bus
         self.latency = latency
-        self.geometry = DiffDrive.from_config(config["robot"])
-        self.linear = AxisLimiter(axis_limits(config["limits"], "linear.x"))
-        self.angular = AxisLimiter(axis_limits(config["limits"], "angular.z"))
-        self.arbiter = Arbiter(control["cmd_vel_timeout"])
+        self.geometry = DiffDrive.from_settings(self.robot)
+        limits = config.get(LimitsSettings)
+        self.linear = AxisLimiter(axis_limits(limits, "linear_x"))
+        self.angular = AxisLimiter(axis_limits(limits, "angular_z"))
+        self.arbiter = Arbiter(control.cmd_vel_timeout)
         self.odometry = Odometry(self.geometry)
-        self.period_s = 1.0 / control["update_rate"]
-        self.late_s = control["late_tick_ms"] / 1e3
-        self.publish_every = max(1, round(control["update_rate"] / control["publish_rate"]))
-        self.open_loop = control["open_loop"]
-        self.on_tick: list[Callable[[float, bool], None]] = []
+        self.period_s = 1.0 / control.update_rate
+        self.late_s = control.late_tick_ms / 1e3
+        self.publish_every = max(1, round(control.update_rate / control.publish_rate))
+        self.open_loop = control.open_loop
+        #: called with (now, on_time) after every tick
+        self.on_tick: HookList[Callable[[float, bool], None]] = HookList()
         #: called at the start of every tick, before the step (internal command sources)
-        self.tick_sources: list[Callable[[float], None]] = []
+        self.tick_sources: HookList[Callable[[float], None]] = HookList()
         #: called with the source name after every accepted external command
-        self.on_command: list[Callable[[str], None]] = []
+        self.on_command: HookList[Callable[[str], None]] = HookList()
         #: between the arbiter and the limiter for every source (the collision monitor)
         self.guard: MotionGuard | None = None
         self.guard_action: str | None = None
-        #: behaviours a client may switch by name (``autonomy``): (mode, why) -> refusal
-        self.behaviours: dict[str, Callable[[str, str], str | None]] = {}
         #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
         self.invalidations = 0
         #: extra fields of /api/status supplied by other components (the simulator's truth)
-        self.status_extras: dict[str, Callable[[], Any]] = {}
+        self.status_fields: HookMap[Callable[[], Any]] = HookMap()
         self.fault: str | None = None
         self.faults = 0
         self.reconnects = 0
@@ -99,12 +106,24 @@ class ControlLoop:
         self._reconnect_task: asyncio.Task[None] | None = None
         self._metronome: Metronome | None = None
         #: zeroes the wheels from its own thread when the tick stops (the loop is blocked)
-        self.supervisor = StallSupervisor(driver, self._stall_stop_s(control["stall_stop_s"]))
+        self.supervisor = StallSupervisor(driver, self._stall_stop_s(control.stall_stop_s))
         self._ticks = 0
         self._stopping = False
         #: measured wheel speeds, and the stop when they miss the command (a miswired wheel)
         self.wheel_guard = WheelGuard(GuardSettings.from_control(control))
-        self.status_extras["measured_wheel_speeds_rad_s"] = self.wheel_guard.status
+        self.status_fields.add("measured_wheel_speeds_rad_s", self.wheel_guard.status)
+
+    def set_guard(self, guard: MotionGuard) -> Remove:
+        """Put ``guard`` between the arbiter and the limiter; returns what takes it out."""
+        if self.guard is not None:
+            raise ValueError("the control loop already has a guard")
+        self.guard = guard
+
+        def remove() -> None:
+            if self.guard is guard:
+                self.guard, self.guard_action = None, None
+
+        return remove
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -150,7 +169,7 @@ class ControlLoop:
                      priority: int = 10) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
         applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
-        self.bus.publish("command", CommandEvent(
+        self.bus.publish(COMMAND, CommandEvent(
             time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
             applied.accepted, applied.error or ""))
         return applied
@@ -173,7 +192,7 @@ class ControlLoop:
         report = self.latency.record_command(t_recv, t_exec, source=source, cmd_id=cmd_id,
                                              t_sent_ms=t_sent_ms)
         if cmd_id is not None or t_sent_ms is not None:
-            self.bus.publish("latency_report", report)
+            self.bus.publish(LATENCY_REPORT, report)
         return Applied(True, self.decision.source, self.wheels, self.last_clamped, report,
                        guard_action=self.guard_action)
 
@@ -196,7 +215,7 @@ class ControlLoop:
         self.arbiter.engage_estop(reason)
         self.invalidations += 1
         log.warning("e-stop engaged: %s", reason)
-        self.bus.publish("command", CommandEvent(time.time(), reason, "estop"))
+        self.bus.publish(COMMAND, CommandEvent(time.time(), reason, "estop"))
         async with self._lock:
             await self._step(self.clock())
 
@@ -205,7 +224,7 @@ class ControlLoop:
             log.warning("e-stop released; waiting for a fresh command")
         self.arbiter.release_estop()
         self.invalidations += 1
-        self.bus.publish("command", CommandEvent(time.time(), "", "estop_release"))
+        self.bus.publish(COMMAND, CommandEvent(time.time(), "", "estop_release"))
         self.wheel_guard.reset()
 
     # -- tick path -----------------------------------------------------------------------
@@ -246,7 +265,7 @@ class ControlLoop:
             self.guard.observe(now, odo.x, odo.y, odo.theta)
         self._ticks += 1
         if self._ticks % self.publish_every == 0:
-            self.bus.publish("odom", self.odom_sample())
+            self.bus.publish(ODOM, self.odom_sample())
 
     # -- shared step -----------------------------------------------------------------------
 
@@ -365,8 +384,8 @@ class ControlLoop:
             await self._write(0.0, 0.0)
 
     async def _reconnect(self) -> None:
-        control = self.config["control"]
-        delay = control["reconnect_min_s"]
+        control = self.settings
+        delay = control.reconnect_min_s
         while not self._stopping:
             await self.driver.close()
             await asyncio.sleep(delay)
@@ -374,7 +393,7 @@ class ControlLoop:
                 await self.driver.open()
             except DriverError as exc:
                 log.warning("driver reconnect failed: %s; retrying in %.1f s", exc, delay)
-                delay = min(delay * 2, control["reconnect_max_s"])
+                delay = min(delay * 2, control.reconnect_max_s)
                 continue
             self.reconnects += 1
             self.odometry.reset_encoder_reference()
@@ -387,11 +406,11 @@ class ControlLoop:
     # -- reports ---------------------------------------------------------------------------
 
     def odom_sample(self) -> OdomSample:
-        odo, robot, control = self.odometry, self.config["robot"], self.config["control"]
-        return OdomSample(time.time(), robot["odom_frame_id"], robot["base_frame_id"], odo.x,
+        odo, robot, control = self.odometry, self.robot, self.settings
+        return OdomSample(time.time(), robot.odom_frame_id, robot.base_frame_id, odo.x,
                           odo.y, odo.theta, odo.linear, odo.angular,
-                          control["pose_covariance_diagonal"],
-                          control["twist_covariance_diagonal"])
+                          control.pose_covariance_diagonal,
+                          control.twist_covariance_diagonal)
 
     def status(self) -> dict[str, Any]:
         odo = self.odometry
@@ -409,7 +428,7 @@ class ControlLoop:
             "clamps": dict(self.clamps),
             "last_clamped": list(self.last_clamped),
             "fault": self.fault,
-            **{key: supply() for key, supply in self.status_extras.items()},
+            **{key: supply() for key, supply in self.status_fields.items()},
         }
 
     def health(self) -> dict[str, Any]:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers import EncoderReading
+
+if TYPE_CHECKING:
+    from daemon.settings import ControlSettings
 
 SIDES = ("left", "right")
 
@@ -22,9 +25,9 @@ class GuardSettings:
     window_s: float = 0.15  # speeds are measured over this long
 
     @classmethod
-    def from_control(cls, control: dict[str, Any]) -> GuardSettings:
-        return cls(control["wheel_mismatch_time_s"], control["wheel_mismatch_tolerance"],
-                   control["wheel_mismatch_min_rad_s"], control["wheel_mismatch_lag_s"])
+    def from_control(cls, control: ControlSettings) -> GuardSettings:
+        return cls(control.wheel_mismatch_time_s, control.wheel_mismatch_tolerance,
+                   control.wheel_mismatch_min_rad_s, control.wheel_mismatch_lag_s)
 
 
 class WheelGuard:

@@ -9,20 +9,24 @@ from typing import Any
 
 import numpy as np
 
+from base.config import Config
 from daemon.autonomy.component import AutonomyComponent
 from daemon.bus import Bus
-from daemon.config import Config
+from daemon.component import Plugs
+from daemon.config import wheel_speed_clamp
 from daemon.control.clock import VirtualClock
 from daemon.control.commands import Twist
-from daemon.control.kinematics import DiffDrive
 from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
 from daemon.lockstep.script import Step
 from daemon.safety.component import SafetyComponent, scan_points
+from daemon.safety.settings import CollisionMonitorSettings
+from daemon.settings import RobotSettings
+from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 from sim.coverage import Coverage
-from sim.settings import SimConfig
+from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
 
 SCRIPT_SOURCE = "script"
@@ -67,23 +71,21 @@ class Lockstep:
         self._simulated_lidar(config)
         self.clock = VirtualClock()
         sim = SimConfig.from_section(config["sim"])
-        robot = config["robot"]
-        self.world = SimWorld(sim, wheel_radius=robot["wheel_radius"],
-                              wheel_separation=robot["wheel_separation"])
+        robot = config.get(RobotSettings)
+        self.world = SimWorld(sim, wheel_radius=robot.wheel_radius,
+                              wheel_separation=robot.wheel_separation)
         self.bus = Bus()
         self.latency = LatencyTracker(window=1000)
-        limits = config["limits"]
-        max_wheel = robot["max_wheel_speed"] or DiffDrive.from_config(robot).max_wheel_speed(
-            limits["linear.x.max_velocity"], limits["angular.z.max_velocity"])
+        max_wheel = wheel_speed_clamp(config)
         self.driver = WorldDriver(self.world.motors, self.clock, max_wheel_speed=max_wheel)
         self.control = ControlLoop(config, self.driver, self.bus, self.latency, clock=self.clock)
         points = scan_points(config)
-        self.safety = (SafetyComponent(config, self.control, self.bus,
-                                       self.latency.metrics.registry, wall_clock=self.clock,
-                                       points=points)
-                       if config["collision_monitor"]["enabled"] else None)
-        self.autonomy = AutonomyComponent(config, self.control, self.bus, lidar=True,
-                                          seed=sim.seed, points=points)
+        self.plugs = Plugs(self.control, self.bus)
+        self.safety = (SafetyComponent(config, self.plugs, self.latency.metrics.registry,
+                                       wall_clock=self.clock, points=points)
+                       if config.get(CollisionMonitorSettings).enabled else None)
+        self.autonomy = AutonomyComponent(config, self.plugs, lidar=True, seed=sim.seed,
+                                          points=points)
         self.script = list(script)
         self.start_mode = autonomy
         self.sender = Sender()
@@ -97,10 +99,10 @@ class Lockstep:
     @staticmethod
     def _simulated_lidar(config: Config) -> None:
         """The world's lidar sits at the robot's centre and is always there."""
-        sim = config["sim"]
-        config.sections["lidar"].update(enabled=True, mount_x=0.0, mount_y=0.0,
-                                        mount_yaw_deg=0.0, range_min=sim["range_min"],
-                                        range_max=sim["range_max"])
+        sim = config.get(SimSettings)
+        config.update("lidar", {"enabled": True, "mount_x": 0.0, "mount_y": 0.0,
+                                "mount_yaw_deg": 0.0, "range_min": sim.range_min,
+                                "range_max": sim.range_max})
 
     # -- running --------------------------------------------------------------------------------
 
@@ -169,7 +171,7 @@ class Lockstep:
         while feed.pending and feed.pending[0][0] <= t + 1e-9:
             _, scan = feed.pending.pop(0)
             feed.delivered += 1
-            self.bus.publish("scan", scan)
+            self.bus.publish(SCAN, scan)
         if not feed.stalled and t + 1e-9 >= feed.next_cast:
             feed.pending.append((t + feed.period, self._cast(t)))
             feed.next_cast = t + feed.period

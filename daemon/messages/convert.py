@@ -9,7 +9,7 @@ import numpy as np
 import orjson
 
 from daemon.messages.msgtypes import stamp
-from daemon.telemetry import LatencyReport, OdomSample
+from daemon.telemetry import CommandEvent, LatencyReport, OdomSample
 
 
 class ScanLike(Protocol):
@@ -122,3 +122,40 @@ def log_msg(record: logging.LogRecord) -> dict[str, Any]:
             "line": record.lineno}
 
 
+DIAGNOSTIC_LEVELS = {"ok": 0, "degraded": 1, "error": 2}
+
+
+def command_msg(event: CommandEvent) -> dict[str, Any]:
+    zero = {"x": 0.0, "y": 0.0, "z": 0.0}
+    return {"stamp": stamp(event.stamp), "source": event.source, "kind": event.kind,
+            "id": "" if event.id is None else str(event.id),
+            "twist": {"linear": {**zero, "x": event.linear_x},
+                      "angular": {**zero, "z": event.angular_z}},
+            "accepted": event.accepted, "error": event.error}
+
+
+def diagnostics_msg(health: dict[str, Any]) -> dict[str, Any]:
+    """``/api/health`` as a DiagnosticArray: the daemon, then one status per component."""
+    statuses = [_status("arbiterd", health.get("status", "error"),
+                        f"{health.get('state')}, {health.get('mode')} mode, driver "
+                        f"{health.get('driver')}", {})]
+    for name, component in sorted(health.get("components", {}).items()):
+        statuses.append(_status(name, component.get("status", "error"),
+                                problem(component), component))
+    return {"header": header(float(health.get("t", 0.0)), ""), "status": statuses}
+
+
+def problem(component: dict[str, Any]) -> str:
+    """The text that explains a component's status (empty when it is ok)."""
+    for key in ("error", "fault", "message", "problem"):
+        value = component.get(key)
+        if value:
+            return str(value)
+    return ""
+
+
+def _status(name: str, status: str, message: str, values: dict[str, Any]) -> dict[str, Any]:
+    return {"level": DIAGNOSTIC_LEVELS.get(status, 2), "name": name,
+            "message": message or status, "hardware_id": "",
+            "values": [{"key": str(k), "value": str(v)} for k, v in values.items()
+                       if not isinstance(v, dict | list)]}

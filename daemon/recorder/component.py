@@ -6,25 +6,21 @@ import json
 import logging
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from aiohttp import web
 
-from base.options import defaults
 from daemon import __version__
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.http_api import ApiError, json_response, read_json_object
-from daemon.recorder.channels import (
-    ROSOUT,
-    Channel,
-    bus_channels,
-    health_digest,
-    log_record_source,
-)
+from daemon.recorder.channels import Channel, channels_by_bus
 from daemon.recorder.files import RecordingIndex
 from daemon.recorder.paths import record_directory
+from daemon.recorder.settings import RecordSettings
 from daemon.recorder.writer import FlightRecorder, WriterOptions
-from daemon.settings import RECORD_OPTIONS
+from daemon.telemetry import ROBOT_INFO
+from daemon.topics import TopicOut
 
 log = logging.getLogger("arbiterd.recorder")
 
@@ -32,43 +28,47 @@ _NAME = re.compile(r"^arbiterd-[A-Za-z0-9_-]+\.mcap$")
 MB = 1_000_000
 
 
-class RecorderComponent:
-    """Non-core: a recorder that cannot write degrades health; the robot keeps driving."""
+class RecorderComponent(BaseComponent):
+    """Non-core: a recorder that cannot write degrades health; the robot keeps driving.
+
+    It records every topic of the topic table marked ``record``; the channels are registered
+    when it starts, once every component has declared its topics."""
 
     name = "recorder"
     core = False
 
-    def __init__(self, ctx: Any, options: dict[str, Any]) -> None:
+    def __init__(self, ctx: DaemonContext, options: RecordSettings) -> None:
         self.ctx = ctx
         self.bus = ctx.bus
         self.options = options
-        self.directory = record_directory(options)
-        self.channels = bus_channels(sim=ctx.mode == "sim",
-                                     odom_tf=ctx.config["control"]["enable_odom_tf"])
-        all_channels = [c for group in self.channels.values() for c in group] + [ROSOUT]
-        self.recorder = FlightRecorder(self._writer_options(), all_channels,
-                                       self._metadata, self._on_open)
+        self.directory = record_directory({"directory": options.directory})
+        self.recorder = FlightRecorder(self._writer_options(), [], self._metadata,
+                                       self._on_open)
         self.index = RecordingIndex(self.directory, self.recorder.live_file)
         self._unsubscribers: list[Callable[[], None]] = []
-        self._log_handler: RecordLogHandler | None = None
-        self._health: tuple[Any, ...] | None = None
+        self._latched: list[tuple[TopicOut[Any], tuple[Channel, ...]]] = []
 
     def _writer_options(self) -> WriterOptions:
         o = self.options
-        total = int(o["max_total_mb"] * MB)
-        return WriterOptions(self.directory, min(int(o["max_file_mb"] * MB), total // 2),
-                             o["max_file_s"], total, o["compression"], o["flush_interval_s"],
-                             o["queue_size"])
+        total = int(o.max_total_mb * MB)
+        return WriterOptions(self.directory, min(int(o.max_file_mb * MB), total // 2),
+                             o.max_file_s, total, o.compression, o.flush_interval_s,
+                             o.queue_size)
 
     # -- lifecycle --------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        for topic, channels in self.channels.items():
-            handler = self._health_changed if topic == "health" else self._enqueuer(channels)
-            self._unsubscribers.append(self.bus.subscribe(topic, handler))
-        self._log_handler = RecordLogHandler(self.recorder)
-        logging.getLogger().addHandler(self._log_handler)
-        self.recorder.wanted = bool(self.options["enabled"])
+        topics = self.ctx.topics.recorded()
+        groups = channels_by_bus(topics)
+        self.recorder.channels = [c for group in groups.values() for c in group]
+        for topic in topics:
+            group = groups.pop(topic.bus.name, None)
+            if group is None:
+                continue  # the bus key's other topics share this group
+            self._unsubscribers.append(self.bus.subscribe(topic.bus, self._enqueuer(group)))
+            if topic.latched:
+                self._latched.append((topic, group))
+        self.recorder.wanted = bool(self.options.enabled)
         self.recorder.start()
 
     async def stop(self) -> None:
@@ -76,37 +76,34 @@ class RecorderComponent:
             unsubscribe()
         self._unsubscribers.clear()
         await asyncio.to_thread(self.recorder.stop)
-        if self._log_handler is not None:
-            logging.getLogger().removeHandler(self._log_handler)
-            self._log_handler = None
 
     def health(self) -> dict[str, Any]:
         state = self.recorder.snapshot()
         state["status"] = "degraded" if state["error"] else "ok"
         return state
 
+    def routes(self) -> Sequence[Route]:
+        return (Route("POST", "/api/record", self.post_record, "drive"),
+                Route("GET", "/api/recordings", self.get_recordings, "read"),
+                Route("GET", "/api/recordings/{name}", self.get_recording, "read"))
+
     # -- feeding the writer (hot path: enqueue only) ----------------------------------------------
 
-    def _enqueuer(self, channels: list[Channel]) -> Callable[[Any], None]:
-        group = tuple(channels)
+    def _enqueuer(self, channels: tuple[Channel, ...]) -> Callable[[Any], None]:
         enqueue = self.recorder.enqueue
-        return lambda message: enqueue(group, message)
-
-    def _health_changed(self, health: dict[str, Any]) -> None:
-        digest = health_digest(health)
-        if digest != self._health:
-            self._health = digest
-            self.recorder.enqueue(tuple(self.channels["health"]), {"t": time.time(), **health})
+        return lambda message: enqueue(channels, message)
 
     def _on_open(self) -> list[tuple[tuple[Channel, ...], Any]]:
-        """Each new file starts with the current health (writer thread)."""
-        health = self.bus.latest("health")
-        if health is None:
-            return []
-        return [(tuple(self.channels["health"]), {"t": time.time(), **health})]
+        """Each new file starts with the latest message of every latched topic (health)."""
+        out = []
+        for topic, group in self._latched:
+            latest = self.bus.latest(topic.bus)
+            if latest is not None:
+                out.append((group, latest))
+        return out
 
     def _metadata(self) -> dict[str, str]:
-        info = self.bus.latest("robot_info")
+        info = self.bus.latest(ROBOT_INFO)
         return {"version": __version__, "mode": self.ctx.mode,
                 "robot_info": json.dumps(info, default=str) if info is not None else ""}
 
@@ -151,25 +148,9 @@ class RecorderComponent:
             "Content-Disposition": f'attachment; filename="{name}"'})
 
 
-class RecordLogHandler(logging.Handler):
-    """Copies the daemon's log lines (INFO and up) into the recording as /rosout."""
-
-    def __init__(self, recorder: FlightRecorder) -> None:
-        super().__init__(logging.INFO)
-        self.recorder = recorder
-        self.group = (ROSOUT,)
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if self.recorder.wanted:
-            self.recorder.enqueue(self.group, log_record_source(record))
-
-
-def create(ctx: Any) -> RecorderComponent:
+def create(ctx: DaemonContext) -> RecorderComponent:
     """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
-    options = defaults(RECORD_OPTIONS) | dict(ctx.config["record"])
-    component = RecorderComponent(ctx, options)
-    ctx.http.add_route("POST", "/api/record", component.post_record, access="drive")
-    ctx.http.add_route("GET", "/api/recordings", component.get_recordings, access="read")
-    ctx.http.add_route("GET", "/api/recordings/{name}", component.get_recording,
-                       access="read")
-    return component
+    return RecorderComponent(ctx, ctx.settings(RecordSettings))
+
+
+COMPONENT = ComponentSpec("recorder", create, RecordSettings)

@@ -2,13 +2,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 from daemon.rosbridge import rosapi
 from daemon.rosbridge.codec import ProtocolError
-from daemon.rosbridge.topics import COMMAND_TOPICS
-
-Access = Literal["open", "read", "drive"]
+from daemon.topics import Access
 
 ANY = "*"  # every topic or service the table does not name
 
@@ -17,8 +14,6 @@ ANY = "*"  # every topic or service the table does not name
 # when one is configured. (op, canonical topic or service name) -> access; (op, ANY) is the
 # rule for every other name. Ops without a topic or service are looked up as (op, ANY).
 TABLE: dict[tuple[str, str], Access] = {
-    **{("advertise", name): "drive" for name in COMMAND_TOPICS},
-    **{("publish", name): "drive" for name in COMMAND_TOPICS},
     # with a token configured, a tokenless client is read-only: it may not publish on any
     # topic (others use them), advertise topics or services, take a service over, answer
     # calls, or call client-provided services (they may act on the robot)
@@ -61,9 +56,10 @@ def required(op: str, target: str = ANY) -> Access:
     return TABLE.get((op, target)) or TABLE[(op, ANY)]
 
 
-def check(op: str, target: str, authority: Authority) -> None:
-    """The one access check: a ProtocolError when ``authority`` is not enough."""
-    access = required(op, target or ANY)
+def check(op: str, target: str, authority: Authority, declared: Access | None = None) -> None:
+    """The one access check: a ProtocolError when ``authority`` is not enough. ``declared``:
+    what the robot's own incoming topic ``target`` declares for advertising and publishing."""
+    access = declared or required(op, target or ANY)
     if authority.allows(access):
         return
     what = f"{op} {target}" if target and target != ANY else op

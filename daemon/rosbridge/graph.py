@@ -4,14 +4,16 @@ from __future__ import annotations
 import asyncio
 import itertools
 from collections import Counter
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from daemon.bus import BusKey
 from daemon.rosbridge import rosapi
 from daemon.rosbridge.codec import Id
 from daemon.rosbridge.outbox import SharedMessage
-from daemon.rosbridge.topics import RobotTopic
+from daemon.topics import Topic as RobotTopic
+from daemon.topics import TopicIn, TopicOut
 
 DAEMON_NODE = "/arbiterd"
 ROSAPI_NODE = "/rosapi"
@@ -48,15 +50,15 @@ class Topic:
 
     @property
     def robot_out(self) -> bool:
-        return self.robot is not None and self.robot.direction == "out"
+        return isinstance(self.robot, TopicOut)
 
     @property
     def robot_in(self) -> bool:
-        return self.robot is not None and self.robot.direction == "in"
+        return isinstance(self.robot, TopicIn)
 
     def accepts(self, type_name: str) -> bool:
-        if self.robot is not None and self.robot.accepts:
-            return type_name in self.robot.accepts
+        if isinstance(self.robot, TopicIn):
+            return type_name in self.robot.accepted_types()
         return type_name == self.type
 
 
@@ -82,13 +84,12 @@ class PendingCall:
 
 class BridgeGraph:
     """Topics, services and forwarded calls of every client, and the node names rosapi
-    reports. ``latest(bus_topic)`` gives the robot's latest state for a new subscriber.
+    reports. ``latest(bus_key)`` gives the robot's latest state for a new subscriber.
     Every change bumps ``version``; the sorted views rosapi asks for are kept per version."""
 
-    def __init__(self, robot_topics: dict[str, RobotTopic],
-                 latest: Callable[[str], Any] = lambda bus_topic: None) -> None:
-        self.topics: dict[str, Topic] = {
-            name: Topic(name, t.type, t) for name, t in robot_topics.items()}
+    def __init__(self, robot_topics: Iterable[RobotTopic],
+                 latest: Callable[[BusKey[Any]], Any] = lambda key: None) -> None:
+        self.topics: dict[str, Topic] = {t.name: Topic(t.name, t.type, t) for t in robot_topics}
         self.services: dict[str, ProvidedService] = {}
         self.pending: dict[str, PendingCall] = {}
         self.version = 0
@@ -150,7 +151,7 @@ class BridgeGraph:
             peer.deliver(topic.name, topic.latched)
             return
         robot = topic.robot
-        if robot is None or not robot.state or not robot.bus:
+        if not isinstance(robot, TopicOut) or not robot.state:
             return
         latest = self._latest(robot.bus)
         if latest is not None:

@@ -35,6 +35,11 @@ class Limits:
     def from_config(cls, section: Mapping[str, Any]) -> Limits:
         return cls(**{f.name: section[f.name] for f in fields(cls)})
 
+    @classmethod
+    def from_settings(cls, settings: Any) -> Limits:
+        """From the ``[rosbridge]`` settings (the limits are its keys of the same names)."""
+        return cls(**{f.name: getattr(settings, f.name) for f in fields(cls)})
+
     def fragments(self) -> FragmentLimits:
         return FragmentLimits(self.max_message_bytes, self.max_fragment_sets_per_client,
                               self.max_fragment_bytes_per_client,

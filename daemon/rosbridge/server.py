@@ -1,57 +1,55 @@
-# The rosbridge v2 WebSocket component (:9090): admission, bus fan-out, /rosout, services.
+# The rosbridge v2 WebSocket component (:9090): admission, and the topic table over the bus.
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
-import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from aiohttp import WSCloseCode, web
 
-from daemon.messages.convert import log_msg
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.session import ClientSession
-from daemon.rosbridge.topics import robot_topics
-
-if TYPE_CHECKING:
-    from daemon.component import DaemonContext
+from daemon.rosbridge.settings import RosbridgeSettings
+from daemon.topics import TopicOut
 
 log = logging.getLogger("arbiterd.rosbridge")
 
 
 def create(ctx: DaemonContext) -> RosbridgeServer | None:
-    """Component factory (``daemon.app.COMPONENTS``); None when ``[rosbridge] enabled = false``."""
-    if not ctx.config["rosbridge"]["enabled"]:
+    """Component factory; None when ``[rosbridge] enabled = false``."""
+    if not ctx.settings(RosbridgeSettings).enabled:
         return None
     return RosbridgeServer(ctx)
 
 
-class RosbridgeServer:
-    """Serves rosbridge v2 on ``ws://host:port/`` and bridges it to the control loop and bus."""
+class RosbridgeServer(BaseComponent):
+    """Serves rosbridge v2 on ``ws://host:port/``: the topic table's bridged topics (robot
+    topics out from the bus, incoming ones to their handlers) and clients' own topics and
+    services."""
 
     name = "rosbridge"
     core = False
 
     def __init__(self, ctx: DaemonContext) -> None:
-        cfg = ctx.config["rosbridge"]
+        cfg = ctx.settings(RosbridgeSettings)
         self.ctx = ctx
         self.control = ctx.control
         self.security = ctx.security
-        self.host: str = cfg["host"]
-        self.port: int = cfg["port"]
-        self.max_clients: int = cfg["max_clients"]
-        self.reserved_clients: int = cfg["reserved_clients"]
-        self.idle_timeout: float = cfg["idle_timeout"]
-        self.limits = Limits.from_config(cfg)
-        self.graph = BridgeGraph(robot_topics(
-            sim=ctx.mode == "sim", odom_tf=ctx.config["control"]["enable_odom_tf"]),
-            latest=ctx.bus.latest)
+        self.host: str = cfg.host
+        self.port: int = cfg.port
+        self.max_clients: int = cfg.max_clients
+        self.reserved_clients: int = cfg.reserved_clients
+        self.idle_timeout: float = cfg.idle_timeout
+        self.limits = Limits.from_settings(cfg)
+        #: the robot's topics join when it starts (every component has declared its own)
+        self.graph = BridgeGraph((), latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
         self.refused = {"host": 0, "origin": 0, "token": 0, "full": 0, "idle": 0}
         self.connections = 0
@@ -62,11 +60,11 @@ class RosbridgeServer:
         self._runner: web.AppRunner | None = None
         self._sweeper: asyncio.Task[None] | None = None
         self._bus_unsubscribers: list[Callable[[], None]] = []
-        self._log_handler: RosoutHandler | None = None
 
     # -- lifecycle ------------------------------------------------------------------------------
 
     async def start(self) -> None:
+        self.graph = BridgeGraph(self.ctx.topics.bridged(), latest=self.ctx.bus.latest)
         app = web.Application()
         app.router.add_get("/", self._handle)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
@@ -85,8 +83,6 @@ class RosbridgeServer:
         if self.idle_timeout > 0:
             self._sweeper = asyncio.create_task(self._close_idle_forever(),
                                                 name="rosbridge-idle")
-        self._log_handler = RosoutHandler(self, asyncio.get_running_loop())
-        logging.getLogger().addHandler(self._log_handler)
         log.info("rosbridge v2 on ws://%s:%s/", self.host, self.bound_port)
 
     async def stop(self) -> None:
@@ -95,9 +91,6 @@ class RosbridgeServer:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._sweeper
             self._sweeper = None
-        if self._log_handler is not None:
-            logging.getLogger().removeHandler(self._log_handler)
-            self._log_handler = None
         for unsubscribe in self._bus_unsubscribers:
             unsubscribe()
         self._bus_unsubscribers.clear()
@@ -195,12 +188,12 @@ class RosbridgeServer:
     def _wire_bus(self) -> None:
         for topic in self.graph.topics.values():
             robot = topic.robot
-            if robot is not None and robot.direction == "out" and robot.bus:
+            if isinstance(robot, TopicOut):
                 self._bus_unsubscribers.append(
-                    self.ctx.bus.subscribe(robot.bus, self._bus_callback(topic)))
+                    self.ctx.bus.subscribe(robot.bus, self._bus_callback(topic, robot)))
 
-    def _bus_callback(self, topic: Topic) -> Callable[[Any], None]:
-        convert = topic.robot.convert if topic.robot else None
+    def _bus_callback(self, topic: Topic, robot: TopicOut[Any]) -> Callable[[Any], None]:
+        convert = robot.convert
 
         def on_message(message: Any) -> None:  # runs inside the publisher (control tick)
             if topic.subscribers:
@@ -208,26 +201,5 @@ class RosbridgeServer:
 
         return on_message
 
-    def publish_log(self, record: logging.LogRecord) -> None:
-        topic = self.graph.topics.get("/rosout")
-        if topic is not None and topic.subscribers:
-            self.graph.fan_out(topic, SharedMessage(topic.name, log_msg(record)))
 
-
-class RosoutHandler(logging.Handler):
-    """Copies the daemon's log lines (INFO and up) to /rosout subscribers."""
-
-    def __init__(self, server: RosbridgeServer, loop: asyncio.AbstractEventLoop) -> None:
-        super().__init__(logging.INFO)
-        self.server = server
-        self.loop = loop
-        self.thread = threading.get_ident()
-
-    def emit(self, record: logging.LogRecord) -> None:
-        try:
-            if threading.get_ident() == self.thread:
-                self.server.publish_log(record)
-            elif not self.loop.is_closed():
-                self.loop.call_soon_threadsafe(self.server.publish_log, record)
-        except Exception:
-            self.handleError(record)
+COMPONENT = ComponentSpec("rosbridge", create, RosbridgeSettings)

@@ -8,13 +8,9 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import orjson
 from aiohttp import WSCloseCode, WSMsgType, web
 
-from daemon.control.api import STAMP_FIELDS, parse_stamp
-from daemon.control.commands import CommandError, parse_twist
-from daemon.messages.definitions import TWIST, TWIST_STAMPED
-from daemon.messages.msgtypes import MessageError, check_message, has_type, normalize_type
+from daemon.messages.msgtypes import MessageError, check_message, get_type, has_type, normalize_type
 from daemon.rosbridge import access, rosapi
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.codec import (
@@ -44,8 +40,8 @@ from daemon.rosbridge.outbox import (
     SubscribeOptions,
     TopicQueue,
 )
-from daemon.rosbridge.topics import AUTONOMY_MODE, COMMAND_TOPICS
 from daemon.rosbridge.writer import Writer
+from daemon.topics import Inbound, TopicIn, TopicOut
 
 if TYPE_CHECKING:
     from daemon.control.loop import ControlLoop
@@ -223,8 +219,16 @@ class ClientSession:
         key = TARGET_FIELDS.get(op)
         if key is not None:
             request.target, request.spelling = topic_name(frame, key)
-        access.check(op, request.target, self.authority)
+        access.check(op, request.target, self.authority, self._declared_access(request))
         return request
+
+    def _declared_access(self, request: Request) -> access.Access | None:
+        """What the robot's incoming topic declares for publishing to it (None otherwise)."""
+        if request.op not in ("advertise", "publish"):
+            return None
+        topic = self.graph.topic(request.target)
+        robot = topic.robot if topic is not None else None
+        return robot.access if isinstance(robot, TopicIn) else None
 
     # -- replies ----------------------------------------------------------------------------
 
@@ -272,8 +276,12 @@ class ClientSession:
         self.advertised.pop(name, None)
         self.latching.discard(name)
         self.graph.remove_publisher(self, name)
-        if name in COMMAND_TOPICS and not any(t in self.advertised for t in COMMAND_TOPICS):
+        if self._moves(name) and not any(self._moves(t) for t in self.advertised):
             await self.control.drop_source(self.source)
+
+    def _moves(self, name: str) -> bool:
+        topic = self.graph.topic(name)
+        return topic is not None and isinstance(topic.robot, TopicIn) and topic.robot.moves
 
     async def op_publish(self, req: Request) -> None:
         name = req.target
@@ -288,8 +296,8 @@ class ClientSession:
             msg = check_message(type_name, raw)
         except MessageError as exc:
             raise ProtocolError(f"publish {name}: {exc}") from None
-        if topic.robot_in:
-            await self._command(req, type_name, msg)
+        if isinstance(topic.robot, TopicIn):
+            await self._deliver_inbound(req, topic.robot, type_name, msg)
         self.graph.publish(topic, SharedMessage(name, msg), latch=name in self.latching)
 
     def _publish_type(self, req: Request, topic: Topic, raw: Any) -> str:
@@ -301,8 +309,8 @@ class ClientSession:
                                     f"{topic.type}, not {declared}")
         if declared is not None:
             return declared
-        if topic.name == "/cmd_vel" and isinstance(raw, dict) and "twist" in raw:
-            return TWIST_STAMPED
+        if isinstance(topic.robot, TopicIn) and isinstance(raw, dict):
+            return _type_of(raw, topic.robot)
         return topic.type
 
     def _check_not_robot_out(self, req: Request) -> None:
@@ -327,53 +335,19 @@ class ClientSession:
 
     # -- commands -----------------------------------------------------------------------------
 
-    async def _command(self, req: Request, type_name: str, msg: dict[str, Any]) -> None:
-        name = req.target
-        try:
-            if name == "/estop":
-                await self._estop(bool(msg["data"]))
-                return
-            if name == AUTONOMY_MODE:
-                self._behaviour("autonomy", str(msg["data"]))
-                return
-            twist, cmd_id, t_sent = self._parse_command(name, type_name, msg)
-        except CommandError as exc:
-            raise ProtocolError(f"publish {name}: msg.{exc}; not applied") from None
-        applied = await self.control.submit(self.source, twist, t_recv=req.t_recv,
-                                            cmd_id=cmd_id, t_sent_ms=t_sent)
-        if not applied.accepted:
-            reason = applied.error or "command not applied"
-            self._say_once(reason, f"publish {name}: command refused: {reason}", req.id)
-
-    def _parse_command(self, name: str, type_name: str,
-                       msg: dict[str, Any]) -> tuple[Any, Id, float | None]:
-        if name == "/stamped_cmd_vel":
-            try:
-                body = orjson.loads(msg["data"])  # refuses NaN, Infinity, overflow
-            except ValueError as exc:
-                raise CommandError(f"data: not a JSON command: {exc}") from None
-            if not isinstance(body, dict):
-                raise CommandError("data: expected a JSON object")
-            return parse_twist(body, extra=STAMP_FIELDS, prefix="data."), *parse_stamp(
-                body, "data.")
-        if type_name == TWIST_STAMPED:
-            return parse_twist(msg["twist"], prefix="twist."), None, None
-        assert type_name == TWIST
-        return parse_twist(msg), None, None
-
-    async def _estop(self, engage: bool) -> None:
-        if engage:
-            await self.control.engage_estop(f"rosbridge client {self.id} ({self.peer})")
-        else:
-            self.control.release_estop()
-
-    def _behaviour(self, name: str, mode: str) -> None:
-        """Switch a behaviour of the robot (``/autonomy/mode``); a refusal is a status error."""
-        request = self.control.behaviours.get(name)
-        refusal = f"{name} is not available" if request is None else request(
-            mode, f"rosbridge client {self.id}")
-        if refusal:
-            raise ProtocolError(f"publish /{name}/mode: {refusal}")
+    async def _deliver_inbound(self, req: Request, topic: TopicIn, type_name: str,
+                               msg: dict[str, Any]) -> None:
+        """Hand a message for the robot to its owner; a refusal is a status error (one that
+        repeats at command rate is said once a while)."""
+        refusal = await topic.handler(Inbound(
+            req.target, type_name, msg, self.source, f"rosbridge client {self.id} ({self.peer})",
+            req.t_recv))
+        if refusal is None:
+            return
+        message = f"publish {req.target}: {refusal.reason}"
+        if not refusal.repeats:
+            raise ProtocolError(message)
+        self._say_once(refusal.reason, message, req.id)
 
     def _say_once(self, key: str, message: str, rid: Id) -> None:
         """A status error repeated at most every REFUSAL_REPEAT_S per ``key``."""
@@ -404,7 +378,8 @@ class ClientSession:
                              self.limits.max_subscriptions_per_client,
                              "max_subscriptions_per_client")
         if queue is None:
-            state = topic.robot.state if topic is not None and topic.robot is not None else False
+            robot = topic.robot if topic is not None else None
+            state = robot.state if isinstance(robot, TopicOut) else robot is not None
             queue = TopicQueue(name, req.spelling, state,
                                topic.type if topic is not None else type_name)
             self.outbox.add_queue(queue)
@@ -553,3 +528,12 @@ class ClientSession:
         self.advertised.clear()
         self.latching.clear()
         self.graph.forget(self)
+
+
+def _type_of(raw: dict[str, Any], topic: TopicIn) -> str:
+    """The first type the topic accepts whose fields cover the message's (a TwistStamped on
+    /cmd_vel without a declared type); its own type when none does."""
+    for type_name in topic.accepted_types():
+        if set(raw) <= {f.name for f in get_type(type_name).fields}:
+            return type_name
+    return topic.type

@@ -4,20 +4,26 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
-import numpy as np
 from prometheus_client import CollectorRegistry, Counter
 
-from daemon.bus import Bus
-from daemon.config import Config
+from base.config import Config
+from daemon.bus import BusKey
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs
 from daemon.control.clock import Clock
 from daemon.control.guard import Guarded
-from daemon.control.loop import ControlLoop
+from daemon.messages.convert import json_string_msg
+from daemon.messages.definitions import STRING
 from daemon.safety.footprint import Footprint
 from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings
-from sensors.scan import LaserScan
+from daemon.safety.settings import CollisionMonitorSettings
+from daemon.settings import ControlSettings, LimitsSettings
+from daemon.telemetry import SCAN
+from daemon.topics import Topic, TopicOut
+from sensors.rplidar.settings import LidarSettings
+from sensors.scan import LaserScan, ScanPoints
 
 log = logging.getLogger("arbiterd.safety")
 
@@ -25,26 +31,27 @@ log = logging.getLogger("arbiterd.safety")
 HOLD_S = 0.25
 #: the state is published on change and at least this often (s)
 PUBLISH_EVERY_S = 1.0
-STATE_TOPIC = "collision_monitor_state"
+#: the monitor's state, on change and once a second
+STATE: BusKey[dict[str, Any]] = BusKey("collision_monitor_state")
 SEVERE_FIRST = ACTIONS[:0:-1]  # stop, limit, slowdown
 
 
 def monitor_settings(config: Config) -> MonitorSettings:
     """The monitor's settings from ``[collision_monitor]``, ``[limits]`` and ``[control]``."""
-    cm, limits = config["collision_monitor"], config["limits"]
-    footprint = (Footprint.from_points(cm["footprint"]) if cm["footprint"]
-                 else Footprint.circle(cm["footprint_radius"]))
+    cm, limits = config.get(CollisionMonitorSettings), config.get(LimitsSettings)
+    footprint = (Footprint.from_points(cm.footprint) if cm.footprint
+                 else Footprint.circle(cm.footprint_radius))
     return MonitorSettings(
-        footprint=footprint, stop_margin=cm["stop_margin_m"],
-        slowdown_margin=max(cm["slowdown_margin_m"], cm["stop_margin_m"]),
-        slowdown_ratio=cm["slowdown_ratio"],
-        time_before_collision=cm["time_before_collision_s"],
-        reaction_time=cm["reaction_time_s"] + 1.0 / config["control"]["update_rate"],
-        min_points=cm["min_points"], source_timeout=cm["source_timeout_s"],
-        stale_action=cm["stale_action"],
-        linear_deceleration=limits["linear.x.emergency_deceleration"],
-        angular_deceleration=limits["angular.z.emergency_deceleration"],
-        max_linear=limits["linear.x.max_velocity"], max_angular=limits["angular.z.max_velocity"])
+        footprint=footprint, stop_margin=cm.stop_margin_m,
+        slowdown_margin=max(cm.slowdown_margin_m, cm.stop_margin_m),
+        slowdown_ratio=cm.slowdown_ratio,
+        time_before_collision=cm.time_before_collision_s,
+        reaction_time=cm.reaction_time_s + 1.0 / config.get(ControlSettings).update_rate,
+        min_points=cm.min_points, source_timeout=cm.source_timeout_s,
+        stale_action=cm.stale_action,
+        linear_deceleration=limits.linear_x_emergency_deceleration,
+        angular_deceleration=limits.angular_z_emergency_deceleration,
+        max_linear=limits.linear_x_max_velocity, max_angular=limits.angular_z_max_velocity)
 
 
 def horizon_warning(settings: MonitorSettings) -> str | None:
@@ -62,14 +69,14 @@ class StatePublisher:
     """Publishes a component's ``status()`` on the bus: on change (:meth:`publish`) and at least
     every ``every_s`` from the control tick."""
 
-    def __init__(self, bus: Bus, topic: str, status: Callable[[], dict[str, Any]],
-                 control: ControlLoop, every_s: float = PUBLISH_EVERY_S) -> None:
-        self.bus = bus
-        self.topic = topic
+    def __init__(self, plugs: Plugs, key: BusKey[dict[str, Any]],
+                 status: Callable[[], dict[str, Any]], every_s: float = PUBLISH_EVERY_S) -> None:
+        self.bus = plugs.bus
+        self.key = key
         self.status = status
         self.every_s = every_s
         self.last = -math.inf
-        control.on_tick.append(self.on_tick)
+        plugs.on_tick(self.on_tick)
 
     def on_tick(self, now: float, on_time: bool) -> None:
         if now - self.last >= self.every_s:
@@ -77,43 +84,13 @@ class StatePublisher:
 
     def publish(self, now: float) -> None:
         self.last = now
-        self.bus.publish(self.topic, self.status())
-
-
-class ScanPoints:
-    """LaserScan -> points in the robot frame, through the lidar's mounting pose."""
-
-    def __init__(self, mount_x: float, mount_y: float, mount_yaw_deg: float) -> None:
-        self.x, self.y, self.yaw = mount_x, mount_y, math.radians(mount_yaw_deg)
-        self._key: tuple[float, float, int] | None = None
-        self._cos = self._sin = np.zeros(0)
-        self._last: tuple[LaserScan, tuple[np.ndarray, np.ndarray]] | None = None
-
-    def __call__(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
-        """The scan's valid returns as (x, y) arrays; the same scan is converted once."""
-        if self._last is not None and self._last[0] is scan:
-            return self._last[1]
-        points = self._convert(scan)
-        self._last = (scan, points)
-        return points
-
-    def _convert(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
-        ranges = np.asarray(scan.ranges, dtype=np.float64)
-        key = (float(scan.angle_min), float(scan.angle_increment), len(ranges))
-        if key != self._key:
-            angles = scan.angle_min + scan.angle_increment * np.arange(len(ranges)) + self.yaw
-            self._cos, self._sin, self._key = np.cos(angles), np.sin(angles), key
-        valid = np.isfinite(ranges) & (ranges >= scan.range_min)
-        if scan.range_max > 0:
-            valid &= ranges <= scan.range_max
-        r = ranges[valid]
-        return self.x + r * self._cos[valid], self.y + r * self._sin[valid]
+        self.bus.publish(self.key, self.status())
 
 
 def scan_points(config: Config) -> ScanPoints:
     """The scan converter for the ``[lidar]`` mounting pose."""
-    lidar = config["lidar"]
-    return ScanPoints(lidar["mount_x"], lidar["mount_y"], lidar["mount_yaw_deg"])
+    lidar = config.get(LidarSettings)
+    return ScanPoints(lidar.mount_x, lidar.mount_y, lidar.mount_yaw_deg)
 
 
 class SafetyMetrics:
@@ -130,17 +107,17 @@ class SafetyMetrics:
         self.steps_by_action = {a: self.steps.labels(a) for a in ACTIONS if a != "none"}
 
 
-class SafetyComponent:
+class SafetyComponent(BaseComponent):
     """The collision monitor in the daemon: the control loop's guard (component
     ``collision_monitor``, non-core). Reports ``safety`` in ``/api/status``, logs every change
-    of action, counts, and publishes its state on the bus (``collision_monitor_state``)."""
+    of action, counts, and publishes its state on ``/collision_monitor/state``."""
 
     name = "collision_monitor"
     core = False
 
-    def __init__(self, config: Config, control: ControlLoop, bus: Bus,
-                 registry: CollectorRegistry, *, wall_clock: Clock = time.time,
-                 points: ScanPoints | None = None) -> None:
+    def __init__(self, config: Config, plugs: Plugs, registry: CollectorRegistry, *,
+                 wall_clock: Clock = time.time, points: ScanPoints | None = None) -> None:
+        control, bus = plugs.control, plugs.bus
         self.settings = monitor_settings(config)
         self.monitor = CollisionMonitor(self.settings)
         self.points = points or scan_points(config)
@@ -157,10 +134,10 @@ class SafetyComponent:
         self._seen: dict[str, float] = dict.fromkeys(ACTIONS, -math.inf)
         self._last_target = (0.0, 0.0)
         self._last_report = -math.inf
-        control.guard = self
-        control.status_extras["safety"] = self.status
-        self.publisher = StatePublisher(bus, STATE_TOPIC, self.status, control)
-        bus.subscribe("scan", self.on_scan)
+        plugs.set_guard(self)
+        plugs.add_status("safety", self.status)
+        self.publisher = StatePublisher(plugs, STATE, self.status)
+        plugs.subscribe(SCAN, self.on_scan)
 
     # -- the guard -----------------------------------------------------------------------------
 
@@ -224,11 +201,8 @@ class SafetyComponent:
 
     # -- component -----------------------------------------------------------------------------
 
-    async def start(self) -> None:
-        pass
-
-    async def stop(self) -> None:
-        pass
+    def topics(self) -> Sequence[Topic]:
+        return (state_topic(),)
 
     def health(self) -> dict[str, Any]:
         now = self.clock()
@@ -238,33 +212,34 @@ class SafetyComponent:
                 "entries": dict(self.entries)}
 
 
-def shared_points(ctx: Any) -> ScanPoints:
-    """One scan converter per daemon, so each revolution is converted once."""
-    points: ScanPoints = ctx.extras.setdefault("scan_points", scan_points(ctx.config))
-    return points
-
-
 def disabled_status() -> dict[str, Any]:
     return {"enabled": False, "action": "none", "zone": "unknown", "nearest_m": None,
             "scan_age_s": None, "reason": "collision monitor disabled"}
 
 
-def create(ctx: Any) -> SafetyComponent | None:
+def state_topic() -> TopicOut[dict[str, Any]]:
+    return TopicOut("/collision_monitor/state", STRING, STATE, json_string_msg,
+                    "on change + 1 Hz")
+
+
+def create(ctx: DaemonContext) -> SafetyComponent | None:
     """Build the monitor when ``[lidar]`` and ``[collision_monitor]`` are enabled."""
     config = ctx.config
-    if not config["lidar"]["enabled"]:
-        ctx.control.status_extras["safety"] = lambda: {
-            **disabled_status(), "reason": "no lidar: nothing keeps the robot out of obstacles"}
+    if not config.get(LidarSettings).enabled:
+        ctx.plugs.add_status("safety", lambda: {
+            **disabled_status(), "reason": "no lidar: nothing keeps the robot out of obstacles"})
         return None
-    if not config["collision_monitor"]["enabled"]:
+    if not config.get(CollisionMonitorSettings).enabled:
         log.warning("[collision_monitor] enabled = false: the lidar does NOT keep the robot "
                     "out of obstacles")
-        ctx.control.status_extras["safety"] = disabled_status
+        ctx.plugs.add_status("safety", disabled_status)
         return None
-    component = SafetyComponent(config, ctx.control, ctx.bus, ctx.latency.metrics.registry,
-                                points=shared_points(ctx))
+    component = SafetyComponent(config, ctx.plugs, ctx.latency.metrics.registry,
+                                points=ctx.scan_points)
     warning = horizon_warning(component.settings)
     if warning:
         log.warning("%s", warning)
     return component
 
+
+COMPONENT = ComponentSpec("collision_monitor", create, CollisionMonitorSettings)

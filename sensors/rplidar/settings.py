@@ -1,6 +1,10 @@
 # The [lidar] config section: RPLIDAR port, scan mode, geometry of the published scan, recovery.
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
+from base.config import SectionSettings
 from base.options import Option, Options
 
 LIDAR_OPTIONS: Options = {
@@ -36,3 +40,30 @@ LIDAR_OPTIONS: Options = {
     "error_retry_s": Option(float, 30.0, "after a device health error, retry this often",
                             above=0.0),
 }
+
+
+@dataclass(frozen=True)
+class LidarSettings(SectionSettings):
+    """[lidar], typed."""
+
+    SECTION: ClassVar[str] = "lidar"
+    OPTIONS: ClassVar[Options] = LIDAR_OPTIONS
+
+    enabled: bool
+    port: str
+    baudrate: int
+    scan_mode: str
+    frame_id: str
+    inverted: bool
+    angle_offset_deg: float
+    mount_x: float
+    mount_y: float
+    mount_yaw_deg: float
+    angle_bins: int
+    range_min: float
+    range_max: float
+    motor_pwm: int
+    request_timeout_s: float
+    revolution_timeout_s: float
+    reconnect_max_s: float
+    error_retry_s: float

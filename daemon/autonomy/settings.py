@@ -1,0 +1,39 @@
+# [autonomy]: the wander behaviour's speeds, clearances and seed.
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from base.config import SectionSettings
+from base.options import Option, Options
+
+AUTONOMY_OPTIONS: Options = {
+    "mode": Option(str, "off", "behaviour at start: off, or wander (drives by itself)",
+                   choices=("off", "wander")),
+    "cruise_speed": Option(float, 0.6, "wander: forward speed in the open, m/s", above=0.0,
+                           maxval=5.0),
+    "turn_speed": Option(float, 1.5, "wander: turning rate in place, rad/s", above=0.0,
+                         maxval=10.0),
+    "clearance_m": Option(float, 0.25, "wander: distance it keeps from obstacles (beyond the "
+                          "collision monitor's footprint), m", minval=0.0, maxval=3.0),
+    "look_ahead_m": Option(float, 1.6, "wander: free distance ahead at which it starts "
+                           "avoiding, m", above=0.0, maxval=10.0),
+    "decision_rate": Option(float, 10.0, "decisions per second", minval=1.0, maxval=100.0),
+    "seed": Option(int, 0, "seed of the wander heading changes (0 = random)", minval=0),
+}
+
+
+@dataclass(frozen=True)
+class AutonomySettings(SectionSettings):
+    """[autonomy], typed."""
+
+    SECTION: ClassVar[str] = "autonomy"
+    OPTIONS: ClassVar[Options] = AUTONOMY_OPTIONS
+
+    mode: str
+    cruise_speed: float
+    turn_speed: float
+    clearance_m: float
+    look_ahead_m: float
+    decision_rate: float
+    seed: int

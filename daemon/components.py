@@ -1,0 +1,26 @@
+# The component table: every part the daemon assembles, in start order (stopped in reverse).
+from __future__ import annotations
+
+from daemon import console, core_api, http_api, lidar, simulator
+from daemon.autonomy import component as autonomy
+from daemon.component import ComponentSpec
+from daemon.control import api as control
+from daemon.recorder import component as recorder
+from daemon.rosbridge import server as rosbridge
+from daemon.safety import component as collision_monitor
+
+#: Adding a component is one line here (docs/adding-a-component.md). Each row names the
+#: config section it owns; the HTTP server is last so that it starts when everything it
+#: serves is running and stops first.
+COMPONENTS: tuple[ComponentSpec, ...] = (
+    simulator.COMPONENT,
+    control.COMPONENT,
+    lidar.COMPONENT,
+    collision_monitor.COMPONENT,
+    autonomy.COMPONENT,
+    rosbridge.COMPONENT,
+    recorder.COMPONENT,
+    console.COMPONENT,
+    core_api.COMPONENT,
+    http_api.COMPONENT,
+)

@@ -1,0 +1,45 @@
+# [http]: the HTTP server's address, limits and the console switch.
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from base.config import SectionSettings
+from base.options import Option, Options
+
+HTTP_OPTIONS: Options = {
+    "enabled": Option(bool, True, "serve the HTTP API"),
+    "host": Option(str, "0.0.0.0", "HTTP listen address"),
+    "port": Option(int, 8085, "HTTP listen port", minval=1, maxval=65535),
+    "max_body_bytes": Option(int, 65536, "largest accepted request body (after "
+                             "Content-Encoding), bytes; larger gets 413", minval=64,
+                             maxval=16 * 1024 * 1024),
+    "body_timeout_s": Option(float, 10.0, "a request body must arrive within this long, s; "
+                             "slower gets 408", above=0.0, maxval=300.0),
+    "idle_timeout_s": Option(float, 15.0, "close a connection that sends no complete request "
+                             "line and headers for this long after it opened or after the "
+                             "last answer (keep-alive and header-read timeout), s",
+                             above=0.0, maxval=3600.0),
+    "max_connections": Option(int, 256, "most open HTTP connections; one more closes the "
+                              "oldest idle one (keep it well under LimitNOFILE)",
+                              minval=4, maxval=65536),
+    "console": Option(bool, True, "serve the web console at / (its files are open; what moves "
+                      "the robot still needs the token)"),
+}
+
+
+@dataclass(frozen=True)
+class HttpSettings(SectionSettings):
+    """[http], typed."""
+
+    SECTION: ClassVar[str] = "http"
+    OPTIONS: ClassVar[Options] = HTTP_OPTIONS
+
+    enabled: bool
+    host: str
+    port: int
+    max_body_bytes: int
+    body_timeout_s: float
+    idle_timeout_s: float
+    max_connections: int
+    console: bool

@@ -1,0 +1,83 @@
+# [rosbridge]: the WebSocket server's address and every per-client budget.
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from base.config import SectionSettings
+from base.options import Option, Options
+
+ROSBRIDGE_OPTIONS: Options = {
+    "enabled": Option(bool, True, "serve the rosbridge v2 WebSocket"),
+    "host": Option(str, "0.0.0.0", "rosbridge listen address"),
+    "port": Option(int, 9090, "rosbridge listen port", minval=1, maxval=65535),
+    "max_clients": Option(int, 32, "most simultaneous WebSocket clients", minval=1,
+                          maxval=1024),
+    "reserved_clients": Option(int, 4, "of max_clients, slots only clients with the token may "
+                               "take (when a token is configured)", minval=0, maxval=1024),
+    "max_message_bytes": Option(int, 1048576, "largest accepted incoming message (one frame, "
+                                "or one message joined from fragments), bytes",
+                                minval=1024, maxval=64 * 1048576),
+    "idle_timeout": Option(float, 60.0, "close a connection without the token that has sent "
+                           "nothing and set nothing up (no subscription, topic or service) "
+                           "for this long, s (0 = never)", minval=0.0, maxval=86400.0),
+    "ops_per_second": Option(float, 1000.0, "requests one client may send per second, "
+                             "sustained", above=0.0, maxval=1e9),
+    "ops_burst": Option(int, 2000, "requests one client may send at once above the sustained "
+                        "rate", minval=1, maxval=1_000_000_000),
+    "max_topics_per_client": Option(int, 100, "topics one client may advertise", minval=1,
+                                    maxval=100_000),
+    "max_subscriptions_per_client": Option(int, 256, "subscriptions one client may hold "
+                                           "(each subscribe id counts)", minval=1,
+                                           maxval=100_000),
+    "max_services_per_client": Option(int, 32, "services one client may advertise", minval=1,
+                                      maxval=10_000),
+    "max_pending_calls_per_client": Option(int, 64, "calls of one client waiting for "
+                                           "another client's answer", minval=1,
+                                           maxval=100_000),
+    "call_timeout": Option(float, 30.0, "a call forwarded to a client-provided service fails "
+                           "after this long; also the longest 'timeout' a call may ask for, s",
+                           above=0.0, maxval=3600.0),
+    "max_fragment_sets_per_client": Option(int, 8, "fragmented incoming messages one client "
+                                           "may have unfinished", minval=1, maxval=1024),
+    "max_fragment_bytes_per_client": Option(int, 2 * 1048576, "bytes of unfinished incoming "
+                                            "fragments one client may hold, all sets together "
+                                            "(UTF-8, plus 64 per fragment)", minval=1024,
+                                            maxval=256 * 1048576),
+    "max_fragments_per_message": Option(int, 100_000, "most fragments of one message, "
+                                        "incoming ('total') or outgoing (fragment_size)",
+                                        minval=1, maxval=100_000_000),
+    "max_queue_length": Option(int, 100, "largest queue_length a subscription may ask for",
+                               minval=1, maxval=100_000),
+    "fragments_per_second": Option(float, 20_000.0, "outgoing fragments per second, all clients "
+                                   "together (each costs CPU on the robot's event loop)",
+                                   above=0.0, maxval=1e9),
+}
+
+
+@dataclass(frozen=True)
+class RosbridgeSettings(SectionSettings):
+    """[rosbridge], typed."""
+
+    SECTION: ClassVar[str] = "rosbridge"
+    OPTIONS: ClassVar[Options] = ROSBRIDGE_OPTIONS
+
+    enabled: bool
+    host: str
+    port: int
+    max_clients: int
+    reserved_clients: int
+    max_message_bytes: int
+    idle_timeout: float
+    ops_per_second: float
+    ops_burst: int
+    max_topics_per_client: int
+    max_subscriptions_per_client: int
+    max_services_per_client: int
+    max_pending_calls_per_client: int
+    call_timeout: float
+    max_fragment_sets_per_client: int
+    max_fragment_bytes_per_client: int
+    max_fragments_per_message: int
+    max_queue_length: int
+    fragments_per_second: float

@@ -1,0 +1,8 @@
+# The device table: name -> (module, class) of hardware other than the wheel pair. Pure data.
+from __future__ import annotations
+
+# device name => (module, class name); the module is imported only when a component uses it.
+# Each name has an emulator row in sim/wiring.py DEVICE_EMULATORS.
+DEVICES: dict[str, tuple[str, str]] = {
+    "pigpio_servo": ("drivers.pigpio_servo", "PigpioServos"),
+}

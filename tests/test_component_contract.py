@@ -1,0 +1,125 @@
+# One contract over every registered component: its section, routes and topics are documented,
+# its settings match its option table, and what it plugs into the daemon goes when it stops.
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from base.config import SectionSettings, field_name
+from daemon.components import COMPONENTS
+from daemon.config import SETTINGS, all_sections
+from daemon.topics import TopicIn, TopicOut
+from tests.conftest import Robot, running_robot
+
+REPO = Path(__file__).resolve().parent.parent
+DOCS = REPO / "docs"
+#: what turns every optional part on: the fault-injection route and the odometry transform
+EVERYTHING = "[control]\nallow_fault_injection = true\nenable_odom_tf = true\n"
+
+
+def doc(name: str) -> str:
+    return (DOCS / name).read_text(encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def declared(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """What each component of a simulated daemon with everything on declared."""
+    import asyncio
+
+    async def collect() -> dict[str, Any]:
+        async with running_robot(tmp_path_factory.mktemp("everything"), EVERYTHING) as robot:
+            return _declarations(robot)
+
+    return asyncio.run(collect())
+
+
+def _declarations(robot: Robot) -> dict[str, Any]:
+    return {c.name: {"routes": list(c.routes()), "topics": list(c.topics())}
+            for c in robot.daemon.components}
+
+
+def test_every_row_of_the_table_builds_a_component_of_its_name(declared: dict[str, Any]) -> None:
+    assert [spec.name for spec in COMPONENTS] == list(declared)
+
+
+@pytest.mark.parametrize("spec", COMPONENTS, ids=lambda s: s.name)
+def test_its_section_is_documented_and_in_the_example_config(spec: Any) -> None:
+    if spec.settings is None:
+        pytest.skip(f"{spec.name} reads only the core sections")
+    section = spec.settings.SECTION
+    assert f"`[{section}]`" in doc("configuration.md"), f"[{section}] in docs/configuration.md"
+    example = (REPO / "systemd" / "arbiterd.toml.example").read_text()
+    assert re.search(rf"^#? ?\[{re.escape(section)}\]$", example, re.M), section
+
+
+@pytest.mark.parametrize("spec", COMPONENTS, ids=lambda s: s.name)
+def test_its_routes_are_in_the_http_api_docs_with_their_access(
+        spec: Any, declared: dict[str, Any]) -> None:
+    text = doc("http-api.md")
+    for route in declared[spec.name]["routes"]:
+        row = f"| `{route.method} {route.path}` | {route.access} |"
+        assert row in text, f"docs/http-api.md lacks the row {row!r} ({spec.name})"
+
+
+@pytest.mark.parametrize("spec", COMPONENTS, ids=lambda s: s.name)
+def test_its_topics_are_in_the_rosbridge_and_recorder_docs(
+        spec: Any, declared: dict[str, Any]) -> None:
+    rosbridge, foxglove = doc("rosbridge.md"), doc("foxglove.md")
+    for topic in declared[spec.name]["topics"]:
+        if isinstance(topic, TopicIn) or topic.bridge:
+            assert re.search(rf"^\| `{re.escape(topic.name)}` \| `{re.escape(topic.type)}`",
+                             rosbridge, re.M), f"docs/rosbridge.md: {topic.name}"
+        if isinstance(topic, TopicOut) and topic.record:
+            assert re.search(rf"^\|[^|\n]*`{re.escape(topic.name)}`[^|\n]*\|[^|\n]*"
+                             rf"`{re.escape(topic.type)}`", foxglove, re.M), \
+                f"docs/foxglove.md, recorded channels: {topic.name}"
+
+
+def test_one_owner_per_topic_and_an_accepting_type_for_each_incoming_one(
+        declared: dict[str, Any]) -> None:
+    names = [t.name for d in declared.values() for t in d["topics"]]
+    assert len(names) == len(set(names))
+    for d in declared.values():
+        for topic in d["topics"]:
+            if isinstance(topic, TopicIn):
+                assert topic.type in topic.accepted_types()
+
+
+@pytest.mark.parametrize("section", list(SETTINGS))
+def test_each_sections_settings_match_its_option_table(section: str) -> None:
+    settings: type[SectionSettings] = SETTINGS[section]
+    fields = {f.name: f.type for f in dataclasses.fields(settings)}
+    keys = {field_name(key): option for key, option in settings.OPTIONS.items()}
+    assert set(fields) == set(keys), section
+    for name, option in keys.items():
+        kind = str(fields[name])
+        assert kind.startswith(option.kind.__name__), (section, name, kind, option.kind)
+    assert section == settings.SECTION
+    assert dataclasses.is_dataclass(settings) and settings.__dataclass_params__.frozen  # type: ignore[attr-defined]
+
+
+def test_every_section_but_the_drivers_has_typed_settings() -> None:
+    assert [s for s in all_sections() if not s.startswith("driver.")] == list(SETTINGS)
+
+
+async def test_what_a_component_plugs_in_goes_when_the_daemon_stops(tmp_path: Path) -> None:
+    async with running_robot(tmp_path) as robot:
+        control, bus = robot.ctx.control, robot.ctx.bus
+        assert len(control.on_tick) > 1 and len(control.tick_sources) == 1
+        assert "safety" in control.status_fields and "ground_truth" in control.status_fields
+        assert bus.subscribers(_scan_key()) >= 2
+    assert len(control.on_tick) == 1  # the systemd watchdog's, the daemon's own
+    assert len(control.tick_sources) == 0 and len(control.on_command) == 0
+    assert [name for name, _ in control.status_fields.items()] == [
+        "measured_wheel_speeds_rad_s"]
+    assert control.guard is None and bus.subscribers(_scan_key()) == 0
+
+
+def _scan_key() -> Any:
+    from daemon.telemetry import SCAN
+
+    return SCAN
