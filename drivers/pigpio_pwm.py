@@ -6,7 +6,6 @@ import atexit
 import contextlib
 import math
 import socket
-import struct
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -25,6 +24,7 @@ from drivers.pigpio_protocol import (
     PI_TIMEOUT_LEVEL,
     PUD_UP,
 )
+from drivers.pigpiod_watch import Call, PigpiodWatch, describe_io_error
 from drivers.quadrature import QuadratureDecoder
 
 T = TypeVar("T")
@@ -164,15 +164,6 @@ def connect_pigpio(host: str, port: int, timeout: float) -> Any:
     return pi
 
 
-def describe_io_error(exc: BaseException) -> str:
-    """A short reason for a failed pigpio socket call."""
-    if isinstance(exc, struct.error):  # the client read a short (empty) reply
-        return "pigpiod closed the connection"
-    if isinstance(exc, TimeoutError):
-        return "no reply from pigpiod (timed out)"
-    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-
-
 def drop_pigpio(pi: Any, *, peer_alive: bool) -> None:
     """Release a pigpio connection; with a dead or hung peer, without waiting for it.
 
@@ -262,7 +253,7 @@ class PigpioDriver(MotorDriver):
         self._write_lock = threading.Lock()  # duty writes: the worker thread and emergency_stop()
         self._pi: Any = None
         self._io: SerialExecutor | None = None
-        self._watch: asyncio.Task[None] | None = None
+        self._watch = PigpiodWatch(self, s.watch_interval, self._peer, self._lost)
         self._written: dict[int, int] = {}
         self._callbacks: list[Any] = []
         self.connects = 0
@@ -305,8 +296,7 @@ class PigpioDriver(MotorDriver):
             self._io.shutdown()
             self._io = None
             raise
-        if self.settings.watch_interval > 0:
-            self._watch = asyncio.create_task(self._watch_peer(), name="pigpio-watch")
+        self._watch.start("pigpio-watch")
 
     def _connect(self) -> None:
         s = self.settings
@@ -362,11 +352,7 @@ class PigpioDriver(MotorDriver):
         return [pi.callback(pin, EITHER_EDGE, on_edge) for pin in (pin_a, pin_b)]
 
     async def _close(self) -> None:
-        if self._watch is not None:
-            self._watch.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._watch
-            self._watch = None
+        await self._watch.stop()
         io, self._io = self._io, None
         if io is not None:
             with contextlib.suppress(Exception):
@@ -441,18 +427,12 @@ class PigpioDriver(MotorDriver):
         self.report_fault(f"pigpiod at {self._where()} lost: {reason}")
         drop_pigpio(pi, peer_alive=False)
 
-    async def _watch_peer(self) -> None:
-        interval = self.settings.watch_interval
-        while self.fault is None and self._io is not None:
-            await asyncio.sleep(interval)
-            pi, io = self._pi, self._io
-            if pi is None or io is None:
-                return
-            try:
-                await io.call(pi.get_current_tick)
-            except Exception as exc:
-                self._lost(pi, f"keep-alive failed: {describe_io_error(exc)}")
-                return
+    def _peer(self) -> tuple[Call, Any] | None:
+        """What the keep-alive asks: the worker thread and the client, while connected."""
+        pi, io = self._pi, self._io
+        if pi is None or io is None:
+            return None
+        return io.call, pi
 
     # -- encoders and health ------------------------------------------------------------------
 
