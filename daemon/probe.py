@@ -3,18 +3,14 @@ from __future__ import annotations
 
 import asyncio
 import sys
-from collections.abc import Awaitable, Callable
 
 from daemon.config import Config, build_driver
 from drivers import DriverError
 from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
 
-# config section => a probe of that part's hardware; returns problems.
-PROBES: dict[str, Callable[[Config], Awaitable[list[str]]]] = {}
-
 
 async def probe_hardware(config: Config) -> list[str]:
-    """Open the configured driver (and other configured hardware); list what failed."""
+    """Open the configured driver and ask a configured lidar; list what failed."""
     problems = []
     driver = build_driver(config)
     try:
@@ -23,8 +19,7 @@ async def probe_hardware(config: Config) -> list[str]:
         problems.append(f"[driver] {config['driver']['type']}: {exc}")
     finally:
         await driver.close()
-    for section, probe in PROBES.items():
-        problems += [f"[{section}] {p}" for p in await probe(config)]
+    problems += [f"[lidar] {p}" for p in await probe_lidar(config)]
     return problems
 
 
@@ -61,6 +56,3 @@ def _probe_lidar_blocking(port_path: str, baudrate: int) -> list[str]:
     if health.status == 2:
         return [f"{port_path}: the lidar reports a health error (code {health.error_code:#06x})"]
     return []
-
-
-PROBES["lidar"] = probe_lidar

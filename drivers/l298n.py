@@ -1,7 +1,6 @@
 # L298N driver through gpiozero: a Motor per side, pin factory from config, RotaryEncoder odometry.
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import math
 import os
@@ -21,10 +20,9 @@ from drivers.pigpio_pwm import (
     BridgeSettings,
     SerialExecutor,
     check_pins,
-    describe_io_error,
-    drop_pigpio,
-    probe_tcp,
 )
+from drivers.pigpiod_client import drop_pigpio, probe_tcp
+from drivers.pigpiod_watch import Call, PigpiodWatch, describe_io_error
 
 T = TypeVar("T")
 PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
@@ -156,7 +154,8 @@ class L298NDriver(MotorDriver):
         self._values: list[float | None] = [None, None]
         self._write_lock = threading.Lock()  # motor writes: loop or worker, and emergency_stop()
         self._io: SerialExecutor | None = None
-        self._watch: asyncio.Task[None] | None = None
+        self._watch = PigpiodWatch(self, s.watch_interval, self._peer,
+                                   lambda _pi, reason: self._lost(reason))
         self.connects = 0
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -171,8 +170,8 @@ class L298NDriver(MotorDriver):
                 self._io.shutdown()
                 self._io = None
             raise
-        if self.remote and self.settings.watch_interval > 0:
-            self._watch = asyncio.create_task(self._watch_peer(), name="l298n-pigpio-watch")
+        if self.remote:
+            self._watch.start("l298n-pigpio-watch")
 
     async def _call(self, fn: Callable[..., T], *args: Any) -> T:
         """Run pin I/O: inline for local factories, on the worker thread for pigpiod."""
@@ -220,11 +219,7 @@ class L298NDriver(MotorDriver):
                              pin_factory=factory)
 
     async def _close(self) -> None:
-        if self._watch is not None:
-            self._watch.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._watch
-            self._watch = None
+        await self._watch.stop()
         await self._call(self._release, self.fault is None)
         if self._io is not None:
             self._io.shutdown()
@@ -281,18 +276,12 @@ class L298NDriver(MotorDriver):
         if factory is not None and factory._connection is not None:
             drop_pigpio(factory._connection, peer_alive=False)
 
-    async def _watch_peer(self) -> None:
-        interval = self.settings.watch_interval
-        while self.fault is None:
-            await asyncio.sleep(interval)
-            factory, io = self._factory, self._io
-            if factory is None or io is None:
-                return
-            try:
-                await io.call(factory._connection.get_current_tick)
-            except Exception as exc:
-                self._lost(f"keep-alive failed: {describe_io_error(exc)}")
-                return
+    def _peer(self) -> tuple[Call, Any] | None:
+        """What the keep-alive asks: the worker thread and gpiozero's pigpio client."""
+        factory, io = self._factory, self._io
+        if factory is None or io is None:
+            return None
+        return io.call, factory._connection
 
     # -- encoders and health ------------------------------------------------------------------
 

@@ -2,11 +2,8 @@
 from __future__ import annotations
 
 import asyncio
-import atexit
 import contextlib
 import math
-import socket
-import struct
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -25,6 +22,8 @@ from drivers.pigpio_protocol import (
     PI_TIMEOUT_LEVEL,
     PUD_UP,
 )
+from drivers.pigpiod_client import connect_pigpio, drop_pigpio
+from drivers.pigpiod_watch import Call, PigpiodWatch, describe_io_error
 from drivers.quadrature import QuadratureDecoder
 
 T = TypeVar("T")
@@ -139,64 +138,6 @@ class PigpioSettings(BridgeSettings):
 # -- connection helpers (shared with the l298n driver) ---------------------------------------------
 
 
-def probe_tcp(host: str, port: int, timeout: float) -> None:
-    """Fail fast with a clear message when nothing listens at host:port.
-
-    The pigpio client connects without a timeout; probing first keeps an unreachable pigpiod
-    from blocking a reconnect attempt for minutes.
-    """
-    try:
-        with socket.create_connection((host, port), timeout=timeout):
-            pass
-    except OSError as exc:
-        raise DriverFault(f"pigpiod unreachable at {host}:{port}: {exc}") from None
-
-
-def connect_pigpio(host: str, port: int, timeout: float) -> Any:
-    """Connect the unmodified pigpio client; raise DriverFault when pigpiod is not there."""
-    import pigpio
-
-    probe_tcp(host, port, timeout)
-    pi = pigpio.pi(host, port, show_errors=False)
-    if not pi.connected:
-        raise DriverFault(f"pigpiod unreachable at {host}:{port}")
-    pi.sl.s.settimeout(timeout)  # command replies: a hung pigpiod becomes an error, not a hang
-    return pi
-
-
-def describe_io_error(exc: BaseException) -> str:
-    """A short reason for a failed pigpio socket call."""
-    if isinstance(exc, struct.error):  # the client read a short (empty) reply
-        return "pigpiod closed the connection"
-    if isinstance(exc, TimeoutError):
-        return "no reply from pigpiod (timed out)"
-    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-
-
-def drop_pigpio(pi: Any, *, peer_alive: bool) -> None:
-    """Release a pigpio connection; with a dead or hung peer, without waiting for it.
-
-    With a live peer, ``pi.stop()`` sends NC and the client's notification thread ends on the
-    reply. Otherwise that thread would spin on (or block in) a dead socket, so it is told to
-    stop and its socket is shut down.
-    """
-    notify = getattr(pi, "_notify", None)
-    if peer_alive:
-        with contextlib.suppress(Exception):
-            pi.stop()
-    if notify is not None and notify.go:
-        notify.go = False
-        with contextlib.suppress(OSError):
-            notify.sl.s.shutdown(socket.SHUT_RDWR)
-    sock = getattr(pi.sl, "s", None)
-    if sock is not None:
-        with contextlib.suppress(OSError):
-            sock.close()
-        pi.sl.s = None
-    pi._notify, pi.connected = None, False
-    atexit.unregister(pi.stop)
-
-
 class SerialExecutor:
     """One worker thread for a driver's blocking socket calls, in order, off the event loop."""
 
@@ -262,7 +203,7 @@ class PigpioDriver(MotorDriver):
         self._write_lock = threading.Lock()  # duty writes: the worker thread and emergency_stop()
         self._pi: Any = None
         self._io: SerialExecutor | None = None
-        self._watch: asyncio.Task[None] | None = None
+        self._watch = PigpiodWatch(self, s.watch_interval, self._peer, self._lost)
         self._written: dict[int, int] = {}
         self._callbacks: list[Any] = []
         self.connects = 0
@@ -305,8 +246,7 @@ class PigpioDriver(MotorDriver):
             self._io.shutdown()
             self._io = None
             raise
-        if self.settings.watch_interval > 0:
-            self._watch = asyncio.create_task(self._watch_peer(), name="pigpio-watch")
+        self._watch.start("pigpio-watch")
 
     def _connect(self) -> None:
         s = self.settings
@@ -362,11 +302,7 @@ class PigpioDriver(MotorDriver):
         return [pi.callback(pin, EITHER_EDGE, on_edge) for pin in (pin_a, pin_b)]
 
     async def _close(self) -> None:
-        if self._watch is not None:
-            self._watch.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._watch
-            self._watch = None
+        await self._watch.stop()
         io, self._io = self._io, None
         if io is not None:
             with contextlib.suppress(Exception):
@@ -441,18 +377,12 @@ class PigpioDriver(MotorDriver):
         self.report_fault(f"pigpiod at {self._where()} lost: {reason}")
         drop_pigpio(pi, peer_alive=False)
 
-    async def _watch_peer(self) -> None:
-        interval = self.settings.watch_interval
-        while self.fault is None and self._io is not None:
-            await asyncio.sleep(interval)
-            pi, io = self._pi, self._io
-            if pi is None or io is None:
-                return
-            try:
-                await io.call(pi.get_current_tick)
-            except Exception as exc:
-                self._lost(pi, f"keep-alive failed: {describe_io_error(exc)}")
-                return
+    def _peer(self) -> tuple[Call, Any] | None:
+        """What the keep-alive asks: the worker thread and the client, while connected."""
+        pi, io = self._pi, self._io
+        if pi is None or io is None:
+            return None
+        return io.call, pi
 
     # -- encoders and health ------------------------------------------------------------------
 

@@ -8,7 +8,8 @@ from typing import Any, ClassVar
 
 from base.options import Option, Options
 from drivers.devices import Actuator, DeviceError, Joint
-from drivers.pigpio_pwm import connect_pigpio, describe_io_error, drop_pigpio
+from drivers.pigpiod_client import connect_pigpio, drop_pigpio
+from drivers.pigpiod_watch import describe_io_error
 
 #: the pulse widths pigpio accepts for a servo (0 turns the pulses off)
 PULSE_MIN_US, PULSE_MAX_US = 500, 2500

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sensors.rplidar import protocol as p
 from sensors.rplidar import records, synth
-from sensors.rplidar.protocol import Ans, Cmd, Conf
+from sensors.rplidar import requests as p
+from sensors.rplidar.requests import Ans, Cmd, Conf
 
 #: ranges_fn(angles_rad, t) -> metres; angles are the device's own (clockwise from its 0°),
 #: t is the emulator clock (s). inf, NaN or <= 0 means no return.

@@ -14,7 +14,8 @@ from sensors.rplidar.assembler import (
     ScanGeometry,
     to_laser_scan,
 )
-from sensors.rplidar.protocol import Ans, EncoderReset, Samples, StreamParser
+from sensors.rplidar.requests import Ans
+from sensors.rplidar.streams import EncoderReset, Samples, StreamParser
 
 
 def node_stream(turns: float, per_turn: int, first_deg: float = 100.0) -> tuple[bytes, np.ndarray]:

@@ -19,15 +19,8 @@ from hypothesis import strategies as st
 from sensors.rplidar import records, synth
 from sensors.rplidar.assembler import Revolution, RevolutionAssembler
 from sensors.rplidar.device import LidarManager, ManagerConfig
-from sensors.rplidar.protocol import (
-    Ans,
-    Descriptor,
-    Discontinuity,
-    Event,
-    Health,
-    Samples,
-    StreamParser,
-)
+from sensors.rplidar.requests import Ans, Descriptor, Health
+from sensors.rplidar.streams import Discontinuity, Event, Samples, StreamParser
 from sim.rplidar_emulator import A1, RplidarEmulator
 from tests.conftest import Collector, wait_for
 

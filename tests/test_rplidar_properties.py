@@ -9,9 +9,9 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sensors.rplidar import protocol as p
 from sensors.rplidar import synth
-from sensors.rplidar.protocol import Ans, StreamParser
+from sensors.rplidar.requests import Ans
+from sensors.rplidar.streams import Event, Samples, StreamParser
 
 SETTINGS = settings(max_examples=150, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -77,16 +77,16 @@ def any_scan() -> st.SearchStrategy[Scan]:
     return st.one_of(node_scans(), *[capsule_scans(t) for t in CAPSULE_TYPES])
 
 
-def decode(stream: bytes, cuts: list[int]) -> tuple[list[p.Samples], StreamParser]:
+def decode(stream: bytes, cuts: list[int]) -> tuple[list[Samples], StreamParser]:
     parser = StreamParser()
-    events: list[p.Event] = []
+    events: list[Event] = []
     bounds = [0, *sorted(c % (len(stream) + 1) for c in cuts), len(stream)]
     for a, b in itertools.pairwise(bounds):
         events += parser.feed(stream[a:b])
-    return [e for e in events if isinstance(e, p.Samples)], parser
+    return [e for e in events if isinstance(e, Samples)], parser
 
 
-def sample_rows(runs: list[p.Samples]) -> list[tuple[int, float, int]]:
+def sample_rows(runs: list[Samples]) -> list[tuple[int, float, int]]:
     rows: list[tuple[int, float, int]] = []
     for run in runs:
         q6 = np.rint(run.angle_deg * 64).astype(int)

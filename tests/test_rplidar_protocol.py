@@ -6,16 +6,17 @@ import struct
 import numpy as np
 import pytest
 
-from sensors.rplidar import protocol as p
+from sensors.rplidar import requests as p
 from sensors.rplidar import synth
-from sensors.rplidar.protocol import Ans, StreamParser
+from sensors.rplidar.requests import Ans
+from sensors.rplidar.streams import Event, Samples, StreamParser
 
 
-def samples_of(events: list[p.Event]) -> list[p.Samples]:
-    return [e for e in events if isinstance(e, p.Samples)]
+def samples_of(events: list[Event]) -> list[Samples]:
+    return [e for e in events if isinstance(e, Samples)]
 
 
-def concat(events: list[p.Event]) -> tuple[np.ndarray, np.ndarray]:
+def concat(events: list[Event]) -> tuple[np.ndarray, np.ndarray]:
     runs = samples_of(events)
     if not runs:
         return np.empty(0), np.empty(0)

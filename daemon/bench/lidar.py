@@ -13,7 +13,8 @@ import numpy as np
 
 from daemon.bench import BenchResult
 from sensors.rplidar import synth
-from sensors.rplidar.protocol import Ans, Samples, StreamParser
+from sensors.rplidar.requests import Ans
+from sensors.rplidar.streams import Samples, StreamParser
 
 SUITE = "lidar"
 TARGET_SAMPLES_PER_S = 2_000_000

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from sensors.rplidar.protocol import Discontinuity, EncoderReset, Event, Samples
 from sensors.rplidar.records import F64, U8
+from sensors.rplidar.streams import Discontinuity, EncoderReset, Event, Samples
 from sensors.scan import LaserScan, finite_list
 
 MAX_SAMPLES_PER_REVOLUTION = 8192

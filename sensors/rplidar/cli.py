@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from sensors.rplidar import protocol as p
+from sensors.rplidar import requests as p
 from sensors.rplidar.assembler import Revolution, RevolutionAssembler
 from sensors.rplidar.client import (
     LidarError,

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 from base.ports import open_error
-from sensors.rplidar import protocol as p
-from sensors.rplidar.protocol import Ans, Conf, StreamParser
+from sensors.rplidar import requests as p
+from sensors.rplidar.requests import Ans, Conf
+from sensors.rplidar.streams import Event, StreamParser
 
 T = TypeVar("T")
 
@@ -143,7 +144,7 @@ class RplidarClient:
         self.timeout = timeout
         self.parser = StreamParser()
         self._clock = clock
-        self._pending: list[p.Event] = []
+        self._pending: list[Event] = []
 
     # -- raw I/O
 
@@ -267,7 +268,7 @@ class RplidarClient:
         self.flush()
         self.write(plan.request())
 
-    def stream(self) -> tuple[list[p.Event], float]:
+    def stream(self) -> tuple[list[Event], float]:
         """One read: the parsed events and the wall-clock arrival time."""
         data = self.read_chunk()
         return (self.parser.feed(data) if data else []), time.time()

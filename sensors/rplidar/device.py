@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sensors.rplidar import protocol as p
+from sensors.rplidar import requests as p
 from sensors.rplidar.assembler import Revolution, RevolutionAssembler
 from sensors.rplidar.client import (
     LidarError,

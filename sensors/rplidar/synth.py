@@ -5,7 +5,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sensors.rplidar import records
-from sensors.rplidar.protocol import Ans, Descriptor
+from sensors.rplidar.requests import Ans, Descriptor
 
 ArrayLike = npt.ArrayLike
 
