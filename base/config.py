@@ -33,15 +33,21 @@ class SectionSettings:
     A subclass names its section and option table::
 
         @dataclass(frozen=True)
-        class HttpSettings(SectionSettings):
-            SECTION: ClassVar[str] = "http"
-            OPTIONS: ClassVar[Options] = HTTP_OPTIONS
+        class HttpSettings(SectionSettings, section="http", options=HTTP_OPTIONS):
             port: int
             ...
     """
 
     SECTION: ClassVar[str]
     OPTIONS: ClassVar[Options]
+
+    def __init_subclass__(cls, *, section: str = "", options: Options | None = None,
+                          **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if section:
+            cls.SECTION = section
+        if options is not None:
+            cls.OPTIONS = options
 
     @classmethod
     def from_values(cls: type[S], values: dict[str, Any]) -> S:

@@ -104,7 +104,10 @@ class Daemon:
         for spec in COMPONENTS:
             scoped = ctx.scoped()
             self._plugs.append(scoped.plugs)
-            component = spec.create(scoped)
+            try:
+                component = spec.create(scoped)
+            except ValueError as exc:  # keys valid alone that clash: a configuration error
+                raise ConfigError([f"{self.config.source}: [{spec.name}] {exc}"]) from exc
             if component is None:
                 continue
             for route in component.routes():

@@ -13,8 +13,9 @@ from base.options import Options, defaults
 from daemon.components import COMPONENTS
 from daemon.control.kinematics import DiffDrive
 from daemon.settings import CORE_SETTINGS, CORE_SETTINGS_LAST, LimitsSettings, RobotSettings
-from drivers import DRIVERS, MotorDriver, create_driver, driver_class
+from drivers import DRIVERS, DriverError, MotorDriver, create_driver, driver_class
 from drivers.base import renamed_hint
+from drivers.devices import create_device
 
 DEFAULT_PATH = Path("/etc/arbiterd/arbiterd.toml")
 ENV_PREFIX = "ARBITERD_"
@@ -130,9 +131,25 @@ def load_config(path: Path | None = None, *, sim: bool = False,
     if problems:
         raise ConfigError(problems)
     config = Config(sections, source=source, sim=sim or builtin, token=token, warnings=notes)
+    problems = _device_problems(config)
+    if problems:
+        raise ConfigError(problems)
     if config["control"]["cmd_vel_timeout"] == 0:
         config.warnings.append("[control] cmd_vel_timeout = 0: the deadman stop is DISABLED")
     return config
+
+
+def _device_problems(config: Config) -> list[str]:
+    """Each device a component's section makes it use, built from that section (not opened):
+    keys valid alone but wrong together (two joints on one pin) are configuration errors."""
+    problems = []
+    for spec in COMPONENTS:
+        for use in spec.devices_used(config):
+            try:
+                create_device(use.device, config[use.section], section=use.section)
+            except (ValueError, DriverError) as exc:
+                problems.append(f"{config.source}: {exc}")
+    return problems
 
 
 def _read_source(path: Path | None, sim: bool,

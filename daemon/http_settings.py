@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -29,11 +28,8 @@ HTTP_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class HttpSettings(SectionSettings):
-    """[http], typed."""
-
-    SECTION: ClassVar[str] = "http"
-    OPTIONS: ClassVar[Options] = HTTP_OPTIONS
+class HttpSettings(SectionSettings, section="http", options=HTTP_OPTIONS):
+    """The [http] section, read once (keys with dots as underscores)."""
 
     enabled: bool
     host: str

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -110,11 +109,8 @@ LOGGING_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class RobotSettings(SectionSettings):
-    """[robot], typed."""
-
-    SECTION: ClassVar[str] = "robot"
-    OPTIONS: ClassVar[Options] = ROBOT_OPTIONS
+class RobotSettings(SectionSettings, section="robot", options=ROBOT_OPTIONS):
+    """The [robot] section, read once (keys with dots as underscores)."""
 
     name: str
     wheel_separation: float
@@ -128,11 +124,8 @@ class RobotSettings(SectionSettings):
 
 
 @dataclass(frozen=True)
-class ControlSettings(SectionSettings):
-    """[control], typed."""
-
-    SECTION: ClassVar[str] = "control"
-    OPTIONS: ClassVar[Options] = CONTROL_OPTIONS
+class ControlSettings(SectionSettings, section="control", options=CONTROL_OPTIONS):
+    """The [control] section, read once (keys with dots as underscores)."""
 
     update_rate: float
     cmd_vel_timeout: float
@@ -153,11 +146,8 @@ class ControlSettings(SectionSettings):
 
 
 @dataclass(frozen=True)
-class LimitsSettings(SectionSettings):
-    """[limits], typed."""
-
-    SECTION: ClassVar[str] = "limits"
-    OPTIONS: ClassVar[Options] = LIMITS_OPTIONS
+class LimitsSettings(SectionSettings, section="limits", options=LIMITS_OPTIONS):
+    """The [limits] section, read once (keys with dots as underscores)."""
 
     linear_x_max_velocity: float
     linear_x_max_acceleration: float
@@ -172,21 +162,15 @@ class LimitsSettings(SectionSettings):
 
 
 @dataclass(frozen=True)
-class DriverSettings(SectionSettings):
-    """[driver], typed."""
-
-    SECTION: ClassVar[str] = "driver"
-    OPTIONS: ClassVar[Options] = DRIVER_OPTIONS
+class DriverSettings(SectionSettings, section="driver", options=DRIVER_OPTIONS):
+    """The [driver] section, read once (keys with dots as underscores)."""
 
     type: str
 
 
 @dataclass(frozen=True)
-class SecuritySettings(SectionSettings):
-    """[security], typed."""
-
-    SECTION: ClassVar[str] = "security"
-    OPTIONS: ClassVar[Options] = SECURITY_OPTIONS
+class SecuritySettings(SectionSettings, section="security", options=SECURITY_OPTIONS):
+    """The [security] section, read once (keys with dots as underscores)."""
 
     token: str
     token_file: str
@@ -197,11 +181,8 @@ class SecuritySettings(SectionSettings):
 
 
 @dataclass(frozen=True)
-class LoggingSettings(SectionSettings):
-    """[logging], typed."""
-
-    SECTION: ClassVar[str] = "logging"
-    OPTIONS: ClassVar[Options] = LOGGING_OPTIONS
+class LoggingSettings(SectionSettings, section="logging", options=LOGGING_OPTIONS):
+    """The [logging] section, read once (keys with dots as underscores)."""
 
     level: str
     timestamps: bool

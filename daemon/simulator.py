@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import shutil
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -42,6 +43,8 @@ class SimRuntime(BaseComponent):
         self.devices = list(devices)
         #: section => the options reaching each device's emulator
         self.device_options: dict[str, dict[str, Any]] = {}
+        #: section => the running emulator of its device (tests look at its state)
+        self.device_emulators: dict[str, Any] = {}
         self.settings = config.get(SimSettings)
         self.sim = SimConfig.from_section(config["sim"])
         self.driver_name: str = self.settings.driver
@@ -101,6 +104,7 @@ class SimRuntime(BaseComponent):
         emulated = starter(workdir, self.config[use.section])
         self._stops.append(emulated.stop)
         self.device_options[use.section] = emulated.options
+        self.device_emulators[use.section] = emulated.emulator
         log.info("simulated device: %s for [%s] on %s", use.device, use.section,
                  emulated.options)
 
@@ -139,6 +143,7 @@ class SimRuntime(BaseComponent):
                 stop()
             except Exception:
                 log.exception("stopping a simulated device failed")
+        shutil.rmtree(self.workdir, ignore_errors=True)
 
     def health(self) -> dict[str, Any]:
         return {**self.world.health(), "emulator": self.driver_name,

@@ -1,11 +1,17 @@
 # Motor driver registry: one table (drivers.registry), name -> class, imported only when chosen.
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.base import DriverClosed, DriverError, DriverFault, EncoderReading, MotorDriver
+from drivers.base import (
+    DriverClosed,
+    DriverError,
+    DriverFault,
+    EncoderReading,
+    MotorDriver,
+    registered_class,
+)
 from drivers.registry import DRIVERS
 
 __all__ = ["DRIVERS", "DriverClosed", "DriverError", "DriverFault", "EncoderReading",
@@ -18,16 +24,8 @@ class UnknownDriver(DriverError, LookupError):
 
 def driver_class(name: str) -> type[MotorDriver]:
     """Import and return the class registered as ``name``."""
-    try:
-        module_name, class_name = DRIVERS[name]
-    except KeyError:
-        valid = ", ".join(sorted(DRIVERS))
-        raise UnknownDriver(f"unknown driver {name!r}; valid drivers: {valid}") from None
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise DriverError(f"driver {name!r} cannot be imported: {exc}") from None
-    cls: type[MotorDriver] = getattr(module, class_name)
+    cls: type[MotorDriver] = registered_class(DRIVERS, name, "driver", UnknownDriver,
+                                              DriverError)
     return cls
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 import math
 import threading
 import time
@@ -332,3 +333,20 @@ def read_settings(settings: type[S], declared: Options, given: Mapping[str, Any]
             raise ValueError(f"[{where}] {key}: {error}")
         values[key] = normalised
     return settings(**values)
+
+
+def registered_class(table: Mapping[str, tuple[str, str]], name: str, kind: str,
+                     unknown: type[Exception], broken: type[Exception]) -> Any:
+    """The class registered as ``name`` in a plugin table (``name: (module, class)``), its
+    module imported only now. An unknown name is ``unknown`` listing the valid ones; a module
+    that cannot be imported is ``broken`` saying why."""
+    try:
+        module_name, class_name = table[name]
+    except KeyError:
+        raise unknown(f"unknown {kind} {name!r}; valid {kind}s: "
+                      f"{', '.join(sorted(table))}") from None
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise broken(f"{kind} {name!r} cannot be imported: {exc}") from None
+    return getattr(module, class_name)

@@ -1,7 +1,6 @@
 # Hardware other than the wheel pair: actuators with named joints and sensors with named readings.
 from __future__ import annotations
 
-import importlib
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
@@ -9,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from base.options import Options
-from drivers.base import DriverError, read_settings
+from drivers.base import DriverError, read_settings, registered_class
 from drivers.device_registry import DEVICES
 
 
@@ -158,16 +157,7 @@ class Sensor(Device):
 
 def device_class(name: str) -> type[Device]:
     """Import and return the class registered as ``name``."""
-    try:
-        module_name, class_name = DEVICES[name]
-    except KeyError:
-        raise DeviceError(f"unknown device {name!r}; valid devices: "
-                          f"{', '.join(sorted(DEVICES))}") from None
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise DeviceError(f"device {name!r} cannot be imported: {exc}") from None
-    cls: type[Device] = getattr(module, class_name)
+    cls: type[Device] = registered_class(DEVICES, name, "device", DeviceError, DeviceError)
     return cls
 
 

@@ -22,7 +22,7 @@ from drivers.pigpio_pwm import (
     check_pins,
 )
 from drivers.pigpiod_client import drop_pigpio, probe_tcp
-from drivers.pigpiod_watch import Call, PigpiodWatch, describe_io_error
+from drivers.pigpiod_watch import PIGPIOD_LINK_OPTIONS, Call, PigpiodWatch, describe_io_error
 
 T = TypeVar("T")
 PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
@@ -131,10 +131,7 @@ class L298NDriver(MotorDriver):
                                          " per wheel revolution", minval=1),
         "encoder_bounce": option(float, 0.0, "encoder debounce time, s (0 = off)",
                                  minval=0.0, maxval=0.3),
-        "timeout": option(float, 1.0, "pigpiod connect and reply timeout, s",
-                          above=0.0, maxval=30.0),
-        "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
-                                 "(pin_factory = 'pigpio'; 0 = only when writing)", minval=0.0),
+        **PIGPIOD_LINK_OPTIONS,
     }
     SETTINGS = L298NSettings
     settings: L298NSettings

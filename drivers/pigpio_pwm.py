@@ -23,7 +23,7 @@ from drivers.pigpio_protocol import (
     PUD_UP,
 )
 from drivers.pigpiod_client import connect_pigpio, drop_pigpio
-from drivers.pigpiod_watch import Call, PigpiodWatch, describe_io_error
+from drivers.pigpiod_watch import PIGPIOD_LINK_OPTIONS, Call, PigpiodWatch, describe_io_error
 from drivers.quadrature import QuadratureDecoder
 
 T = TypeVar("T")
@@ -184,9 +184,7 @@ class PigpioDriver(MotorDriver):
                                          "wheel revolution", minval=1),
         "glitch_filter_us": option(int, 100, "ignore encoder level changes shorter than this, us",
                                    minval=0, maxval=300000),
-        "timeout": option(float, 1.0, "connect and reply timeout, s", above=0.0, maxval=30.0),
-        "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
-                                 "(0 = only when writing)", minval=0.0),
+        **PIGPIOD_LINK_OPTIONS,
     }
     SETTINGS = PigpioSettings
     settings: PigpioSettings

@@ -19,7 +19,8 @@ SERVO_OPTIONS: Options = {
     "host": Option(str, "localhost", "pigpiod host"),
     "port": Option(int, 8888, "pigpiod port", minval=1, maxval=65535),
     "joints": Option(list, ["joint1"], "joint names, one per servo", item=str),
-    "pins": Option(list, [17], "GPIO (BCM) of each joint's servo signal, in joint order",
+    "pins": Option(list, [16], "GPIO (BCM) of each joint's servo signal, in joint order (not "
+                   "a pin of the wheel driver's section)",
                    item=int, minval=0, maxval=53),
     "lower": Option(list, [-math.pi / 2], "each joint's lowest position, rad (at "
                     "min_pulse_us)", item=float),

@@ -7,7 +7,17 @@ import struct
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from drivers.base import MotorDriver
+from base.options import Options
+from drivers.base import MotorDriver, option
+
+#: The pigpiod link keys of both GPIO drivers' sections (the l298n driver uses them with
+#: ``pin_factory = "pigpio"``).
+PIGPIOD_LINK_OPTIONS: Options = {
+    "timeout": option(float, 1.0, "pigpiod connect and reply timeout, s", above=0.0,
+                      maxval=30.0),
+    "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
+                             "(0 = only when writing)", minval=0.0),
+}
 
 #: Runs a blocking pigpio call on the driver's worker thread (``SerialExecutor.call``).
 Call = Callable[[Callable[[], Any]], Awaitable[Any]]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any
 
 from base.config import SectionSettings
 from base.options import Option, Options, defaults
@@ -137,11 +137,8 @@ def _check_pairs(values: Mapping[str, Any]) -> None:
 
 
 @dataclass(frozen=True)
-class SimSettings(SectionSettings):
-    """[sim], typed."""
-
-    SECTION: ClassVar[str] = "sim"
-    OPTIONS: ClassVar[Options] = SIM_OPTIONS
+class SimSettings(SectionSettings, section="sim", options=SIM_OPTIONS):
+    """The [sim] section, read once (keys with dots as underscores)."""
 
     driver: str
     seed: int

@@ -17,8 +17,22 @@ from tests.conftest import Robot, running_robot
 
 REPO = Path(__file__).resolve().parent.parent
 DOCS = REPO / "docs"
-#: what turns every optional part on: the fault-injection route and the odometry transform
-EVERYTHING = "[control]\nallow_fault_injection = true\nenable_odom_tf = true\n"
+
+
+def everything(directory: Path) -> str:
+    """A config that turns every optional part on: each component section's ``enabled`` key,
+    the fault-injection route and the odometry transform (recordings go to ``directory``)."""
+    lines = []
+    for spec in COMPONENTS:
+        settings = spec.settings
+        if settings is None or settings.SECTION in ("http", "rosbridge"):
+            continue  # the test robot sets their addresses; they are on by default
+        extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
+                 "record": [f'directory = "{directory}"']}.get(settings.SECTION, [])
+        enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
+        if enabled or extra:
+            lines += [f"[{settings.SECTION}]", *enabled, *extra]
+    return "\n".join(lines) + "\n"
 
 
 def doc(name: str) -> str:
@@ -31,7 +45,8 @@ def declared(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     import asyncio
 
     async def collect() -> dict[str, Any]:
-        async with running_robot(tmp_path_factory.mktemp("everything"), EVERYTHING) as robot:
+        workdir = tmp_path_factory.mktemp("everything")
+        async with running_robot(workdir, everything(workdir / "recordings")) as robot:
             return _declarations(robot)
 
     return asyncio.run(collect())

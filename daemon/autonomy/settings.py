@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -24,11 +23,8 @@ AUTONOMY_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class AutonomySettings(SectionSettings):
-    """[autonomy], typed."""
-
-    SECTION: ClassVar[str] = "autonomy"
-    OPTIONS: ClassVar[Options] = AUTONOMY_OPTIONS
+class AutonomySettings(SectionSettings, section="autonomy", options=AUTONOMY_OPTIONS):
+    """The [autonomy] section, read once (keys with dots as underscores)."""
 
     mode: str
     cruise_speed: float

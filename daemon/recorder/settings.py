@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -31,11 +30,8 @@ RECORD_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class RecordSettings(SectionSettings):
-    """[record], typed."""
-
-    SECTION: ClassVar[str] = "record"
-    OPTIONS: ClassVar[Options] = RECORD_OPTIONS
+class RecordSettings(SectionSettings, section="record", options=RECORD_OPTIONS):
+    """The [record] section, read once (keys with dots as underscores)."""
 
     enabled: bool
     directory: str

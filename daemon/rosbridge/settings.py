@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -56,11 +55,8 @@ ROSBRIDGE_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class RosbridgeSettings(SectionSettings):
-    """[rosbridge], typed."""
-
-    SECTION: ClassVar[str] = "rosbridge"
-    OPTIONS: ClassVar[Options] = ROSBRIDGE_OPTIONS
+class RosbridgeSettings(SectionSettings, section="rosbridge", options=ROSBRIDGE_OPTIONS):
+    """The [rosbridge] section, read once (keys with dots as underscores)."""
 
     enabled: bool
     host: str

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -53,11 +53,9 @@ COLLISION_MONITOR_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class CollisionMonitorSettings(SectionSettings):
-    """[collision_monitor], typed."""
-
-    SECTION: ClassVar[str] = "collision_monitor"
-    OPTIONS: ClassVar[Options] = COLLISION_MONITOR_OPTIONS
+class CollisionMonitorSettings(SectionSettings, section="collision_monitor",
+                               options=COLLISION_MONITOR_OPTIONS):
+    """The [collision_monitor] section, read once (keys with dots as underscores)."""
 
     enabled: bool
     footprint_radius: float

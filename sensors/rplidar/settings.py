@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from base.config import SectionSettings
 from base.options import Option, Options
@@ -43,11 +42,8 @@ LIDAR_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class LidarSettings(SectionSettings):
-    """[lidar], typed."""
-
-    SECTION: ClassVar[str] = "lidar"
-    OPTIONS: ClassVar[Options] = LIDAR_OPTIONS
+class LidarSettings(SectionSettings, section="lidar", options=LIDAR_OPTIONS):
+    """The [lidar] section, read once (keys with dots as underscores)."""
 
     enabled: bool
     port: str
