@@ -26,7 +26,7 @@ from tests.daemon_proc import REPO, DaemonProcess
 
 INTEROP = REPO / "tests" / "interop"
 RECORDED = {"/odom", "/tf", "/scan", "/commands", "/latency_reports", "/rosout", "/diagnostics",
-            "/odom_ground_truth"}
+            "/odom_ground_truth", "/autonomy/state", "/collision_monitor/state"}
 Start = Callable[..., DaemonProcess]
 
 
