@@ -7,6 +7,7 @@ import sys
 from daemon.config import Config, build_driver
 from drivers import DriverError
 from sensors.rplidar.client import LidarError, RplidarClient, describe, open_serial
+from sensors.rplidar.settings import LidarSettings
 
 
 async def probe_hardware(config: Config) -> list[str]:
@@ -30,10 +31,10 @@ async def safe_stop(config: Config) -> None:
 
 async def probe_lidar(config: Config) -> list[str]:
     """Ask a configured RPLIDAR for its INFO and HEALTH; list what is wrong."""
-    lidar = config["lidar"]
-    if not lidar["enabled"]:
+    lidar = config.get(LidarSettings)
+    if not lidar.enabled:
         return []
-    return await asyncio.to_thread(_probe_lidar_blocking, lidar["port"], lidar["baudrate"])
+    return await asyncio.to_thread(_probe_lidar_blocking, lidar.port, lidar.baudrate)
 
 
 def _probe_lidar_blocking(port_path: str, baudrate: int) -> list[str]:

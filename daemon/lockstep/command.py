@@ -63,13 +63,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _config(args: argparse.Namespace) -> Config:
     config = load_config(Path(args.config) if args.config else None, sim=True, env={})
-    sim = config.sections["sim"]
-    if args.seed is not None:
-        sim["seed"] = args.seed
-    if args.world:
-        sim["world_file"] = args.world
-    if args.csv:
-        sim["metrics_csv"] = args.csv
+    overrides = {"seed": args.seed, "world_file": args.world or None,
+                 "metrics_csv": args.csv or None}
+    config.update("sim", {key: value for key, value in overrides.items() if value is not None})
     return config
 
 
