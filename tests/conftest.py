@@ -14,8 +14,8 @@ import pytest
 
 from daemon.app import Daemon
 from daemon.config import load_config
-from tests.daemon_proc import DaemonProcess, free_port
-from tests.rigs import RIGS, Rig
+from tests.support.daemon_subprocess import DaemonProcess, free_port
+from tests.support.rigs import RIGS, Rig
 
 __all__ = ["Collector", "DaemonProcess", "Rig", "Robot", "close_to", "eventually", "free_port",
            "running_robot", "wait_for"]

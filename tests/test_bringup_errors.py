@@ -16,7 +16,7 @@ from drivers.arduino_serial import SerialBridgeDriver
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
 from tests.conftest import DaemonProcess, wait_for
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import REPO
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:

@@ -17,7 +17,7 @@ import pytest
 
 from sim.rplidar_emulator import RplidarEmulator
 from tests.conftest import DaemonProcess, free_port, wait_for
-from tests.daemon_proc import REPO, http
+from tests.support.daemon_subprocess import REPO, http
 
 NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
 

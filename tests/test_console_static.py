@@ -13,7 +13,7 @@ from aiohttp import web
 from aiohttp.test_utils import TestServer
 
 from daemon.console import FILES, Console, url_of
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess, wait_for
 
 STATIC = Path(__file__).resolve().parent.parent / "daemon" / "console" / "static"
 

@@ -15,11 +15,11 @@ from typing import Any
 
 import pytest
 
-from tests.deploy_helpers import DEPLOY_SH, fake_service_pid
-from tests.deploy_helpers.sshd import SshServer, free_port, start_sshd
-from tests.deploy_helpers.wheels import Wheels, wheels
+from tests.support.deploy import DEPLOY_SH, fake_service_pid
+from tests.support.deploy.machine import FAKE_SYSTEMCTL
+from tests.support.deploy.sshd import SshServer, free_port, start_sshd
+from tests.support.deploy.wheels import Wheels, wheels
 
-FAKE_SYSTEMCTL = Path(__file__).parent / "deploy_helpers" / "fake_systemctl.py"
 HEALTH_TIMEOUT_S = 60
 KEEP = 3
 

@@ -24,8 +24,8 @@ from drivers import DRIVERS, create_driver
 from sim.settings import SIM_OPTIONS
 from sim.wiring import EMULATORS
 from tests.conftest import close_to, eventually
-from tests.daemon_proc import REPO
-from tests.rigs import RIGS, Rig
+from tests.support.daemon_subprocess import REPO
+from tests.support.rigs import RIGS, Rig
 
 TIMEOUT_S = 0.4
 GEOMETRY = DiffDrive(wheel_separation=0.30, wheel_radius=0.05)

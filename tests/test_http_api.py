@@ -6,7 +6,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonProcess
 
 TIMEOUT_S = 0.3
 

@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
-from tests.http_raw import exchange, parse_answer, request, rss_kib, send_raw
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.http_raw import exchange, parse_answer, request, rss_kib, send_raw
 
 SEED = int(os.environ.get("ARBITERD_FUZZ_SEED", "1122"))
 BUDGET_S = float(os.environ.get("ARBITERD_FUZZ_SECONDS", "36"))

@@ -9,8 +9,8 @@ import pytest
 
 from daemon.latency import SourceCounts
 from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
-from tests.http_raw import (
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.http_raw import (
     Answer,
     child_nofile,
     closed_by_peer,

@@ -7,7 +7,7 @@ import threading
 import time
 from pathlib import Path
 
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess, wait_for
 
 
 class NotifySocket:

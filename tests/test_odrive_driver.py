@@ -25,8 +25,8 @@ from drivers.odrive_can import ODriveCanDriver
 from sim.motor_model import MotorPair
 from sim.odrive_emulator import ODriveEmulator
 from tests.conftest import close_to, eventually, wait_for
-from tests.daemon_proc import REPO
-from tests.rigs import RIG_OPTIONS, Rig, wired_rig
+from tests.support.daemon_subprocess import REPO
+from tests.support.rigs import RIG_OPTIONS, Rig, wired_rig
 
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30
@@ -558,7 +558,7 @@ def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
 
 
 def test_daemon_survives_odrive_heartbeat_loss(tmp_path: Path) -> None:
-    from tests.daemon_proc import DaemonProcess
+    from tests.support.daemon_subprocess import DaemonProcess
 
     port = _free_udp_port()
     try:

@@ -22,16 +22,16 @@ from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
 from sim.wiring import EMULATORS
-from tests.async_daemon import (
+from tests.conftest import close_to, eventually
+from tests.support.async_daemon_subprocess import (
     DaemonClient,
     driver_daemon_config,
     reaped,
     spawn_daemon,
     terminate_cleanly,
 )
-from tests.conftest import close_to, eventually
-from tests.daemon_proc import REPO, free_port
-from tests.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
+from tests.support.daemon_subprocess import REPO, free_port
+from tests.support.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
 
 pytestmark = pytest.mark.timeout(60)
 

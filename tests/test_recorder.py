@@ -22,7 +22,7 @@ from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
 from tests.conftest import wait_for
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import REPO
 
 CHANNELS = bus_channels(sim=False, odom_tf=True)
 ODOM = tuple(CHANNELS["odom"])

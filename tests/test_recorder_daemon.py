@@ -22,7 +22,7 @@ from mcap_ros2.decoder import DecoderFactory
 from daemon.recorder.files import inspect
 from daemon.recorder.writer import recordings
 from tests.conftest import close_to, wait_for
-from tests.daemon_proc import REPO, DaemonProcess
+from tests.support.daemon_subprocess import REPO, DaemonProcess
 
 INTEROP = REPO / "tests" / "interop"
 RECORDED = {"/odom", "/tf", "/scan", "/commands", "/latency_reports", "/rosout", "/diagnostics",

@@ -6,10 +6,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tests.async_daemon import driver_daemon_config
 from tests.conftest import wait_for
-from tests.daemon_proc import REPO, free_port, read_wheel_log
-from tests.rigs import Rig
+from tests.support.async_daemon_subprocess import driver_daemon_config
+from tests.support.daemon_subprocess import REPO, free_port, read_wheel_log
+from tests.support.rigs import Rig
 
 
 def write_config(tmp_path: Path, driver: str, options: dict[str, Any]) -> Path:

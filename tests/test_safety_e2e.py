@@ -7,7 +7,7 @@ from typing import Any
 
 from daemon.settings import COLLISION_MONITOR_OPTIONS
 from tests.conftest import DaemonProcess, wait_for
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import REPO
 
 WALL_X = 3.0  # tests/scenarios/wall.toml: the robot starts at x = 0 facing this wall
 FOOTPRINT = 0.2  # [sim] footprint_radius default

@@ -17,10 +17,10 @@ from drivers.arduino_serial import SerialBridgeDriver
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
-from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
 from tests.conftest import eventually
-from tests.daemon_proc import REPO, free_port
-from tests.rigs import Rig, wired_rig
+from tests.support.async_daemon_subprocess import DaemonClient, driver_daemon_config, spawn_daemon
+from tests.support.daemon_subprocess import REPO, free_port
+from tests.support.rigs import Rig, wired_rig
 
 MAX_WHEEL_SPEED = 20.0
 WHEEL_RADIUS = 0.05

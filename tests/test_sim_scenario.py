@@ -16,7 +16,7 @@ from sim.raycast import RayCaster
 from sim.settings import SimConfig
 from sim.stepper import build_world
 from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonProcess
 
 LINEAR, ANGULAR = 0.5, 0.6
 

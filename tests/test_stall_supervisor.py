@@ -18,7 +18,7 @@ from drivers.mock import MockDriver
 from sim.motor_model import MotorPair, WheelMotor
 from sim.wiring import EMULATORS
 from tests.conftest import DaemonProcess, close_to, eventually, running_robot, wait_for
-from tests.rigs import FULL_DUTY_SPEED, Rig, wired_rig
+from tests.support.rigs import FULL_DUTY_SPEED, Rig, wired_rig
 
 pytestmark = pytest.mark.timeout(90)
 

@@ -13,7 +13,7 @@ import pytest
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from drivers import EncoderReading
 from tests.conftest import close_to, wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonProcess
 
 TIME_S = 0.5
 

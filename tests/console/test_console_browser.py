@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess, wait_for
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonProcess
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")

@@ -13,7 +13,7 @@ from typing import Any
 import aiohttp
 
 from daemon.cli import _toml_value
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import REPO
 
 
 class DaemonClient:

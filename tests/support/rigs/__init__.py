@@ -15,7 +15,7 @@ from drivers import DRIVERS, MotorDriver, create_driver, driver_class
 from drivers.rosarduino import BAUDRATE, MOTOR_SPEEDS, OK, encode_command
 from sim.motor_model import MotorPair
 from sim.wiring import EMULATORS, Emulated
-from tests.daemon_proc import read_wheel_log
+from tests.support.daemon_subprocess import read_wheel_log
 
 #: Wheel speed at full duty of the PWM rigs' motors, rad/s (the driver's duty map says the same).
 FULL_DUTY_SPEED = 20.0
@@ -153,7 +153,7 @@ RigFactory = Callable[..., AbstractContextManager[Rig]]
 
 
 def _rigs() -> dict[str, RigFactory]:
-    from tests.rigs.l298n import mock_pin_rig
+    from tests.support.rigs.l298n import mock_pin_rig
 
     table: dict[str, RigFactory] = {name: partial(wired_rig, name) for name in DRIVERS}
     table["l298n@pigpio"] = table["l298n"]  # the l298n driver through the emulated pigpiod

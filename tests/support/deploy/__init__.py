@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 SYSTEMD_DIR = REPO / "systemd"
 INSTALL_SH = REPO / "install.sh"
 DEPLOY_SH = REPO / "deploy-pi.sh"
