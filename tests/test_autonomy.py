@@ -14,7 +14,8 @@ import pytest
 from daemon.autonomy.sectors import Sectors
 from daemon.autonomy.wander import Perception, Wander, WanderSettings
 from daemon.control.commands import Twist
-from tests.conftest import Robot, eventually
+from tests.support.in_process_daemon import Robot
+from tests.support.wait import eventually
 
 SECTORS = Sectors(48, 0.5, 2.4)
 ANGLES = SECTORS.angles

@@ -15,8 +15,9 @@ from drivers import DriverFault, create_driver
 from drivers.arduino_serial import SerialBridgeDriver
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import DaemonProcess, wait_for
-from tests.support.daemon_subprocess import REPO
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:

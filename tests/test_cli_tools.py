@@ -16,8 +16,10 @@ from pathlib import Path
 import pytest
 
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import DaemonProcess, free_port, wait_for
-from tests.support.daemon_subprocess import REPO, http
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.net import free_port, http
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
 

@@ -7,7 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.support.daemon_subprocess import REPO, DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess, wait_for
+from tests.support.paths import REPO
 
 
 def test_replayed_console_alternates_idle_and_driving_windows(tmp_path: Path) -> None:

@@ -17,8 +17,9 @@ import pytest
 
 from tests.support.deploy import DEPLOY_SH, fake_service_pid
 from tests.support.deploy.machine import FAKE_SYSTEMCTL
-from tests.support.deploy.sshd import SshServer, free_port, start_sshd
+from tests.support.deploy.sshd import SshServer, start_sshd
 from tests.support.deploy.wheels import Wheels, wheels
+from tests.support.net import free_port
 
 HEALTH_TIMEOUT_S = 60
 KEEP = 3

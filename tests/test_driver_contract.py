@@ -23,9 +23,10 @@ from daemon.settings import DRIVER_OPTIONS
 from drivers import DRIVERS, create_driver
 from sim.settings import SIM_OPTIONS
 from sim.wiring import EMULATORS
-from tests.conftest import close_to, eventually
-from tests.support.daemon_subprocess import REPO
+from tests.support.compare import close_to
+from tests.support.paths import REPO
 from tests.support.rigs import RIGS, Rig
+from tests.support.wait import eventually
 
 TIMEOUT_S = 0.4
 GEOMETRY = DiffDrive(wheel_separation=0.30, wheel_radius=0.05)

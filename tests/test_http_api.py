@@ -5,8 +5,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from tests.conftest import wait_for
 from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 TIMEOUT_S = 0.3
 

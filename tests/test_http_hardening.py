@@ -8,7 +8,6 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from daemon.latency import SourceCounts
-from tests.conftest import wait_for
 from tests.support.daemon_subprocess import DaemonProcess
 from tests.support.http_raw import (
     Answer,
@@ -20,6 +19,7 @@ from tests.support.http_raw import (
     read_answer,
     request,
 )
+from tests.support.wait import wait_for
 
 GO = b'{"linear": {"x": 0.2}}'
 StartDaemon = Callable[..., DaemonProcess]

@@ -22,11 +22,12 @@ import pytest
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import free_port, wait_for
 from tests.support.deploy import INSTALL_SH, SYSTEMD_DIR
 from tests.support.deploy.machine import FAKE_SYSTEMCTL, Machine
 from tests.support.deploy.machine import available as machine_available
 from tests.support.deploy.wheels import Wheels, wheels
+from tests.support.net import free_port
+from tests.support.wait import wait_for
 
 CONFIG_FILES = {
     "/etc/arbiterd": "root:arbiterd 0750",

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MotorPair
-from tests.conftest import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 
 def test_an_arduino_plugged_in_after_boot_drives_after_a_fresh_command(tmp_path: Path) -> None:

@@ -24,9 +24,10 @@ from drivers.base import DriverFault
 from drivers.odrive_can import ODriveCanDriver
 from sim.motor_model import MotorPair
 from sim.odrive_emulator import ODriveEmulator
-from tests.conftest import close_to, eventually, wait_for
-from tests.support.daemon_subprocess import REPO
+from tests.support.compare import close_to
+from tests.support.paths import REPO
 from tests.support.rigs import RIG_OPTIONS, Rig, wired_rig
+from tests.support.wait import eventually, wait_for
 
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30

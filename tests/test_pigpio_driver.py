@@ -22,7 +22,6 @@ from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
 from sim.wiring import EMULATORS
-from tests.conftest import close_to, eventually
 from tests.support.async_daemon_subprocess import (
     DaemonClient,
     driver_daemon_config,
@@ -30,8 +29,11 @@ from tests.support.async_daemon_subprocess import (
     spawn_daemon,
     terminate_cleanly,
 )
-from tests.support.daemon_subprocess import REPO, free_port
+from tests.support.compare import close_to
+from tests.support.net import free_port
+from tests.support.paths import REPO
 from tests.support.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
+from tests.support.wait import eventually
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -21,8 +21,8 @@ from daemon.recorder.paths import default_directory
 from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
-from tests.conftest import wait_for
-from tests.support.daemon_subprocess import REPO
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 CHANNELS = bus_channels(sim=False, odom_tf=True)
 ODOM = tuple(CHANNELS["odom"])

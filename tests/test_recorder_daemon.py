@@ -21,8 +21,10 @@ from mcap_ros2.decoder import DecoderFactory
 
 from daemon.recorder.files import inspect
 from daemon.recorder.writer import recordings
-from tests.conftest import close_to, wait_for
-from tests.support.daemon_subprocess import REPO, DaemonProcess
+from tests.support.compare import close_to
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 INTEROP = REPO / "tests" / "interop"
 RECORDED = {"/odom", "/tf", "/scan", "/commands", "/latency_reports", "/rosout", "/diagnostics",

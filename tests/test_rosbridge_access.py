@@ -8,7 +8,7 @@ from typing import Any
 from daemon.rosbridge import access
 from daemon.rosbridge.access import ANY, TABLE
 from daemon.rosbridge.session import OPS, TARGET_FIELDS, ClientSession
-from tests.conftest import Robot, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
 from tests.test_rosbridge_server import TWIST, Client, _upgrade_status, connect
 
 TOKEN = "s3cret"

@@ -29,7 +29,7 @@ from daemon.rosbridge.topics import (
 )
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
-from tests.conftest import close_to
+from tests.support.compare import close_to
 
 
 def decode(type_name: str, data: bytes) -> Any:

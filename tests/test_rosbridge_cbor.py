@@ -15,7 +15,7 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from daemon.rosbridge.msgtypes import full_text
 from daemon.rosbridge.topics import LASER_SCAN, ODOMETRY
-from tests.conftest import Robot
+from tests.support.in_process_daemon import Robot
 
 TIMEOUT = 10.0
 

@@ -6,7 +6,8 @@ from typing import Any
 
 from daemon.bench.rosbridge_attacks import TEXT_CATEGORIES, run_attack
 from daemon.bench.rosbridge_flood import measure, rss_mb
-from tests.conftest import Robot, eventually, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.wait import eventually
 from tests.test_rosbridge_hardening import OWNER, STALL_LIMIT_MS, WITH_TOKEN, bridge
 from tests.test_rosbridge_server import TWIST, connect
 

@@ -29,7 +29,8 @@ from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, Top
 from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.writer import SLICE
 from sensors.scan import LaserScan
-from tests.conftest import Robot, eventually, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.wait import eventually
 from tests.test_rosbridge_server import Client, _upgrade_status, connect
 
 TOKEN = "s3cret"

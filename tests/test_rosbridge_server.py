@@ -14,8 +14,9 @@ from typing import Any
 import aiohttp
 import pytest
 
-from tests.conftest import Robot, eventually
-from tests.conftest import running_robot as running_daemon
+from tests.support.in_process_daemon import Robot
+from tests.support.in_process_daemon import running_robot as running_daemon
+from tests.support.wait import eventually
 
 TIMEOUT = 10.0
 

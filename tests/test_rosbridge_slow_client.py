@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from daemon.bench.rosbridge_flood import LoopProbe
-from tests.conftest import Robot, eventually, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.wait import eventually
 from tests.test_rosbridge_hardening import STALL_LIMIT_MS
 from tests.test_rosbridge_server import connect
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from tests.conftest import Robot, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
 
 TOKEN = "s3cret-Token"
 DOC = Path(__file__).resolve().parent.parent / "docs" / "http-api.md"

@@ -11,7 +11,9 @@ from typing import Any
 import pytest
 
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.support.daemon_subprocess import REPO, DaemonProcess, http, wait_for
+from tests.support.daemon_subprocess import DaemonProcess, wait_for
+from tests.support.net import http
+from tests.support.paths import REPO
 
 # Runs `arbiterd run` in-process through daemon.cli.main; registers the lidar component if the
 # daemon's component table does not list it yet (a no-op once it does).

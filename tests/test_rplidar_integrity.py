@@ -29,7 +29,7 @@ from sensors.rplidar.protocol import (
     StreamParser,
 )
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.conftest import Collector, wait_for
+from tests.support.wait import Collector, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,8 +6,9 @@ from collections.abc import Callable
 from typing import Any
 
 from daemon.settings import COLLISION_MONITOR_OPTIONS
-from tests.conftest import DaemonProcess, wait_for
-from tests.support.daemon_subprocess import REPO
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 WALL_X = 3.0  # tests/scenarios/wall.toml: the robot starts at x = 0 facing this wall
 FOOTPRINT = 0.2  # [sim] footprint_radius default

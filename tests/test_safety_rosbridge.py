@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tests.conftest import Robot, eventually, running_robot
+from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.wait import eventually
 from tests.test_rosbridge_server import connect
 
 

@@ -17,10 +17,11 @@ from drivers.arduino_serial import SerialBridgeDriver
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
-from tests.conftest import eventually
 from tests.support.async_daemon_subprocess import DaemonClient, driver_daemon_config, spawn_daemon
-from tests.support.daemon_subprocess import REPO, free_port
+from tests.support.net import free_port
+from tests.support.paths import REPO
 from tests.support.rigs import Rig, wired_rig
+from tests.support.wait import eventually
 
 MAX_WHEEL_SPEED = 20.0
 WHEEL_RADIUS = 0.05

@@ -15,8 +15,8 @@ from drivers import DRIVERS
 from sim.raycast import RayCaster
 from sim.settings import SimConfig
 from sim.stepper import build_world
-from tests.conftest import wait_for
 from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 LINEAR, ANGULAR = 0.5, 0.6
 

@@ -17,8 +17,11 @@ from drivers import DRIVERS, create_driver, driver_class
 from drivers.mock import MockDriver
 from sim.motor_model import MotorPair, WheelMotor
 from sim.wiring import EMULATORS
-from tests.conftest import DaemonProcess, close_to, eventually, running_robot, wait_for
+from tests.support.compare import close_to
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.in_process_daemon import running_robot
 from tests.support.rigs import FULL_DUTY_SPEED, Rig, wired_rig
+from tests.support.wait import eventually, wait_for
 
 pytestmark = pytest.mark.timeout(90)
 

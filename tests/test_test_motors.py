@@ -21,7 +21,7 @@ from daemon.bringup.motors import NO_HAND_TURN
 from daemon.config import Config, load_config
 from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MISWIRES, MotorPair, PairWiring
-from tests.support.daemon_subprocess import REPO
+from tests.support.paths import REPO
 
 HOST_LOOP = ("pigpio", "l298n")  # the speed loop (and the direction flags) on the host
 SWAPPED_PINS = {

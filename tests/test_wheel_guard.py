@@ -12,8 +12,9 @@ import pytest
 
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from drivers import EncoderReading
-from tests.conftest import close_to, wait_for
+from tests.support.compare import close_to
 from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 TIME_S = 0.5
 

@@ -13,7 +13,7 @@ from typing import Any
 import aiohttp
 
 from daemon.cli import _toml_value
-from tests.support.daemon_subprocess import REPO
+from tests.support.paths import REPO
 
 
 class DaemonClient:

@@ -1,27 +1,18 @@
-# Test harness: the real `arbiterd run` as a subprocess on free ports, plus small HTTP helpers.
+# Test harness: the real `arbiterd run` as a subprocess on free ports, reached over HTTP.
 from __future__ import annotations
 
-import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
+from tests.support.mock_wheel_log import read_wheel_log
+from tests.support.net import free_port, http
+from tests.support.paths import REPO
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "condition",
@@ -35,42 +26,6 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "c
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(interval)
-
-
-def http(method: str, url: str, body: Any = None, *, token: str | None = None,
-         raw: bytes | None = None, content_type: str = "application/json",
-         timeout: float = 5.0) -> tuple[int, Any]:
-    """One HTTP request; returns (status, parsed JSON or text)."""
-    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
-    request = urllib.request.Request(url, data=data, method=method)
-    if data is not None:
-        request.add_header("Content-Type", content_type)
-    if token:
-        request.add_header("Authorization", f"Bearer {token}")
-    try:
-        with urllib.request.urlopen(request, timeout=timeout) as response:
-            return response.status, _decode(response.read())
-    except urllib.error.HTTPError as exc:
-        return exc.code, _decode(exc.read())
-
-
-def _decode(payload: bytes) -> Any:
-    try:
-        return json.loads(payload)
-    except ValueError:
-        return payload.decode(errors="replace")
-
-
-def read_wheel_log(path: Path) -> list[tuple[float, float, float]]:
-    """The mock driver's ``log_file``: (monotonic time, left, right) per command."""
-    if not path.exists():
-        return []
-    rows = []
-    for line in path.read_text().splitlines():
-        parts = line.split()
-        if len(parts) == 3:
-            rows.append((float(parts[0]), float(parts[1]), float(parts[2])))
-    return rows
 
 
 class DaemonProcess:

@@ -15,7 +15,8 @@ from drivers import DRIVERS, MotorDriver, create_driver, driver_class
 from drivers.rosarduino import BAUDRATE, MOTOR_SPEEDS, OK, encode_command
 from sim.motor_model import MotorPair
 from sim.wiring import EMULATORS, Emulated
-from tests.support.daemon_subprocess import read_wheel_log
+from tests.support.mock_wheel_log import read_wheel_log
+from tests.support.wait import eventually
 
 #: Wheel speed at full duty of the PWM rigs' motors, rad/s (the driver's duty map says the same).
 FULL_DUTY_SPEED = 20.0
@@ -137,8 +138,6 @@ async def restart_pigpiod_and_reopen(rig: Rig, driver: MotorDriver) -> None:
     """With pigpiod down and ``driver`` closed: the wheels coast to a stop, pigpiod restarts,
     the driver reconnects (its second connect) and the wheels stay still until a fresh
     command."""
-    from tests.conftest import eventually  # here: conftest imports this module
-
     await eventually(lambda: all(abs(v) < 1e-3 for v in rig.motors.speeds()),
                      "the wheels to coast to a stop while pigpiod is down")
     rig.emulator.start()
