@@ -13,7 +13,8 @@ from aiohttp import web
 from aiohttp.test_utils import TestServer
 
 from daemon.console import FILES, Console, url_of
-from tests.support.daemon_subprocess import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 STATIC = Path(__file__).resolve().parent.parent / "daemon" / "console" / "static"
 
@@ -107,7 +108,7 @@ def test_the_page_is_open_when_reads_need_the_token(tmp_path: Path) -> None:
     toml = '[security]\ntoken = "t0ken"\nread_requires_token = true\n'
     daemon = DaemonProcess(tmp_path, toml).start(wait_ready=False)
     try:
-        status, body = wait_for(lambda: _answer(daemon, "/"), 20, "the console page")
+        status, body = wait_for(lambda: _answer(daemon, "/"), "the console page", within_s=20)
         assert status == 200 and "<title>arbiterd console</title>" in body
         assert daemon.get("/api/health")[0] == 401
         assert daemon.get("/api/health", token="t0ken")[0] == 200

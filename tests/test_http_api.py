@@ -37,11 +37,11 @@ def test_health_reports_state_mode_version(daemon: DaemonProcess) -> None:
 
 
 def test_deadman_stops_the_wheels_after_silence(daemon: DaemonProcess) -> None:
-    wait_for(lambda: stopped(daemon), "the robot at rest", 5)
+    wait_for(lambda: stopped(daemon), "the robot at rest", within_s=5)
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}, "angular": {"z": 0.2}})
     assert status == 200 and body["accepted"], body
-    wait_for(lambda: moving(daemon), "the wheels to move", 2)
-    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
+    wait_for(lambda: moving(daemon), "the wheels to move", within_s=2)
+    wait_for(lambda: stopped(daemon), "the deadman stop", within_s=5)
     rows = daemon.wheels()
     last_rest = max(i for i, (_, left, right) in enumerate(rows) if (left, right) != (0.0, 0.0))
     first_motion = last_rest
@@ -117,16 +117,16 @@ def test_bad_estop_requests(daemon: DaemonProcess, body: object, message: str) -
 
 def test_estop_latches_until_released_and_a_fresh_command(daemon: DaemonProcess) -> None:
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})[0] == 200
-    wait_for(lambda: moving(daemon), "motion", 2)
+    wait_for(lambda: moving(daemon), "motion", within_s=2)
     assert daemon.post("/api/estop", {"engaged": True})[1] == {"engaged": True}
-    wait_for(lambda: stopped(daemon), "the e-stop brake", 2)
+    wait_for(lambda: stopped(daemon), "the e-stop brake", within_s=2)
     status, answer = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})
     assert status == 409 and "e-stop engaged" in answer["error"]
     assert daemon.get("/api/status")[1]["estop"]["engaged"] is True
     assert daemon.post("/api/estop", {"engaged": False})[1] == {"engaged": False}
     assert stopped(daemon)
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0] == 200
-    wait_for(lambda: moving(daemon), "motion after the release", 2)
+    wait_for(lambda: moving(daemon), "motion after the release", within_s=2)
 
 
 def test_out_of_range_is_clamped_and_reported(daemon: DaemonProcess) -> None:
@@ -135,7 +135,7 @@ def test_out_of_range_is_clamped_and_reported(daemon: DaemonProcess) -> None:
     status, body = daemon.get("/api/status")
     assert body["clamps"]["linear.x"] >= 1
     assert body["target"]["linear_x"] == 50.0
-    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
+    wait_for(lambda: stopped(daemon), "the deadman stop", within_s=5)
 
 
 def test_stamped_command_latency_is_tracked(daemon: DaemonProcess) -> None:

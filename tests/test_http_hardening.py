@@ -328,17 +328,18 @@ def test_accept_errors_are_one_line_and_the_daemon_recovers(
             held.append(sock)
         wait_for(lambda: "cannot accept connections" in proc.log(), "the accept error line")
         # asyncio retries accept() every second; let it fail a few more times
-        assert not wait_for_health(proc, within_s=2.5)
+        assert not health_answered(proc, within_s=2.5)
     finally:
         for sock in held:
             sock.close()
-    assert wait_for(lambda: wait_for_health(proc, 1.0), "health after the flood")
+    assert wait_for(lambda: health_answered(proc, 1.0), "health after the flood")
     log = proc.log()
     assert log.count("cannot accept connections: too many open files (EMFILE)") == 1
     assert "Traceback" not in log and "socket.accept() out of system resource" not in log
 
 
-def wait_for_health(proc: DaemonProcess, within_s: float) -> bool:
+def health_answered(proc: DaemonProcess, within_s: float) -> bool:
+    """One GET /api/health answered 200 within ``within_s``."""
     try:
         return exchange(proc.http_port, request("GET", "/api/health", 0), within_s).status == 200
     except (OSError, AssertionError):

@@ -11,9 +11,10 @@ from typing import Any
 import pytest
 
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.support.daemon_subprocess import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess
 from tests.support.net import http
 from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 # Runs `arbiterd run` in-process through daemon.cli.main; registers the lidar component if the
 # daemon's component table does not list it yet (a no-op once it does).
@@ -29,7 +30,7 @@ class LidarDaemon(DaemonProcess):
             [sys.executable, "-c", LAUNCH, "run", "--config", str(self.config_path)],
             cwd=REPO, env=self.env, stdout=self._log, stderr=subprocess.STDOUT, text=True)
         if wait_ready:
-            wait_for(self._health_answers, 20.0, "the daemon's /api/health")
+            wait_for(self._health_answers, "the daemon's /api/health", within_s=20.0)
         return self
 
 
@@ -82,15 +83,15 @@ def lidar_health(daemon: DaemonProcess) -> dict[str, Any]:
 
 def more_revolutions(daemon: DaemonProcess, extra: int = 3, timeout: float = 10.0) -> None:
     target = lidar_health(daemon)["revolutions"] + extra
-    wait_for(lambda: lidar_health(daemon)["revolutions"] >= target, timeout,
-             f"{extra} more revolutions")
+    wait_for(lambda: lidar_health(daemon)["revolutions"] >= target, f"{extra} more revolutions",
+             within_s=timeout)
 
 
 def test_daemon_streams_and_survives_garbage_stall_and_unplug(
         rig: tuple[RplidarEmulator, LidarDaemon]) -> None:
     emulator, daemon = rig
     with HealthWatcher(daemon.base_url + "/api/health") as watcher:
-        wait_for(lambda: lidar_health(daemon)["revolutions"] >= 3, 15, "first revolutions")
+        wait_for(lambda: lidar_health(daemon)["revolutions"] >= 3, "first revolutions", within_s=15)
         lidar = lidar_health(daemon)
         assert lidar["status"] == "ok" and lidar["model"] == "A1M8" and lidar["mode"] == "Express"
         integrity = ("dropped_capsules", "dropped_nodes", "angle_misfits", "short_revolutions")
@@ -99,20 +100,23 @@ def test_daemon_streams_and_survives_garbage_stall_and_unplug(
         assert status == 200 and scan["frame_id"] == "laser" and len(scan["ranges"]) > 300
 
         emulator.inject_garbage(80)
-        wait_for(lambda: lidar_health(daemon)["dropped_capsules"] >= 1, 10, "a dropped capsule")
+        wait_for(lambda: lidar_health(daemon)["dropped_capsules"] >= 1, "a dropped capsule",
+                 within_s=10)
         more_revolutions(daemon)
         assert lidar_health(daemon)["status"] == "ok"
 
         emulator.stall(3.0)
-        wait_for(lambda: lidar_health(daemon)["stream_restarts"] >= 1, 10, "a stream restart")
+        wait_for(lambda: lidar_health(daemon)["stream_restarts"] >= 1, "a stream restart",
+                 within_s=10)
         more_revolutions(daemon, timeout=15)
         assert lidar_health(daemon)["device_resets"] >= 1
 
         emulator.unplug()
-        wait_for(lambda: lidar_health(daemon)["state"] == "disconnected", 10, "disconnected")
+        wait_for(lambda: lidar_health(daemon)["state"] == "disconnected", "disconnected",
+                 within_s=10)
         assert lidar_health(daemon)["status"] == "degraded"
         emulator.replug()
-        wait_for(lambda: lidar_health(daemon)["reconnects"] >= 1, 15, "a reconnect")
+        wait_for(lambda: lidar_health(daemon)["reconnects"] >= 1, "a reconnect", within_s=15)
         more_revolutions(daemon, timeout=15)
         lidar = lidar_health(daemon)
         assert lidar["status"] == "ok"

@@ -28,14 +28,20 @@ def status(daemon: DaemonProcess) -> dict[str, Any]:
 
 
 def drive_until(daemon: DaemonProcess, command: Callable[[dict[str, Any]], dict[str, Any]],
-                done: Callable[[dict[str, Any]], bool], timeout: float = 20.0) -> None:
+                done: Callable[[dict[str, Any]], bool], within_s: float = 20.0) -> None:
     """Send ``command(status)`` at ~20 Hz until ``done(status)``, then command zero."""
-    deadline = time.monotonic() + timeout
-    while not done(now := status(daemon)):
-        assert time.monotonic() < deadline, f"gave up: {now}"
+    now: dict[str, Any] = {}
+
+    def done_else_command() -> bool:
+        nonlocal now
+        if done(now := status(daemon)):
+            return True
         code, body = daemon.post("/api/cmd_vel", command(now))
         assert code == 200, body
-        time.sleep(0.05)
+        return False
+
+    wait_for(done_else_command, lambda: f"the goal; last status: {now}", within_s=within_s,
+             interval_s=0.05)
     assert daemon.post("/api/cmd_vel", {})[0] == 200
 
 
@@ -137,7 +143,7 @@ def test_driving_into_an_obstacle_counts_a_collision(tmp_path: Path) -> None:
         code, _ = daemon.post("/api/sim/reset", {"x": x, "y": y, "theta": bearing})
         assert code == 200
         drive_until(daemon, lambda s: {"linear": {"x": 1.0}},
-                    lambda s: s["ground_truth"]["collisions"] >= 1, timeout=10)
+                    lambda s: s["ground_truth"]["collisions"] >= 1, within_s=10)
         truth = status(daemon)["ground_truth"]
         clearance = math.hypot(truth["x"] - target.x, truth["y"] - target.y)
         assert clearance >= target.r + sim.footprint_radius - 1e-3, "passed through"

@@ -74,11 +74,17 @@ def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonProcess
     return DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False)
 
 
+def refused(daemon: DaemonProcess, twist: dict[str, Any]) -> int | None:
+    """Drive with ``twist``: the status of the refusal, or None when accepted."""
+    code: int = daemon.post("/api/cmd_vel", twist)[0]
+    return None if code == 200 else code
+
+
 def test_the_guard_stops_a_robot_with_a_reversed_motor(tmp_path: Path) -> None:
     with sim_daemon(tmp_path, "pigpio", ["left_motor_reversed"]) as daemon:
         start = status(daemon)["ground_truth"]["theta"]
-        while (code := daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0]) == 200:
-            time.sleep(0.05)
+        code = wait_for(lambda: refused(daemon, {"linear": {"x": 0.2}}),
+                        "the wheel guard to trip (a drive command refused)", interval_s=0.05)
         assert code == 409  # refused: the e-stop latched
         code, health = daemon.get("/api/health")
         control = health["components"]["control"]

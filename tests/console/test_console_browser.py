@@ -12,7 +12,8 @@ from typing import Any
 
 import pytest
 
-from tests.support.daemon_subprocess import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.wait import wait_for
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
@@ -38,8 +39,8 @@ def _require_browser() -> None:
 
 
 def _wait_healthy(daemon: DaemonProcess) -> None:
-    wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok", 20,
-             "the simulated robot healthy (lidar streaming)")
+    wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok",
+             "the simulated robot healthy (lidar streaming)", within_s=20)
 
 
 def _run_console(daemon: DaemonProcess, *args: str) -> Steps:

@@ -5,7 +5,6 @@ import asyncio
 import contextlib
 import signal
 import sys
-import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ import aiohttp
 
 from daemon.cli import _toml_value
 from tests.support.paths import REPO
+from tests.support.wait import eventually
 
 
 class DaemonClient:
@@ -34,16 +34,20 @@ class DaemonClient:
 
     async def wait_health(self, status: str, within_s: float = 10.0) -> dict[str, Any]:
         """Poll ``/api/health`` until its status is ``status`` (503 goes with ``error``)."""
-        deadline = time.monotonic() + within_s
-        while True:
+
+        async def reached() -> dict[str, Any] | None:
             assert self.process.returncode is None, "the daemon exited"
             with contextlib.suppress(aiohttp.ClientConnectionError):
                 code, body = await self.health()
                 if body["status"] == status:
                     assert code == (503 if status == "error" else 200)
                     return body
-            assert time.monotonic() < deadline, f"daemon health never became {status!r}"
-            await asyncio.sleep(0.05)
+            return None
+
+        body: dict[str, Any] = await eventually(
+            reached, f"the daemon's health to become {status!r}", within_s=within_s,
+            interval_s=0.05)
+        return body
 
 
 def driver_daemon_config(tmp_path: Path, driver: str, options: dict[str, Any],

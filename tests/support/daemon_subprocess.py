@@ -5,27 +5,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from tests.support.mock_wheel_log import read_wheel_log
 from tests.support.net import free_port, http
 from tests.support.paths import REPO
-
-
-def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "condition",
-             interval: float = 0.02) -> Any:
-    """Poll ``predicate`` until it returns something truthy; fail after ``timeout`` s."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(interval)
+from tests.support.wait import wait_for
 
 
 class DaemonProcess:
@@ -60,7 +46,7 @@ class DaemonProcess:
              *self.args], cwd=REPO, env=self.env, stdout=self._log, stderr=subprocess.STDOUT,
             text=True)
         if wait_ready:
-            wait_for(self._health_answers, 20.0, "the daemon's /api/health")
+            wait_for(self._health_answers, "the daemon's /api/health", within_s=20.0)
         return self
 
     def _health_answers(self) -> bool:

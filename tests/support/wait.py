@@ -1,4 +1,4 @@
-# Waiting in tests: poll until a condition holds (from plain and async code), and a Collector.
+# Waiting in tests: the one poll-until-true loop (wait_for, eventually) and a Collector.
 from __future__ import annotations
 
 import asyncio
@@ -10,28 +10,43 @@ from typing import Any, Generic, TypeVar
 
 DEFAULT_WITHIN_S = 10.0
 T = TypeVar("T")
+#: What a wait is for, as its failure names it: text, or a function giving text built from the
+#: state at the time of the failure (the last reading, a log).
+What = str | Callable[[], str]
 
 
-def wait_for(condition: Callable[[], Any], what: str = "condition",
+class _Deadline:
+    """The timeout wait_for and eventually share, and the failure it ends in."""
+
+    def __init__(self, what: What, within_s: float) -> None:
+        self.what, self.within_s = what, within_s
+        self.at = time.monotonic() + within_s
+
+    def check(self) -> None:
+        """Fail, naming what was waited for, once the deadline has passed."""
+        if time.monotonic() > self.at:
+            what = self.what() if callable(self.what) else self.what
+            raise AssertionError(f"timed out after {self.within_s} s waiting for {what}")
+
+
+def wait_for(condition: Callable[[], Any], what: What = "condition", *,
              within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.01) -> Any:
     """Poll ``condition`` (from plain code) until it returns something truthy, and return it;
     fail naming ``what`` after ``within_s``."""
-    deadline = time.monotonic() + within_s
+    deadline = _Deadline(what, within_s)
     while not (value := condition()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
+        deadline.check()
         time.sleep(interval_s)
     return value
 
 
-async def eventually(condition: Callable[[], Any], what: str = "condition",
+async def eventually(condition: Callable[[], Any], what: What = "condition", *,
                      within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.005) -> Any:
     """``wait_for`` for async tests: the event loop keeps running between polls.
     ``condition`` may be a coroutine function (it is awaited each time)."""
-    deadline = time.monotonic() + within_s
+    deadline = _Deadline(what, within_s)
     while not (value := await _result(condition())):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {within_s} s waiting for {what}")
+        deadline.check()
         await asyncio.sleep(interval_s)
     return value
 
@@ -63,5 +78,5 @@ class Collector(Generic[T]):
     def wait(self, count: int, what: str = "",
              within_s: float = DEFAULT_WITHIN_S) -> list[T]:
         """All items once there are ``count``; fail naming ``what`` after ``within_s``."""
-        wait_for(lambda: self.count() >= count, what or f"{count} items", within_s)
+        wait_for(lambda: self.count() >= count, what or f"{count} items", within_s=within_s)
         return self.items()
