@@ -1,35 +1,35 @@
-# The shared fixtures: the robot in-process, daemon subprocesses, and every driver's rig.
+# The shared fixtures: the in-process daemon, daemon subprocesses, and every driver's rig.
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.support.daemon_subprocess import DaemonProcess
-from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.support.rigs import RIGS, Rig
 
 
 @pytest.fixture
-async def robot(tmp_path: Path) -> AsyncIterator[Robot]:
-    """The in-process robot with the default config."""
-    async with running_robot(tmp_path) as running:
+async def robot(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
+    """The simulated robot: an InProcessDaemon with the default config."""
+    async with in_process_daemon(tmp_path) as running:
         yield running
 
 
 @pytest.fixture
-def daemon_process(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
-    """A factory of ``arbiterd run`` subprocesses (``DaemonProcess``); each is killed at the
+def daemon_subprocess(tmp_path: Path) -> Iterator[StartDaemonSubprocess]:
+    """A factory of ``arbiterd run`` subprocesses (``DaemonSubprocess``); each is killed at the
     end of the test if it is still running."""
-    started: list[DaemonProcess] = []
+    started: list[DaemonSubprocess] = []
 
-    def start(extra_toml: str = "", **kw: Any) -> DaemonProcess:
+    def start(extra_toml: str = "", **kw: Any) -> DaemonSubprocess:
         wait_ready = kw.pop("wait_ready", True)
         workdir = tmp_path / f"daemon{len(started)}"
         workdir.mkdir()
-        process = DaemonProcess(workdir, extra_toml, **kw)
+        process = DaemonSubprocess(workdir, extra_toml, **kw)
         started.append(process)
         return process.start(wait_ready=wait_ready)
 

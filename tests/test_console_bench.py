@@ -7,13 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 
 def test_replayed_console_alternates_idle_and_driving_windows(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path, args=("--sim",)) as daemon:
+    with DaemonSubprocess(tmp_path, args=("--sim",)) as daemon:
         _, before = daemon.get("/api/latency")
         result = subprocess.run(
             [sys.executable, "-m", "daemon.bench.console", "--http", daemon.base_url,

@@ -7,7 +7,7 @@ import threading
 import time
 from pathlib import Path
 
-from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.wait import wait_for
 
 
@@ -47,7 +47,7 @@ class NotifySocket:
 def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
     notify = NotifySocket(tmp_path / "notify.sock")
     env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "400000"}
-    daemon = DaemonProcess(tmp_path, "[control]\nallow_fault_injection = true\n", env=env)
+    daemon = DaemonSubprocess(tmp_path, "[control]\nallow_fault_injection = true\n", env=env)
     try:
         with daemon:
             wait_for(lambda: "READY=1" in notify.lines(), "READY=1", within_s=10)
@@ -83,7 +83,7 @@ def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
 
 
 def test_sigint_also_takes_the_shutdown_path(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path) as daemon:
+    with DaemonSubprocess(tmp_path) as daemon:
         daemon.post("/api/cmd_vel", {"linear": {"x": 0.3}})
         wait_for(lambda: daemon.wheels() and daemon.wheels()[-1][1] > 0, "motion", within_s=5)
         assert daemon.stop(signal.SIGINT) == 0
@@ -94,7 +94,7 @@ def test_sigint_also_takes_the_shutdown_path(tmp_path: Path) -> None:
 def test_no_watchdog_pings_without_watchdog_usec(tmp_path: Path) -> None:
     notify = NotifySocket(tmp_path / "notify.sock")
     try:
-        with DaemonProcess(tmp_path, env={"NOTIFY_SOCKET": str(notify.path)}) as daemon:
+        with DaemonSubprocess(tmp_path, env={"NOTIFY_SOCKET": str(notify.path)}) as daemon:
             wait_for(lambda: "READY=1" in notify.lines(), "READY=1", within_s=10)
             daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})  # some ticks pass meanwhile
             status, health = daemon.get("/api/health")

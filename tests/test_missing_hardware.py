@@ -7,7 +7,7 @@ from pathlib import Path
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MotorPair
-from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.wait import wait_for
 
 
@@ -15,7 +15,7 @@ def test_an_arduino_plugged_in_after_boot_drives_after_a_fresh_command(tmp_path:
     link = tmp_path / "arduino"
     toml = (f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{link}"\n'
             f'reset_wait_s = 0.05\n[control]\nreconnect_min_s = 0.1\nreconnect_max_s = 0.4\n')
-    with DaemonProcess(tmp_path, toml) as daemon:
+    with DaemonSubprocess(tmp_path, toml) as daemon:
         code, health = daemon.get("/api/health")
         assert code == 503 and health["driver"] == "serial", health
         fault = health["components"]["control"]["fault"]

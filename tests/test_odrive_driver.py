@@ -559,7 +559,7 @@ def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
 
 
 def test_daemon_survives_odrive_heartbeat_loss(tmp_path: Path) -> None:
-    from tests.support.daemon_subprocess import DaemonProcess
+    from tests.support.daemon_subprocess import DaemonSubprocess
 
     port = _free_udp_port()
     try:
@@ -582,7 +582,7 @@ reconnect_max_s = 0.5
 """
     drive = {"linear": {"x": 0.2}}  # 4 rad/s on both 0.05 m wheels
     try:
-        with DaemonProcess(tmp_path, config, use_mock_log=False) as daemon:
+        with DaemonSubprocess(tmp_path, config, use_mock_log=False) as daemon:
             wait_for(lambda: daemon.get("/api/health")[0] == 200, "a healthy daemon", within_s=10)
 
             def driving() -> bool:

@@ -8,7 +8,7 @@ from typing import Any
 from daemon.rosbridge import access
 from daemon.rosbridge.access import ANY, TABLE
 from daemon.rosbridge.session import OPS, TARGET_FIELDS, ClientSession
-from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.test_rosbridge_server import TWIST, Client, _upgrade_status, connect
 
 TOKEN = "s3cret"
@@ -76,7 +76,7 @@ async def no_access_refusals(client: Client) -> list[dict[str, Any]]:
 async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> None:
     rules = drive_rules()
     assert len(rules) >= 6
-    async with running_robot(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
+    async with in_process_daemon(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
         async with connect(robot.ws_url) as anonymous:
             for i, (op, target) in enumerate(rules):
                 rid = f"walk-{i}"
@@ -89,7 +89,7 @@ async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> No
             assert await no_access_refusals(owner) == []
 
 
-def assert_nothing_happened(robot: Robot) -> None:
+def assert_nothing_happened(robot: InProcessDaemon) -> None:
     assert not robot.moving()
     assert not robot.ctx.control.arbiter.estop_engaged
     graph = robot.component("rosbridge").graph
@@ -99,7 +99,7 @@ def assert_nothing_happened(robot: Robot) -> None:
 
 async def test_read_and_open_ops_need_no_token(tmp_path: Path) -> None:
     config = f'[security]\ntoken = "{TOKEN}"\n'
-    async with running_robot(tmp_path, config) as robot, connect(robot.ws_url) as anonymous:
+    async with in_process_daemon(tmp_path, config) as robot, connect(robot.ws_url) as anonymous:
         for (op, target), need in TABLE.items():
             if need != "drive":
                 await anonymous.send(**sample_frame(op, sample_target(op, target), f"{op}"))
@@ -108,6 +108,6 @@ async def test_read_and_open_ops_need_no_token(tmp_path: Path) -> None:
 
 async def test_read_requires_token_refuses_the_tokenless_upgrade(tmp_path: Path) -> None:
     config = f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
-    async with running_robot(tmp_path, config) as robot:
+    async with in_process_daemon(tmp_path, config) as robot:
         assert await _upgrade_status(robot.ws_url) == 401
         assert await _upgrade_status(robot.ws_url, Authorization=f"Bearer {TOKEN}") == 101

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from daemon.bench.rosbridge_flood import LoopProbe
-from tests.support.in_process_daemon import Robot, running_robot
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.support.wait import eventually
 from tests.test_rosbridge_hardening import STALL_LIMIT_MS
 from tests.test_rosbridge_server import connect
@@ -73,7 +73,7 @@ class BigScan:
     intensities: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
+async def publish_scans(robot: InProcessDaemon, stop: asyncio.Event) -> int:
     count = 0
     while not stop.is_set():
         robot.ctx.bus.publish("scan", BigScan(time.time()))
@@ -83,7 +83,7 @@ async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
 
 
 async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
-    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as healthy:
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as healthy:
         port = int(robot.ws_url.rsplit(":", 1)[1].strip("/"))
         bridge = robot.component("rosbridge")
         frames = [json.dumps({"op": "subscribe", "topic": t}) for t in ("/scan", "/odom", "/tf")]

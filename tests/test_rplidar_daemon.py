@@ -1,7 +1,6 @@
 # End to end: the real daemon streams from the emulated RPLIDAR and survives its faults.
 from __future__ import annotations
 
-import subprocess
 import sys
 import threading
 from collections.abc import Iterator
@@ -11,9 +10,8 @@ from typing import Any
 import pytest
 
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.net import http
-from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 # Runs `arbiterd run` in-process through daemon.cli.main; registers the lidar component if the
@@ -23,15 +21,9 @@ LAUNCH = ("import sys, daemon.app as app; "
           "from daemon.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
-class LidarDaemon(DaemonProcess):
-    def start(self, wait_ready: bool = True) -> DaemonProcess:
-        self._log = self.log_path.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", LAUNCH, "run", "--config", str(self.config_path)],
-            cwd=REPO, env=self.env, stdout=self._log, stderr=subprocess.STDOUT, text=True)
-        if wait_ready:
-            wait_for(self._health_answers, "the daemon's /api/health", within_s=20.0)
-        return self
+class LidarDaemon(DaemonSubprocess):
+    def command(self) -> list[str]:
+        return [sys.executable, "-c", LAUNCH, "run", "--config", str(self.config_path)]
 
 
 class HealthWatcher:
@@ -74,14 +66,14 @@ def rig(tmp_path: Path) -> Iterator[tuple[RplidarEmulator, LidarDaemon]]:
             yield emulator, daemon
 
 
-def lidar_health(daemon: DaemonProcess) -> dict[str, Any]:
+def lidar_health(daemon: DaemonSubprocess) -> dict[str, Any]:
     status, body = daemon.get("/api/health")
     assert status == 200, body
     lidar: dict[str, Any] = body["components"]["lidar"]
     return lidar
 
 
-def more_revolutions(daemon: DaemonProcess, extra: int = 3, timeout: float = 10.0) -> None:
+def more_revolutions(daemon: DaemonSubprocess, extra: int = 3, timeout: float = 10.0) -> None:
     target = lidar_health(daemon)["revolutions"] + extra
     wait_for(lambda: lidar_health(daemon)["revolutions"] >= target, f"{extra} more revolutions",
              within_s=timeout)

@@ -13,7 +13,7 @@ import pytest
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from drivers import EncoderReading
 from tests.support.compare import close_to
-from tests.support.daemon_subprocess import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.wait import wait_for
 
 TIME_S = 0.5
@@ -62,19 +62,19 @@ def test_a_wheel_within_tolerance_or_a_short_miss_never_trips() -> None:
 # -- in the simulated robot ------------------------------------------------------------------
 
 
-def status(daemon: DaemonProcess) -> dict[str, Any]:
+def status(daemon: DaemonSubprocess) -> dict[str, Any]:
     code, body = daemon.get("/api/status")
     assert code == 200, body
     return body  # type: ignore[no-any-return]
 
 
-def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonProcess:
+def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonSubprocess:
     toml = (f'[sim]\ndriver = "{driver}"\nmiswire = {miswire!r}\nlidar = false\n'
             f'[control]\nwheel_mismatch_time_s = {TIME_S}\n').replace("'", '"')
-    return DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False)
+    return DaemonSubprocess(tmp_path, toml, args=("--sim",), use_mock_log=False)
 
 
-def refused(daemon: DaemonProcess, twist: dict[str, Any]) -> int | None:
+def refused(daemon: DaemonSubprocess, twist: dict[str, Any]) -> int | None:
     """Drive with ``twist``: the status of the refusal, or None when accepted."""
     code: int = daemon.post("/api/cmd_vel", twist)[0]
     return None if code == 200 else code

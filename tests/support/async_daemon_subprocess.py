@@ -16,8 +16,8 @@ from tests.support.paths import REPO
 from tests.support.wait import eventually
 
 
-class DaemonClient:
-    """Talks to a daemon subprocess over its HTTP API."""
+class AsyncDaemonSubprocess:
+    """``arbiterd run`` as a subprocess of the test's event loop, and its HTTP API (aiohttp)."""
 
     def __init__(self, process: asyncio.subprocess.Process, port: int,
                  session: aiohttp.ClientSession) -> None:
@@ -79,7 +79,8 @@ enabled = false
 
 
 @contextlib.asynccontextmanager
-async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[DaemonClient]:
+async def async_daemon_subprocess(config: Path, port: int,
+                                  log: Path) -> AsyncIterator[AsyncDaemonSubprocess]:
     """Run the daemon until the block ends, then SIGTERM it and require exit status 0."""
     with log.open("wb") as log_file:
         process = await asyncio.create_subprocess_exec(
@@ -87,7 +88,7 @@ async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[Daem
             stdout=asyncio.subprocess.DEVNULL, stderr=log_file)
         async with reaped(process), aiohttp.ClientSession(
                 timeout=aiohttp.ClientTimeout(total=5)) as session:
-            client = DaemonClient(process, port, session)
+            client = AsyncDaemonSubprocess(process, port, session)
             await client.wait_health("ok", within_s=20.0)
             yield client
             await terminate_cleanly(process)

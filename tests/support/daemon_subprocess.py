@@ -1,10 +1,11 @@
-# Test harness: the real `arbiterd run` as a subprocess on free ports, reached over HTTP.
+# Test harness: the real `arbiterd run` as a subprocess on free ports, driven over HTTP (blocking).
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -14,8 +15,9 @@ from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 
-class DaemonProcess:
-    """``arbiterd run --config <file>`` with HTTP on a free port and the mock driver logging."""
+class DaemonSubprocess:
+    """``arbiterd run --config <file>`` as a subprocess, with HTTP on a free port and the mock
+    driver logging (blocking calls; for async tests see async_daemon_subprocess.py)."""
 
     def __init__(self, tmp_path: Path, extra_toml: str = "", *,
                  env: dict[str, str] | None = None, args: tuple[str, ...] = (),
@@ -39,12 +41,15 @@ class DaemonProcess:
     def base_url(self) -> str:
         return f"http://127.0.0.1:{self.http_port}"
 
-    def start(self, wait_ready: bool = True) -> DaemonProcess:
+    def command(self) -> list[str]:
+        """The command line the subprocess runs."""
+        return [sys.executable, "-m", "daemon.cli", "run", "--config", str(self.config_path),
+                *self.args]
+
+    def start(self, wait_ready: bool = True) -> DaemonSubprocess:
         self._log = self.log_path.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon.cli", "run", "--config", str(self.config_path),
-             *self.args], cwd=REPO, env=self.env, stdout=self._log, stderr=subprocess.STDOUT,
-            text=True)
+        self.proc = subprocess.Popen(self.command(), cwd=REPO, env=self.env, stdout=self._log,
+                                     stderr=subprocess.STDOUT, text=True)
         if wait_ready:
             wait_for(self._health_answers, "the daemon's /api/health", within_s=20.0)
         return self
@@ -78,7 +83,7 @@ class DaemonProcess:
         self._log.close()
         return code
 
-    def __enter__(self) -> DaemonProcess:
+    def __enter__(self) -> DaemonSubprocess:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -87,3 +92,8 @@ class DaemonProcess:
             self.proc.wait(5)
         if hasattr(self, "_log"):
             self._log.close()
+
+
+#: The ``daemon_subprocess`` fixture: starts a DaemonSubprocess (``extra_toml``, keyword
+#: arguments of DaemonSubprocess, ``wait_ready``), killed at the end of the test.
+StartDaemonSubprocess = Callable[..., DaemonSubprocess]

@@ -13,7 +13,7 @@ from tests.support.net import free_port
 from tests.support.wait import DEFAULT_WITHIN_S, eventually
 
 
-class Robot:
+class InProcessDaemon:
     """The daemon running in the test's own event loop (simulated mode), and where to reach it."""
 
     def __init__(self, daemon: Daemon, ws_port: int, http_port: int) -> None:
@@ -47,8 +47,9 @@ def may_drive(daemon: Daemon) -> bool:
 
 
 @asynccontextmanager
-async def running_robot(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[Robot]:
-    """``arbiterd run --sim`` with the mock driver, in-process, on free ports."""
+async def in_process_daemon(tmp_path: Path,
+                            extra_toml: str = "") -> AsyncIterator[InProcessDaemon]:
+    """``arbiterd run --sim`` with the mock driver, in the test's event loop, on free ports."""
     ws_port, http_port = free_port(), free_port()
     config_path = tmp_path / "arbiterd.toml"
     config_path.write_text(
@@ -62,7 +63,7 @@ async def running_robot(tmp_path: Path, extra_toml: str = "") -> AsyncIterator[R
     await eventually(lambda: may_drive(daemon), "the lidar's first revolution (the collision "
                      "monitor holds the robot still until it has one)")
     try:
-        yield Robot(daemon, ws_port, http_port)
+        yield InProcessDaemon(daemon, ws_port, http_port)
     finally:
         daemon.request_shutdown("test over")
         await asyncio.wait_for(task, DEFAULT_WITHIN_S)
