@@ -41,20 +41,33 @@ def python_files_of_the_tests() -> list[Path]:
     return sorted(p for p in TESTS.rglob("*.py") if "node_modules" not in p.parts)
 
 
-def conftest_imports(source: str) -> list[int]:
-    """Line numbers of the imports of a ``conftest`` module (``from tests.conftest import x``,
-    ``from .conftest import x``, ``from tests import conftest``, ``import conftest``...)."""
-    lines = []
+def imported_names(source: str) -> list[tuple[int, str]]:
+    """(line, dotted name) for every module or name an import statement names, in functions
+    too: ``from a.b import c`` names ``a.b`` and ``a.b.c``."""
+    found = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
+            found += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            names = [node.module or "", *(alias.name for alias in node.names)]
-        else:
-            continue
-        if any("conftest" in name.split(".") for name in names):
-            lines.append(node.lineno)
-    return lines
+            base = "." * node.level + (node.module or "")
+            found.append((node.lineno, base))
+            found += [(node.lineno, f"{base}.{alias.name}".lstrip(".")) for alias in node.names]
+    return found
+
+
+def conftest_imports(source: str) -> list[int]:
+    """Lines importing a ``conftest`` module (``from tests.conftest import x``,
+    ``from .conftest import x``, ``from tests import conftest``, ``import conftest``...)."""
+    return sorted({line for line, name in imported_names(source)
+                   if "conftest" in name.split(".")})
+
+
+def imports_of_test_modules(source: str) -> list[int]:
+    """Lines importing a test module or a test of one (``from tests.test_x import helper``,
+    ``from tests import test_x``): pytest would also collect the tests it brings along."""
+    return sorted({line for line, name in imported_names(source)
+                   if (name.startswith(("tests.", ".", "test_"))  # the tests' own modules
+                       and any(part.startswith("test_") for part in name.split(".")))})
 
 
 def test_no_test_module_imports_conftest() -> None:
@@ -64,12 +77,27 @@ def test_no_test_module_imports_conftest() -> None:
     assert offenders == [], "import these from tests/support instead"
 
 
+def test_no_test_module_imports_another() -> None:
+    """A helper two test modules share lives in tests/support, not in one of them."""
+    offenders = [f"{path.relative_to(REPO)}:{line}" for path in python_files_of_the_tests()
+                 for line in imports_of_test_modules(path.read_text())]
+    assert offenders == [], "move what they share to tests/support"
+
+
 def test_a_conftest_import_is_found_in_every_spelling() -> None:
     source = ("from tests.conftest import wait_for\nfrom .conftest import Robot\n"
               "from tests import conftest\nimport conftest\n"
               "def f() -> None:\n    from conftest import close_to\n"
               "from tests.support.wait import wait_for  # conftest\n")
     assert conftest_imports(source) == [1, 2, 3, 4, 6]
+
+
+def test_an_import_of_a_test_module_is_found() -> None:
+    source = ("from tests.test_rosbridge_server import connect\nfrom tests import test_x\n"
+              "import tests.test_y\nfrom tests.support.rosbridge import connect\n"
+              "def f() -> None:\n    from .test_z import helper\n"
+              "from aiohttp.test_utils import TestServer\n")
+    assert imports_of_test_modules(source) == [1, 2, 3, 6]
 
 
 def test_every_support_module_says_what_it_is_for() -> None:

@@ -9,7 +9,7 @@ from daemon.rosbridge import access
 from daemon.rosbridge.access import ANY, TABLE
 from daemon.rosbridge.session import OPS, TARGET_FIELDS, ClientSession
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
-from tests.test_rosbridge_server import TWIST, Client, _upgrade_status, connect
+from tests.support.rosbridge import TWIST, Client, connect, upgrade_status
 
 TOKEN = "s3cret"
 SAMPLE_TOPIC = "/walk"
@@ -109,5 +109,5 @@ async def test_read_and_open_ops_need_no_token(tmp_path: Path) -> None:
 async def test_read_requires_token_refuses_the_tokenless_upgrade(tmp_path: Path) -> None:
     config = f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
     async with in_process_daemon(tmp_path, config) as robot:
-        assert await _upgrade_status(robot.ws_url) == 401
-        assert await _upgrade_status(robot.ws_url, Authorization=f"Bearer {TOKEN}") == 101
+        assert await upgrade_status(robot.ws_url) == 401
+        assert await upgrade_status(robot.ws_url, Authorization=f"Bearer {TOKEN}") == 101

@@ -7,9 +7,8 @@ from typing import Any
 from daemon.bench.rosbridge_attacks import TEXT_CATEGORIES, run_attack
 from daemon.bench.rosbridge_flood import measure, rss_mb
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import OWNER, STALL_LIMIT_MS, TWIST, WITH_TOKEN, bridge, connect
 from tests.support.wait import eventually
-from tests.test_rosbridge_hardening import OWNER, STALL_LIMIT_MS, WITH_TOKEN, bridge
-from tests.test_rosbridge_server import TWIST, connect
 
 WARM_UP_S = 5
 FUZZ_S = 25

@@ -30,25 +30,22 @@ from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.writer import SLICE
 from sensors.scan import LaserScan
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import (
+    OWNER,
+    STALL_LIMIT_MS,
+    WITH_TOKEN,
+    Client,
+    bridge,
+    connect,
+    upgrade_status,
+)
 from tests.support.wait import eventually
-from tests.test_rosbridge_server import Client, _upgrade_status, connect
-
-TOKEN = "s3cret"
-WITH_TOKEN = f'[security]\ntoken = "{TOKEN}"\n'
-OWNER = {"Authorization": f"Bearer {TOKEN}"}
-# the deadman (cmd_vel_timeout, 0.5 s) must be able to fire; on a shared 2-core box garbage
-# collection and scheduling alone stall a loop for up to ~150 ms, the bugs did for seconds
-STALL_LIMIT_MS = 400.0
 
 
 def set_limits(monkeypatch: pytest.MonkeyPatch, **values: float) -> None:
     """``[rosbridge]`` keys for the next daemon (the environment overrides the config file)."""
     for key, value in values.items():
         monkeypatch.setenv(env_name("rosbridge", key), str(value))
-
-
-def bridge(robot: InProcessDaemon) -> Any:
-    return robot.component("rosbridge")
 
 
 async def under_attack(robot: InProcessDaemon, *args: str) -> tuple[dict[str, Any], Window]:
@@ -265,7 +262,7 @@ async def test_idle_tokenless_clients_cannot_lock_out_the_token_holder(tmp_path:
             except aiohttp.WSServerHandshakeError as exc:
                 assert exc.status == 503
         assert opened == 32 - 4  # reserved_clients
-        assert await _upgrade_status(robot.ws_url, **OWNER) == 101
+        assert await upgrade_status(robot.ws_url, **OWNER) == 101
 
 
 async def test_idle_unauthenticated_connections_time_out(
@@ -307,14 +304,14 @@ async def test_host_and_origin_are_checked_on_the_websocket(tmp_path: Path) -> N
     config = '[security]\nallowed_hosts = ["robot.example"]\n'
     async with in_process_daemon(tmp_path, config) as robot:
         url = robot.ws_url
-        assert await _upgrade_status(url, Host="evil.example") == 403
-        assert await _upgrade_status(url, Host="evil.example",
+        assert await upgrade_status(url, Host="evil.example") == 403
+        assert await upgrade_status(url, Host="evil.example",
                                      Origin="http://evil.example") == 403
-        assert await _upgrade_status(url, Host="localhost:9090",
+        assert await upgrade_status(url, Host="localhost:9090",
                                      Origin="http://evil.example") == 403
-        assert await _upgrade_status(url, Host="robot.example",
+        assert await upgrade_status(url, Host="robot.example",
                                      Origin="http://robot.example") == 101
-        assert await _upgrade_status(url, Host="127.0.0.1") == 101
+        assert await upgrade_status(url, Host="127.0.0.1") == 101
         assert bridge(robot).refused["host"] == 2
 
 

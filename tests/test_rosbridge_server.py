@@ -6,8 +6,6 @@ import itertools
 import json
 import logging
 import time
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
@@ -15,81 +13,8 @@ import aiohttp
 import pytest
 
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import TIMEOUT, TWIST, FakeScan, connect, upgrade_status
 from tests.support.wait import eventually
-
-TIMEOUT = 10.0
-
-
-class Client:
-    """A rosbridge client on an aiohttp WebSocket that remembers everything it received."""
-
-    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
-        self.ws = ws
-        self.received: list[dict[str, Any]] = []
-        self.raw: list[str] = []
-        self.calls = 0
-
-    async def send(self, **frame: Any) -> None:
-        await self.ws.send_str(json.dumps(frame))
-
-    async def expect(self, predicate: Callable[[dict[str, Any]], bool],
-                     within: float = TIMEOUT, what: str = "a message") -> dict[str, Any]:
-        """The first message matching ``predicate`` (waits for it)."""
-        deadline = time.monotonic() + within
-        while True:
-            for i in range(len(self.received)):
-                if predicate(self.received[i]):
-                    return self.received[i]
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise AssertionError(f"timed out waiting for {what}; got "
-                                     f"{[m.get('op') for m in self.received[-10:]]}")
-            await self._read(remaining)
-
-    async def _read(self, within: float) -> None:
-        try:
-            message = await self.ws.receive(timeout=within)
-        except TimeoutError:
-            return
-        if message.type != aiohttp.WSMsgType.TEXT:
-            raise AssertionError(f"socket closed or not text: {message.type} {message.data}")
-        self.raw.append(message.data)
-        self.received.append(json.loads(message.data))
-
-    async def op(self, op: str, **fields: Any) -> dict[str, Any]:
-        return await self.expect(
-            lambda m: m.get("op") == op and all(m.get(k) == v for k, v in fields.items()),
-            TIMEOUT, f"{op} {fields}")
-
-    async def count(self, op: str, n: int) -> list[dict[str, Any]]:
-        """Wait until ``n`` messages of ``op`` have arrived; all of them."""
-        def matching() -> list[dict[str, Any]]:
-            return [m for m in self.received if m.get("op") == op]
-        await self.expect(lambda m: len(matching()) >= n, what=f"{n} {op} messages")
-        return matching()
-
-    async def call(self, service: str, args: Any = None, rid: str = "") -> dict[str, Any]:
-        self.calls += 1
-        rid = rid or f"call-{self.calls}"
-        frame: dict[str, Any] = {"op": "call_service", "service": service, "id": rid}
-        if args is not None:
-            frame["args"] = args
-        await self.send(**frame)
-        return await self.op("service_response", id=rid)
-
-    def published(self, topic: str) -> list[dict[str, Any]]:
-        return [m["msg"] for m in self.received if m.get("op") == "publish"
-                and m.get("topic") == topic]
-
-
-@asynccontextmanager
-async def connect(url: str, **kw: Any) -> AsyncIterator[Client]:
-    async with aiohttp.ClientSession() as session, session.ws_connect(url, **kw) as ws:
-        yield Client(ws)
-
-
-TWIST = {"linear": {"x": 0.3, "y": 0, "z": 0}, "angular": {"x": 0, "y": 0, "z": 0.2}}
-
 
 # -- driving ---------------------------------------------------------------------------------
 
@@ -223,8 +148,6 @@ async def test_odom_and_tf_follow_the_robot(robot: InProcessDaemon) -> None:
 
 
 async def test_scan_non_finite_ranges_arrive_as_null(robot: InProcessDaemon) -> None:
-    from tests.test_rosbridge_codec import FakeScan
-
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/scan", id="s")
         await client.call("/rosapi/get_time")  # the subscription is in place before publishing
@@ -570,23 +493,14 @@ async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> No
             assert not [m for m in header.received if m.get("op") == "status"]
 
 
-async def _upgrade_status(url: str, **headers: str) -> int:
-    async with aiohttp.ClientSession() as session:
-        try:
-            async with session.ws_connect(url, headers=headers):
-                return 101
-        except aiohttp.WSServerHandshakeError as exc:
-            return exc.status
-
-
 async def test_origin_allow_list(tmp_path: Path) -> None:
     config = '[security]\nallowed_origins = ["https://console.example"]\n'
     async with in_process_daemon(tmp_path, config) as robot:
         url = robot.ws_url
-        assert await _upgrade_status(url, Origin="https://evil.example") == 403
-        assert await _upgrade_status(url, Origin="http://localhost:3000") == 101
-        assert await _upgrade_status(url, Origin="https://console.example") == 101
-        assert await _upgrade_status(url, Origin="http://127.0.0.1:8080") == 101
+        assert await upgrade_status(url, Origin="https://evil.example") == 403
+        assert await upgrade_status(url, Origin="http://localhost:3000") == 101
+        assert await upgrade_status(url, Origin="https://console.example") == 101
+        assert await upgrade_status(url, Origin="http://127.0.0.1:8080") == 101
         assert robot.component("rosbridge").refused["origin"] == 1
 
 
@@ -595,9 +509,9 @@ async def test_client_limit(tmp_path: Path) -> None:
         robot.component("rosbridge").max_clients = 2
         async with connect(robot.ws_url), connect(robot.ws_url) as second:
             await second.call("/rosapi/get_time")
-            assert await _upgrade_status(robot.ws_url) == 503
+            assert await upgrade_status(robot.ws_url) == 503
         await eventually(lambda: not robot.component("rosbridge").clients, "the clients to leave")
-        assert await _upgrade_status(robot.ws_url) == 101
+        assert await upgrade_status(robot.ws_url) == 101
 
 
 async def test_plain_http_get_is_told_to_upgrade(robot: InProcessDaemon) -> None:

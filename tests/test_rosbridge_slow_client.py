@@ -15,9 +15,8 @@ import numpy as np
 
 from daemon.bench.rosbridge_flood import LoopProbe
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import STALL_LIMIT_MS, connect
 from tests.support.wait import eventually
-from tests.test_rosbridge_hardening import STALL_LIMIT_MS
-from tests.test_rosbridge_server import connect
 
 STALL_S = 5.0
 

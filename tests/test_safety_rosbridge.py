@@ -6,8 +6,8 @@ import json
 from pathlib import Path
 
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import connect
 from tests.support.wait import eventually
-from tests.test_rosbridge_server import connect
 
 
 async def test_autonomy_mode_topic_and_both_state_topics(robot: InProcessDaemon) -> None:

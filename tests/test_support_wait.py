@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from tests.support.wait import Collector, eventually, wait_for
+from tests.support.wait import Collector, Deadline, eventually, wait_for
 
 
 def test_wait_for_returns_the_first_truthy_value() -> None:
@@ -57,3 +57,14 @@ def test_a_collector_waits_for_items_handed_over() -> None:
     assert collect.wait(3, "three items") == [0, 1, 2] and collect.count() == 3
     with pytest.raises(AssertionError, match="waiting for a fourth"):
         collect.wait(4, "a fourth", within_s=0.05)
+
+
+def test_a_deadline_counts_down_then_fails() -> None:
+    """What a wait that cannot poll uses (a WebSocket read: see rosbridge.Client.expect)."""
+    deadline = Deadline("the end", 0.05)
+    assert 0.001 <= deadline.remaining() <= 0.05
+    deadline.check()  # not yet
+    time.sleep(0.06)
+    assert deadline.remaining() == 0.001  # never 0, which often means "no timeout"
+    with pytest.raises(AssertionError, match=r"timed out after 0\.05 s waiting for the end"):
+        deadline.check()

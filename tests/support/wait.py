@@ -15,8 +15,9 @@ T = TypeVar("T")
 What = str | Callable[[], str]
 
 
-class _Deadline:
-    """The timeout wait_for and eventually share, and the failure it ends in."""
+class Deadline:
+    """The timeout wait_for and eventually share (and other waits: see rosbridge.Client),
+    and the failure it ends in."""
 
     def __init__(self, what: What, within_s: float) -> None:
         self.what, self.within_s = what, within_s
@@ -28,12 +29,16 @@ class _Deadline:
             what = self.what() if callable(self.what) else self.what
             raise AssertionError(f"timed out after {self.within_s} s waiting for {what}")
 
+    def remaining(self) -> float:
+        """Seconds left, at least a millisecond (a timeout of 0 often means none at all)."""
+        return max(self.at - time.monotonic(), 0.001)
+
 
 def wait_for(condition: Callable[[], Any], what: What = "condition", *,
              within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.01) -> Any:
     """Poll ``condition`` (from plain code) until it returns something truthy, and return it;
     fail naming ``what`` after ``within_s``."""
-    deadline = _Deadline(what, within_s)
+    deadline = Deadline(what, within_s)
     while not (value := condition()):
         deadline.check()
         time.sleep(interval_s)
@@ -44,7 +49,7 @@ async def eventually(condition: Callable[[], Any], what: What = "condition", *,
                      within_s: float = DEFAULT_WITHIN_S, interval_s: float = 0.005) -> Any:
     """``wait_for`` for async tests: the event loop keeps running between polls.
     ``condition`` may be a coroutine function (it is awaited each time)."""
-    deadline = _Deadline(what, within_s)
+    deadline = Deadline(what, within_s)
     while not (value := await _result(condition())):
         deadline.check()
         await asyncio.sleep(interval_s)
