@@ -3,7 +3,7 @@
 #
 #   ./install.sh dev                 developer venv (.venv) with the package editable + extras
 #   ./install.sh sim [ARGS...]       dev, then run the daemon on the simulated robot
-#   ./install.sh test [ARGS...]      dev, then run the whole test suite (pytest ARGS...)
+#   ./install.sh test [ARGS...]      dev, then the gates (ruff, mypy), then the test suite (pytest ARGS...)
 #   sudo ./install.sh systemd [--hardware] [--driver NAME]   the supervised service on a Pi
 #
 # Every setting can come from the environment (ARBITERD_*) or a flag; see usage below and
@@ -210,11 +210,21 @@ warn_if_service_runs() {
     warn "the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; stop it first (sudo systemctl stop robot.target) or pass --config FILE with other ports"
 }
 
+# run_gate NAME CMD...: a check that must pass before the tests run; stops at a finding.
+run_gate() {
+    local name="$1"
+    shift
+    report_status "gate ${name}: $*"
+    run "$@" || die "gate ${name} failed ($*): fix the findings above; the tests did not run"
+}
+
 cmd_test() {
     WITH_BROWSER=1
     setup_dev test
-    report_status "running the test suite"
     cd "${SRCDIR}"
+    run_gate ruff "${DEV_VENV}/bin/ruff" check .
+    run_gate mypy "${DEV_VENV}/bin/mypy"
+    report_status "running the test suite"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/python" -m pytest "$@"; return 0; }
     exec "${DEV_VENV}/bin/python" -m pytest "$@"
 }
@@ -1022,7 +1032,8 @@ Developer commands (run from a clone, as a normal user; apt packages go through 
   sim [ARGS...]        set up .venv with what running needs only, then run
                        'arbiterd run --sim ARGS...' in the foreground
                        (the console is at http://localhost:8085/)
-  test [ARGS...]       dev plus Debian's chromium (browser tests), then 'python -m pytest ARGS...'
+  test [ARGS...]       dev plus Debian's chromium (browser tests), then the gates 'ruff check .'
+                       and 'mypy' (a finding stops here), then 'python -m pytest ARGS...'
 
 Robot commands (Raspberry Pi OS Bookworm / Debian 12, as root):
   systemd              install or update the service: apt packages, user 'arbiterd', a release

@@ -15,7 +15,8 @@ from daemon.autonomy.component import STATE as AUTONOMY_STATE
 from daemon.autonomy.sectors import Sectors
 from daemon.autonomy.wander import Perception, Wander, WanderSettings
 from daemon.control.commands import Twist
-from tests.conftest import Robot, eventually
+from tests.support.in_process_daemon import InProcessDaemon
+from tests.support.wait import eventually
 
 SECTORS = Sectors(48, 0.5, 2.4)
 ANGLES = SECTORS.angles
@@ -137,14 +138,14 @@ def test_same_seed_same_decisions() -> None:
 
 # -- the component in the daemon (in-process robot, emulated lidar) ------------------------------
 
-async def request(robot: Robot, method: str, path: str,
+async def request(robot: InProcessDaemon, method: str, path: str,
                   body: Any = None) -> tuple[int, dict[str, Any]]:
     async with aiohttp.ClientSession() as session, session.request(
             method, robot.http_url + path, json=body) as response:
         return response.status, await response.json()
 
 
-async def test_autonomy_api_wander_and_teleop_override(robot: Robot) -> None:
+async def test_autonomy_api_wander_and_teleop_override(robot: InProcessDaemon) -> None:
     status, body = await request(robot, "GET", "/api/autonomy")
     assert status == 200 and (body["mode"], body["state"]) == ("off", "IDLE")
     status, body = await request(robot, "POST", "/api/autonomy", {"mode": "wander"})
@@ -160,7 +161,7 @@ async def test_autonomy_api_wander_and_teleop_override(robot: Robot) -> None:
     await eventually(lambda: not robot.moving(), "the robot to stop")
 
 
-async def test_autonomy_api_refuses_bad_requests(robot: Robot) -> None:
+async def test_autonomy_api_refuses_bad_requests(robot: InProcessDaemon) -> None:
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "dance"}))[0] == 422
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "off", "x": 1}))[0] == 422
     await robot.ctx.control.engage_estop("test")
@@ -168,7 +169,7 @@ async def test_autonomy_api_refuses_bad_requests(robot: Robot) -> None:
     assert status == 409 and "e-stop" in body["error"]
 
 
-async def test_estop_stops_wander_and_it_waits_to_be_asked_again(robot: Robot) -> None:
+async def test_estop_stops_wander_and_it_waits_to_be_asked_again(robot: InProcessDaemon) -> None:
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "wander"}))[0] == 200
     await eventually(robot.moving, "the wander behaviour to drive")
     control = robot.ctx.control
@@ -182,7 +183,7 @@ async def test_estop_stops_wander_and_it_waits_to_be_asked_again(robot: Robot) -
     assert not robot.moving()
 
 
-async def test_autonomy_state_is_published_on_change(robot: Robot) -> None:
+async def test_autonomy_state_is_published_on_change(robot: InProcessDaemon) -> None:
     states: list[dict[str, Any]] = []
     robot.ctx.bus.subscribe(AUTONOMY_STATE, states.append)
     await request(robot, "POST", "/api/autonomy", {"mode": "wander"})

@@ -15,8 +15,9 @@ from drivers import DriverFault, create_driver
 from drivers.arduino_serial import SerialBridgeDriver
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import DaemonProcess, wait_for
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -30,7 +31,7 @@ def test_a_port_the_daemon_holds_is_named_with_the_daemon_and_what_to_do(
     toml = (f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{arduino}"\n'
             f'reset_wait_s = 0.05\n[lidar]\nenabled = true\nport = "{lidar_link}"\n')
     with ArduinoEmulator(arduino), RplidarEmulator(lidar_link).start(), \
-            DaemonProcess(tmp_path, toml) as daemon:
+            DaemonSubprocess(tmp_path, toml) as daemon:
         wait_for(lambda: daemon.get("/api/health")[0] == 200, "the daemon to hold both ports")
         assert daemon.proc is not None
         pid = daemon.proc.pid

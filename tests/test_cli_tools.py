@@ -10,14 +10,16 @@ import signal
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import DaemonProcess, free_port, wait_for
-from tests.daemon_proc import REPO, http
+from tests.support.daemon_subprocess import StartDaemonSubprocess
+from tests.support.net import free_port, http
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
 
@@ -190,8 +192,8 @@ def _health(port: int, proc: subprocess.Popen[bytes], log: Path) -> object:
 # -- status ------------------------------------------------------------------------------------
 
 def test_status_reads_the_address_from_the_config(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process()
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess()
     daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
     result = run_cli("status", "--config", str(daemon.config_path))
     assert result.returncode == 0, result.stderr
@@ -208,8 +210,8 @@ def test_status_reads_the_address_from_the_config(
 
 
 def test_status_sends_the_config_token_when_reads_need_it(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process('[security]\ntoken = "s3cret-t0ken"\nread_requires_token = true\n'
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess('[security]\ntoken = "s3cret-t0ken"\nread_requires_token = true\n'
                             'open_health = true\n')
     assert daemon.get("/api/latency")[0] == 401
     daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret-t0ken")
@@ -220,8 +222,8 @@ def test_status_sends_the_config_token_when_reads_need_it(
 
 
 def test_status_into_a_closed_pipe_is_quiet(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process()
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess()
     read_end, write_end = os.pipe()
     os.close(read_end)  # `arbiterd status | head -1` with head already gone
     try:

@@ -13,7 +13,7 @@ from base.config import SectionSettings, field_name
 from daemon.components import COMPONENTS
 from daemon.config import SETTINGS, all_sections
 from daemon.topics import TopicIn, TopicOut
-from tests.conftest import Robot, running_robot
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 
 REPO = Path(__file__).resolve().parent.parent
 DOCS = REPO / "docs"
@@ -46,13 +46,13 @@ def declared(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
     async def collect() -> dict[str, Any]:
         workdir = tmp_path_factory.mktemp("everything")
-        async with running_robot(workdir, everything(workdir / "recordings")) as robot:
+        async with in_process_daemon(workdir, everything(workdir / "recordings")) as robot:
             return _declarations(robot)
 
     return asyncio.run(collect())
 
 
-def _declarations(robot: Robot) -> dict[str, Any]:
+def _declarations(robot: InProcessDaemon) -> dict[str, Any]:
     return {c.name: {"routes": list(c.routes()), "topics": list(c.topics())}
             for c in robot.daemon.components}
 
@@ -122,7 +122,7 @@ def test_every_section_but_the_drivers_has_typed_settings() -> None:
 
 
 async def test_what_a_component_plugs_in_goes_when_the_daemon_stops(tmp_path: Path) -> None:
-    async with running_robot(tmp_path) as robot:
+    async with in_process_daemon(tmp_path) as robot:
         control, bus = robot.ctx.control, robot.ctx.bus
         assert len(control.on_tick) > 1 and len(control.tick_sources) == 1
         assert "safety" in control.status_fields and "ground_truth" in control.status_fields

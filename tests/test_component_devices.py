@@ -20,7 +20,7 @@ from daemon.config import load_config
 from daemon.http_api import json_response
 from drivers.devices import Actuator, create_device
 from drivers.pigpio_servo import SERVO_OPTIONS
-from tests.conftest import running_robot
+from tests.support.in_process_daemon import in_process_daemon
 
 WAVER_OPTIONS: Options = {"enabled": Option(bool, True, "wave"), **SERVO_OPTIONS}
 
@@ -94,7 +94,7 @@ WAVER = '[waver]\njoints = ["wrist", "finger"]\npins = [16, 26]\nlower = [-1.0, 
 
 async def test_run_sim_starts_the_devices_emulator_and_the_component_drives_it(
         tmp_path: Path, with_waver: None) -> None:
-    async with running_robot(tmp_path, WAVER) as robot:
+    async with in_process_daemon(tmp_path, WAVER) as robot:
         runtime = robot.ctx.sim
         emulator = runtime.device_emulators["waver"]
         assert robot.ctx.config["waver"]["port"] == emulator.port  # pointed at the emulator

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from daemon.config import ConfigError, env_name, load_config
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
 
 
 def write(tmp_path: Path, text: str) -> Path:

@@ -7,11 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.daemon_proc import REPO, DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 
 def test_replayed_console_alternates_idle_and_driving_windows(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path, args=("--sim",)) as daemon:
+    with DaemonSubprocess(tmp_path, args=("--sim",)) as daemon:
         _, before = daemon.get("/api/latency")
         result = subprocess.run(
             [sys.executable, "-m", "daemon.bench.console", "--http", daemon.base_url,
@@ -21,7 +23,7 @@ def test_replayed_console_alternates_idle_and_driving_windows(tmp_path: Path) ->
         out = json.loads(result.stdout.strip().splitlines()[-1])
         # the newest command wins, so under load a few may be superseded by the next
         wait_for(lambda: daemon.get("/api/latency")[1]["commands"] - before["commands"]
-                 >= 0.8 * out["commands"], 5, "the replayed commands applied")
+                 >= 0.8 * out["commands"], "the replayed commands applied", within_s=5)
         _, health = daemon.get("/api/health")
     idle, console = out["windows"]["idle"], out["windows"]["console"]
     assert len(idle) == len(console) == 2

@@ -13,7 +13,8 @@ from aiohttp import web
 from aiohttp.test_utils import TestServer
 
 from daemon.console import FILES, Console, url_of
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 STATIC = Path(__file__).resolve().parent.parent / "daemon" / "console" / "static"
 
@@ -105,9 +106,9 @@ async def test_nothing_outside_the_table_is_served(server: TestServer, target: s
 
 def test_the_page_is_open_when_reads_need_the_token(tmp_path: Path) -> None:
     toml = '[security]\ntoken = "t0ken"\nread_requires_token = true\n'
-    daemon = DaemonProcess(tmp_path, toml).start(wait_ready=False)
+    daemon = DaemonSubprocess(tmp_path, toml).start(wait_ready=False)
     try:
-        status, body = wait_for(lambda: _answer(daemon, "/"), 20, "the console page")
+        status, body = wait_for(lambda: _answer(daemon, "/"), "the console page", within_s=20)
         assert status == 200 and "<title>arbiterd console</title>" in body
         assert daemon.get("/api/health")[0] == 401
         assert daemon.get("/api/health", token="t0ken")[0] == 200
@@ -115,7 +116,7 @@ def test_the_page_is_open_when_reads_need_the_token(tmp_path: Path) -> None:
         daemon.__exit__()
 
 
-def _answer(daemon: DaemonProcess, path: str) -> tuple[int, object] | None:
+def _answer(daemon: DaemonSubprocess, path: str) -> tuple[int, object] | None:
     try:
         return daemon.get(path, timeout=1.0)
     except OSError:
@@ -123,6 +124,6 @@ def _answer(daemon: DaemonProcess, path: str) -> tuple[int, object] | None:
 
 
 def test_the_console_can_be_turned_off(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path, env={"ARBITERD_HTTP_CONSOLE": "false"}) as daemon:
+    with DaemonSubprocess(tmp_path, env={"ARBITERD_HTTP_CONSOLE": "false"}) as daemon:
         assert daemon.get("/")[0] == 404
         assert daemon.get("/console/app.js")[0] == 404

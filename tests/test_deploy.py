@@ -1,11 +1,11 @@
 # deploy-pi.sh against a real sshd and a fake Pi root whose daemon is a real `arbiterd run --sim`.
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
-import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -15,11 +15,13 @@ from typing import Any
 
 import pytest
 
-from tests.deploy_helpers import DEPLOY_SH, fake_service_pid
-from tests.deploy_helpers.sshd import SshServer, free_port, start_sshd
-from tests.deploy_helpers.wheels import Wheels, wheels
+from tests.support.deploy import DEPLOY_SH, fake_service_pid
+from tests.support.deploy.machine import FAKE_SYSTEMCTL
+from tests.support.deploy.sshd import SshServer, start_sshd
+from tests.support.deploy.wheels import Wheels, wheels
+from tests.support.net import free_port
+from tests.support.wait import wait_for
 
-FAKE_SYSTEMCTL = Path(__file__).parent / "deploy_helpers" / "fake_systemctl.py"
 HEALTH_TIMEOUT_S = 60
 KEEP = 3
 
@@ -89,13 +91,20 @@ def stop_daemon(pi: FakePi) -> None:
         os.kill(pid, signal.SIGTERM)
     except ProcessLookupError:
         return
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and Path(f"/proc/{pid}").exists():
-        if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
-            return
-        time.sleep(0.05)
-    if Path(f"/proc/{pid}").exists():
-        os.kill(pid, signal.SIGKILL)
+    try:
+        wait_for(lambda: exited(pid), f"the daemon (pid {pid}) to exit on SIGTERM", within_s=10,
+                 interval_s=0.05)
+    except AssertionError:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def exited(pid: int) -> bool:
+    """The process is gone, or a zombie (it exited; its parent has not reaped it yet)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
 
 
 @pytest.fixture(scope="module")

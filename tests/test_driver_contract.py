@@ -23,9 +23,10 @@ from daemon.settings import DRIVER_OPTIONS
 from drivers import DRIVERS, create_driver
 from sim.settings import SIM_OPTIONS
 from sim.wiring import EMULATORS
-from tests.conftest import close_to, eventually
-from tests.daemon_proc import REPO
-from tests.rigs import RIGS, Rig
+from tests.support.compare import close_to
+from tests.support.paths import REPO
+from tests.support.rigs import RIGS, Rig
+from tests.support.wait import eventually
 
 TIMEOUT_S = 0.4
 GEOMETRY = DiffDrive(wheel_separation=0.30, wheel_radius=0.05)
@@ -107,16 +108,20 @@ angular.z.emergency_deceleration = 100.0
 async def hold_until(loop: ControlLoop, rig: Rig, twist: Twist, expected: tuple[float, float],
                      tolerance: float, limit_s: float = 5.0) -> tuple[float, float]:
     """Keep commanding ``twist`` (as a teleop would) until the hardware sees ``expected``."""
-    deadline = time.monotonic() + limit_s
     seen = (float("nan"), float("nan"))
-    while time.monotonic() < deadline:
+
+    async def command_then_seen() -> tuple[float, float] | None:
+        nonlocal seen
         applied = await loop.submit("contract", twist, t_recv=time.monotonic())
         assert applied.accepted, applied.error
         await asyncio.sleep(0.05)
         seen = rig.observed_targets()
-        if close_to(seen, expected, tolerance):
-            return seen
-    raise AssertionError(f"hardware saw {seen}, expected {expected} ± {tolerance}")
+        return seen if close_to(seen, expected, tolerance) else None
+
+    held: tuple[float, float] = await eventually(
+        command_then_seen, lambda: f"the hardware to see {expected} ± {tolerance}; it saw {seen}",
+        within_s=limit_s, interval_s=0)
+    return held
 
 
 async def test_driver_contract(rig: Rig, tmp_path: Path) -> None:

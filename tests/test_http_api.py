@@ -1,33 +1,33 @@
 # HTTP API of a running daemon: deadman stop, strict command validation, e-stop, token.
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 
-from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.wait import wait_for
 
 TIMEOUT_S = 0.3
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonSubprocess]:
     tmp = tmp_path_factory.mktemp("http")
-    with DaemonProcess(tmp, f"[control]\ncmd_vel_timeout = {TIMEOUT_S}\n") as proc:
+    with DaemonSubprocess(tmp, f"[control]\ncmd_vel_timeout = {TIMEOUT_S}\n") as proc:
         yield proc
 
 
-def moving(daemon: DaemonProcess) -> bool:
+def moving(daemon: DaemonSubprocess) -> bool:
     rows = daemon.wheels()
     return bool(rows) and (rows[-1][1] != 0.0 or rows[-1][2] != 0.0)
 
 
-def stopped(daemon: DaemonProcess) -> bool:
+def stopped(daemon: DaemonSubprocess) -> bool:
     return not moving(daemon)
 
 
-def test_health_reports_state_mode_version(daemon: DaemonProcess) -> None:
+def test_health_reports_state_mode_version(daemon: DaemonSubprocess) -> None:
     status, body = daemon.get("/api/health")
     assert status == 200
     assert body["status"] == "ok" and body["state"] == "ready"
@@ -36,12 +36,12 @@ def test_health_reports_state_mode_version(daemon: DaemonProcess) -> None:
     assert body["uptime_s"] >= 0
 
 
-def test_deadman_stops_the_wheels_after_silence(daemon: DaemonProcess) -> None:
-    wait_for(lambda: stopped(daemon), "the robot at rest", 5)
+def test_deadman_stops_the_wheels_after_silence(daemon: DaemonSubprocess) -> None:
+    wait_for(lambda: stopped(daemon), "the robot at rest", within_s=5)
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}, "angular": {"z": 0.2}})
     assert status == 200 and body["accepted"], body
-    wait_for(lambda: moving(daemon), "the wheels to move", 2)
-    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
+    wait_for(lambda: moving(daemon), "the wheels to move", within_s=2)
+    wait_for(lambda: stopped(daemon), "the deadman stop", within_s=5)
     rows = daemon.wheels()
     last_rest = max(i for i, (_, left, right) in enumerate(rows) if (left, right) != (0.0, 0.0))
     first_motion = last_rest
@@ -70,7 +70,7 @@ BAD_BODIES = [
 
 
 @pytest.mark.parametrize(("body", "message"), BAD_BODIES)
-def test_bad_commands_are_refused_with_the_field_named(daemon: DaemonProcess, body: object,
+def test_bad_commands_are_refused_with_the_field_named(daemon: DaemonSubprocess, body: object,
                                                        message: str) -> None:
     before = len(daemon.wheels())
     status, answer = daemon.post("/api/cmd_vel", body)
@@ -89,7 +89,7 @@ def test_bad_commands_are_refused_with_the_field_named(daemon: DaemonProcess, bo
     (b"x" * 1_000_000, "application/json", 413, "body too large"),
 ])
 @pytest.mark.parametrize("path", ["/api/cmd_vel", "/api/estop"])
-def test_malformed_bodies_are_4xx_and_the_daemon_lives(daemon: DaemonProcess, path: str,
+def test_malformed_bodies_are_4xx_and_the_daemon_lives(daemon: DaemonSubprocess, path: str,
                                                        raw: bytes, content_type: str,
                                                        status: int, message: str) -> None:
     got, answer = daemon.post(path, raw=raw, content_type=content_type)
@@ -99,7 +99,7 @@ def test_malformed_bodies_are_4xx_and_the_daemon_lives(daemon: DaemonProcess, pa
     assert stopped(daemon)
 
 
-def test_overflowing_number_is_refused_as_not_finite(daemon: DaemonProcess) -> None:
+def test_overflowing_number_is_refused_as_not_finite(daemon: DaemonSubprocess) -> None:
     status, answer = daemon.post("/api/cmd_vel", raw=b'{"linear": {"x": 1e400}}')
     assert status == 422 and "linear.x: must be finite" in answer["error"]
     assert stopped(daemon)
@@ -110,35 +110,35 @@ def test_overflowing_number_is_refused_as_not_finite(daemon: DaemonProcess) -> N
     ({"engaged": "yes"}, "engaged: expected true or false"),
     ({"engaged": True, "why": 1}, "why: unknown field"),
 ])
-def test_bad_estop_requests(daemon: DaemonProcess, body: object, message: str) -> None:
+def test_bad_estop_requests(daemon: DaemonSubprocess, body: object, message: str) -> None:
     status, answer = daemon.post("/api/estop", body)
     assert status == 422 and message in answer["error"]
 
 
-def test_estop_latches_until_released_and_a_fresh_command(daemon: DaemonProcess) -> None:
+def test_estop_latches_until_released_and_a_fresh_command(daemon: DaemonSubprocess) -> None:
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})[0] == 200
-    wait_for(lambda: moving(daemon), "motion", 2)
+    wait_for(lambda: moving(daemon), "motion", within_s=2)
     assert daemon.post("/api/estop", {"engaged": True})[1] == {"engaged": True}
-    wait_for(lambda: stopped(daemon), "the e-stop brake", 2)
+    wait_for(lambda: stopped(daemon), "the e-stop brake", within_s=2)
     status, answer = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})
     assert status == 409 and "e-stop engaged" in answer["error"]
     assert daemon.get("/api/status")[1]["estop"]["engaged"] is True
     assert daemon.post("/api/estop", {"engaged": False})[1] == {"engaged": False}
     assert stopped(daemon)
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0] == 200
-    wait_for(lambda: moving(daemon), "motion after the release", 2)
+    wait_for(lambda: moving(daemon), "motion after the release", within_s=2)
 
 
-def test_out_of_range_is_clamped_and_reported(daemon: DaemonProcess) -> None:
+def test_out_of_range_is_clamped_and_reported(daemon: DaemonSubprocess) -> None:
     status, answer = daemon.post("/api/cmd_vel", {"linear": {"x": 50.0}})
     assert status == 200 and answer["clamped"] == ["linear.x"]
     status, body = daemon.get("/api/status")
     assert body["clamps"]["linear.x"] >= 1
     assert body["target"]["linear_x"] == 50.0
-    wait_for(lambda: stopped(daemon), "the deadman stop", 5)
+    wait_for(lambda: stopped(daemon), "the deadman stop", within_s=5)
 
 
-def test_stamped_command_latency_is_tracked(daemon: DaemonProcess) -> None:
+def test_stamped_command_latency_is_tracked(daemon: DaemonSubprocess) -> None:
     import time
 
     status, answer = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}, "id": "c-7",
@@ -153,14 +153,14 @@ def test_stamped_command_latency_is_tracked(daemon: DaemonProcess) -> None:
     assert latency["tick"]["count"] > 0 and "p99" in latency["tick"]["lateness_ms"]
 
 
-def test_unknown_route_and_wrong_method_are_json(daemon: DaemonProcess) -> None:
+def test_unknown_route_and_wrong_method_are_json(daemon: DaemonSubprocess) -> None:
     status, body = daemon.get("/api/nothing")
     assert status == 404 and "error" in body
     status, body = daemon.get("/api/cmd_vel")
     assert status == 405 and "error" in body and "POST" in body["detail"]
 
 
-def test_metrics_and_robot_info(daemon: DaemonProcess) -> None:
+def test_metrics_and_robot_info(daemon: DaemonSubprocess) -> None:
     status, text = daemon.get("/metrics")
     assert status == 200 and "arbiterd_up 1" in text and "arbiterd_ticks_total" in text
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.0}})[0] == 200
@@ -174,8 +174,8 @@ def test_metrics_and_robot_info(daemon: DaemonProcess) -> None:
 
 
 def test_token_guards_motion_but_not_health(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process("[security]\ntoken = \"s3cret\"\n")
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess("[security]\ntoken = \"s3cret\"\n")
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
     assert status == 401 and "token" in body["error"]
     assert daemon.post("/api/estop", {"engaged": True})[0] == 401

@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
-from tests.http_raw import exchange, parse_answer, request, rss_kib, send_raw
+from tests.support.daemon_subprocess import StartDaemonSubprocess
+from tests.support.http_raw import exchange, parse_answer, request, rss_kib, send_raw
 
 SEED = int(os.environ.get("ARBITERD_FUZZ_SEED", "1122"))
 BUDGET_S = float(os.environ.get("ARBITERD_FUZZ_SECONDS", "36"))
@@ -222,8 +222,8 @@ async def burst(port: int, findings: Findings) -> None:
 
 @pytest.mark.timeout(150)
 async def test_http_fuzz_moves_nothing_and_keeps_the_daemon_well(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    proc = daemon_process(f'[security]\ntoken = "{TOKEN}"\n',
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess(f'[security]\ntoken = "{TOKEN}"\n',
                           env={"ARBITERD_HTTP_IDLE_TIMEOUT_S": "1",
                                "ARBITERD_HTTP_BODY_TIMEOUT_S": "1"})
     assert proc.proc is not None

@@ -3,14 +3,13 @@ from __future__ import annotations
 
 import socket
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 
 from daemon.latency import SourceCounts
-from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
-from tests.http_raw import (
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.http_raw import (
     Answer,
     child_nofile,
     closed_by_peer,
@@ -20,43 +19,43 @@ from tests.http_raw import (
     read_answer,
     request,
 )
+from tests.support.wait import wait_for
 
 GO = b'{"linear": {"x": 0.2}}'
-StartDaemon = Callable[..., DaemonProcess]
 
 
 @pytest.fixture(scope="module")
-def robot_proc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+def robot_proc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonSubprocess]:
     """``arbiterd run`` (mock driver logging its wheels), default security, short timeouts."""
     tmp = tmp_path_factory.mktemp("hardening")
-    with DaemonProcess(tmp, env={"ARBITERD_HTTP_BODY_TIMEOUT_S": "2"}) as proc:
+    with DaemonSubprocess(tmp, env={"ARBITERD_HTTP_BODY_TIMEOUT_S": "2"}) as proc:
         yield proc
 
 
-def moved(proc: DaemonProcess, since: int = 0) -> bool:
+def moved(proc: DaemonSubprocess, since: int = 0) -> bool:
     return any((left, right) != (0.0, 0.0) for _, left, right in proc.wheels()[since:])
 
 
-def at_rest(proc: DaemonProcess) -> bool:
+def at_rest(proc: DaemonSubprocess) -> bool:
     rows = proc.wheels()
     return not rows or rows[-1][1:] == (0.0, 0.0)
 
 
-def at_rest_since(proc: DaemonProcess) -> int:
+def at_rest_since(proc: DaemonSubprocess) -> int:
     """Wait for the wheels to stand still (the deadman stops earlier tests' motion); the
     wheel-log index to check "nothing moved" from."""
     wait_for(lambda: at_rest(proc), "the robot at rest")
     return len(proc.wheels())
 
 
-def post(proc: DaemonProcess, body: bytes = GO, **kw: object) -> Answer:
+def post(proc: DaemonSubprocess, body: bytes = GO, **kw: object) -> Answer:
     return exchange(proc.http_port, request("POST", "/api/cmd_vel", proc.http_port, body,
                                             **kw))  # type: ignore[arg-type]
 
 
 # -- who may reach it, who may drive -------------------------------------------------------
 
-def test_dns_rebinding_gets_403_in_the_default_config(robot_proc: DaemonProcess) -> None:
+def test_dns_rebinding_gets_403_in_the_default_config(robot_proc: DaemonSubprocess) -> None:
     before = at_rest_since(robot_proc)
     answer = post(robot_proc, host="evil.example",
                   headers={"Origin": "http://evil.example"})
@@ -69,8 +68,8 @@ def test_dns_rebinding_gets_403_in_the_default_config(robot_proc: DaemonProcess)
     assert not moved(robot_proc, before)
 
 
-def test_a_listed_host_name_is_answered(daemon_process: StartDaemon) -> None:
-    proc = daemon_process('[security]\nallowed_hosts = ["Robot.Example"]\n')
+def test_a_listed_host_name_is_answered(daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess('[security]\nallowed_hosts = ["Robot.Example"]\n')
     for host in ("robot.example", "ROBOT.example.:8085", "127.0.0.1", "localhost:1",
                  "[::1]:80", socket.gethostname()):
         answer = exchange(proc.http_port, request("GET", "/api/health", 0, host=host))
@@ -83,7 +82,7 @@ def test_a_listed_host_name_is_answered(daemon_process: StartDaemon) -> None:
     "http://evil.example", "null", "http://127.0.0.1@evil.example",
     "https://evil.example:443", "file://", "ftp://127.0.0.1",
 ])
-def test_a_foreign_origin_cannot_drive(robot_proc: DaemonProcess, origin: str) -> None:
+def test_a_foreign_origin_cannot_drive(robot_proc: DaemonSubprocess, origin: str) -> None:
     before = at_rest_since(robot_proc)
     answer = post(robot_proc, headers={"Origin": origin})
     assert answer.status == 403 and answer.is_json_error(), answer
@@ -92,7 +91,7 @@ def test_a_foreign_origin_cannot_drive(robot_proc: DaemonProcess, origin: str) -
 
 
 def test_the_daemons_own_origin_drives_and_reads_carry_no_cors(
-        robot_proc: DaemonProcess) -> None:
+        robot_proc: DaemonSubprocess) -> None:
     own = f"http://127.0.0.1:{robot_proc.http_port}"
     before = at_rest_since(robot_proc)
     assert post(robot_proc, headers={"Origin": own}).status == 200
@@ -109,8 +108,9 @@ def test_the_daemons_own_origin_drives_and_reads_carry_no_cors(
     wait_for(lambda: at_rest(robot_proc), "the deadman stop")
 
 
-def test_the_token_is_needed_even_from_the_own_origin(daemon_process: StartDaemon) -> None:
-    proc = daemon_process('[security]\ntoken = "t0k"\n')
+def test_the_token_is_needed_even_from_the_own_origin(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess('[security]\ntoken = "t0k"\n')
     own = {"Origin": f"http://127.0.0.1:{proc.http_port}"}
     answer = post(proc, headers=own)
     assert answer.status == 401 and answer.headers["www-authenticate"].startswith("Bearer")
@@ -121,7 +121,7 @@ def test_the_token_is_needed_even_from_the_own_origin(daemon_process: StartDaemo
 
 # -- request bodies ------------------------------------------------------------------------
 
-def test_a_body_in_two_tcp_segments_is_read_whole(robot_proc: DaemonProcess) -> None:
+def test_a_body_in_two_tcp_segments_is_read_whole(robot_proc: DaemonSubprocess) -> None:
     before = at_rest_since(robot_proc)
     data = request("POST", "/api/cmd_vel", robot_proc.http_port, GO)
     split = len(data) - len(GO) + 7
@@ -134,7 +134,7 @@ def test_a_body_in_two_tcp_segments_is_read_whole(robot_proc: DaemonProcess) -> 
     wait_for(lambda: moved(robot_proc, before), "motion")
 
 
-def test_a_chunked_body_in_pieces_is_read_whole(robot_proc: DaemonProcess) -> None:
+def test_a_chunked_body_in_pieces_is_read_whole(robot_proc: DaemonSubprocess) -> None:
     head = request("POST", "/api/cmd_vel", robot_proc.http_port, b"",
                    headers={"Content-Type": "application/json",
                             "Transfer-Encoding": "chunked"})
@@ -147,7 +147,7 @@ def test_a_chunked_body_in_pieces_is_read_whole(robot_proc: DaemonProcess) -> No
         assert read_answer(sock).status == 200
 
 
-def test_a_body_that_never_completes_gets_408(robot_proc: DaemonProcess) -> None:
+def test_a_body_that_never_completes_gets_408(robot_proc: DaemonSubprocess) -> None:
     data = request("POST", "/api/cmd_vel", robot_proc.http_port, GO)
     with connect(robot_proc.http_port) as sock:
         sock.sendall(data[:-4])
@@ -170,7 +170,7 @@ BAD_BODIES = {
 
 
 @pytest.mark.parametrize("case", list(BAD_BODIES))
-def test_bad_bodies_are_400_json_errors(robot_proc: DaemonProcess, case: str) -> None:
+def test_bad_bodies_are_400_json_errors(robot_proc: DaemonSubprocess, case: str) -> None:
     body, detail = BAD_BODIES[case]
     before = at_rest_since(robot_proc)
     answer = post(robot_proc, body)
@@ -179,7 +179,7 @@ def test_bad_bodies_are_400_json_errors(robot_proc: DaemonProcess, case: str) ->
     assert not moved(robot_proc, before)
 
 
-def test_a_corrupt_deflate_body_is_400_and_a_good_one_works(robot_proc: DaemonProcess) -> None:
+def test_a_corrupt_deflate_body_is_400_and_a_good_one_works(robot_proc: DaemonSubprocess) -> None:
     deflate = {"Content-Encoding": "deflate"}
     answer = post(robot_proc, b"\x78\x9cnot deflate at all", headers=deflate)
     assert answer.status == 400 and answer.is_json_error()
@@ -228,14 +228,14 @@ MALFORMED = {
 
 
 @pytest.mark.parametrize("case", list(MALFORMED))
-def test_parser_errors_are_json_400(robot_proc: DaemonProcess, case: str) -> None:
+def test_parser_errors_are_json_400(robot_proc: DaemonSubprocess, case: str) -> None:
     answer = exchange(robot_proc.http_port, MALFORMED[case].encode("latin-1"))
     assert answer.status == 400 and answer.is_json_error(), answer
     assert answer.json()["error"] == "malformed HTTP request" and answer.json()["detail"]
 
 
 @pytest.mark.parametrize("path", ["/api/health", "/api/cmd_vel", "/nothing"])
-def test_an_unknown_expect_is_a_json_417(robot_proc: DaemonProcess, path: str) -> None:
+def test_an_unknown_expect_is_a_json_417(robot_proc: DaemonSubprocess, path: str) -> None:
     answer = exchange(robot_proc.http_port, request("GET", path, 0,
                                                     headers={"Expect": "teapot"}))
     assert answer.status == 417 and answer.is_json_error(), answer
@@ -243,8 +243,8 @@ def test_an_unknown_expect_is_a_json_417(robot_proc: DaemonProcess, path: str) -
 
 
 def test_bad_requests_are_logged_as_rate_limited_lines_without_traceback(
-        daemon_process: StartDaemon) -> None:
-    proc = daemon_process()
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess()
     for case in list(MALFORMED) * 2:
         exchange(proc.http_port, MALFORMED[case].encode("latin-1"))
     for body, _ in BAD_BODIES.values():
@@ -258,7 +258,7 @@ def test_bad_requests_are_logged_as_rate_limited_lines_without_traceback(
 
 
 def test_405_names_the_allowed_methods_and_get_answers_head(
-        robot_proc: DaemonProcess) -> None:
+        robot_proc: DaemonSubprocess) -> None:
     answer = exchange(robot_proc.http_port, request("POST", "/api/health", 0))
     assert answer.status == 405 and answer.is_json_error()
     assert answer.headers["allow"] == "GET,HEAD"
@@ -273,8 +273,9 @@ def test_405_names_the_allowed_methods_and_get_answers_head(
 
 # -- connections ---------------------------------------------------------------------------
 
-def test_idle_and_slow_header_connections_are_closed(daemon_process: StartDaemon) -> None:
-    proc = daemon_process(env={"ARBITERD_HTTP_IDLE_TIMEOUT_S": "0.5"})
+def test_idle_and_slow_header_connections_are_closed(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess(env={"ARBITERD_HTTP_IDLE_TIMEOUT_S": "0.5"})
     with connect(proc.http_port) as idle:
         assert closed_by_peer(idle, 10)
     with connect(proc.http_port) as slow:
@@ -295,9 +296,9 @@ def _drip_is_refused(sock: socket.socket) -> bool:
 
 
 def test_1100_idle_connections_do_not_take_the_descriptors(
-        daemon_process: StartDaemon) -> None:
+        daemon_subprocess: StartDaemonSubprocess) -> None:
     with child_nofile(1024):  # the usual soft limit without the unit's LimitNOFILE
-        proc = daemon_process()
+        proc = daemon_subprocess()
     idle = []
     try:
         for _ in range(1100):
@@ -315,9 +316,9 @@ def test_1100_idle_connections_do_not_take_the_descriptors(
 
 
 def test_accept_errors_are_one_line_and_the_daemon_recovers(
-        daemon_process: StartDaemon) -> None:
+        daemon_subprocess: StartDaemonSubprocess) -> None:
     with child_nofile(96):
-        proc = daemon_process(env={"ARBITERD_HTTP_MAX_CONNECTIONS": "4096"})
+        proc = daemon_subprocess(env={"ARBITERD_HTTP_MAX_CONNECTIONS": "4096"})
     held = []
     try:
         for _ in range(200):
@@ -328,17 +329,18 @@ def test_accept_errors_are_one_line_and_the_daemon_recovers(
             held.append(sock)
         wait_for(lambda: "cannot accept connections" in proc.log(), "the accept error line")
         # asyncio retries accept() every second; let it fail a few more times
-        assert not wait_for_health(proc, within_s=2.5)
+        assert not health_answered(proc, within_s=2.5)
     finally:
         for sock in held:
             sock.close()
-    assert wait_for(lambda: wait_for_health(proc, 1.0), "health after the flood")
+    assert wait_for(lambda: health_answered(proc, 1.0), "health after the flood")
     log = proc.log()
     assert log.count("cannot accept connections: too many open files (EMFILE)") == 1
     assert "Traceback" not in log and "socket.accept() out of system resource" not in log
 
 
-def wait_for_health(proc: DaemonProcess, within_s: float) -> bool:
+def health_answered(proc: DaemonSubprocess, within_s: float) -> bool:
+    """One GET /api/health answered 200 within ``within_s``."""
     try:
         return exchange(proc.http_port, request("GET", "/api/health", 0), within_s).status == 200
     except (OSError, AssertionError):
@@ -360,7 +362,7 @@ def test_per_source_counts_are_capped_and_expire() -> None:
     assert counts.snapshot() == {"ws:2": 2} and counts.dropped == 4
 
 
-def test_latency_reports_the_per_source_limits(robot_proc: DaemonProcess) -> None:
+def test_latency_reports_the_per_source_limits(robot_proc: DaemonSubprocess) -> None:
     assert post(robot_proc, b'{"linear": {"x": 0.0}}').status == 200
     status, latency = robot_proc.get("/api/latency")
     assert status == 200 and latency["per_source"]["http"] >= 1

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import grp
+import hashlib
 import inspect
 import json
 import os
@@ -21,11 +22,12 @@ import pytest
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.rplidar_emulator import RplidarEmulator
-from tests.conftest import free_port, wait_for
-from tests.deploy_helpers import INSTALL_SH, SYSTEMD_DIR
-from tests.deploy_helpers.machine import FAKE_SYSTEMCTL, Machine
-from tests.deploy_helpers.machine import available as machine_available
-from tests.deploy_helpers.wheels import Wheels, wheels
+from tests.support.deploy import INSTALL_SH, SYSTEMD_DIR
+from tests.support.deploy.machine import FAKE_SYSTEMCTL, Machine
+from tests.support.deploy.machine import available as machine_available
+from tests.support.deploy.wheels import Wheels, wheels
+from tests.support.net import free_port
+from tests.support.wait import wait_for
 
 CONFIG_FILES = {
     "/etc/arbiterd": "root:arbiterd 0750",
@@ -521,6 +523,10 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     apt = next(line for line in test.stdout.splitlines() if " apt-get install " in line)
     assert {"nodejs", "npm", "openssh-client", "rsync", "systemd"} <= set(apt.split())
     assert f"-e {REPO_DIR}\\[test\\,dev\\,bench\\]\n" in test.stdout  # printf %q
+    venv_bin = f"[dry-run] {tmp_path}/venv/bin/"
+    runs = [line for line in test.stdout.splitlines() if line.startswith(venv_bin)]
+    assert runs[-3:] == [venv_bin + "ruff check .", venv_bin + "mypy",  # the gates, then
+                         venv_bin + "python -m pytest"], test.stdout   # the tests
     # on a robot whose service is running, sim says the ports are taken and what to do
     (tools / "systemctl").write_text("#!/bin/sh\n[ \"$1\" = is-active ] && exit 0; exit 1\n")
     (tools / "systemctl").chmod(0o755)
@@ -528,6 +534,55 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     assert ("the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; "
             "stop it first (sudo systemctl stop robot.target) or pass --config FILE with other "
             "ports") in on_robot.stderr
+
+
+@pytest.mark.parametrize("failing", ["ruff", "mypy", None])
+def test_the_test_command_stops_at_a_failing_gate_before_pytest(
+        tmp_path: Path, failing: str | None) -> None:
+    """`./install.sh test` (what .ci/run runs) runs ruff, then mypy, then pytest, and stops with
+    the gate's name at the first one that fails. Here on a copy of install.sh whose venv is up
+    to date and holds stand-ins that log their calls."""
+    src, tools, venv_bin = tmp_path / "src", tmp_path / "bin", tmp_path / "venv" / "bin"
+    for path in (src, tools, venv_bin):
+        path.mkdir(parents=True)
+    shutil.copy(INSTALL_SH, src)
+    shutil.copy(REPO_DIR / "pyproject.toml", src)
+    calls = tmp_path / "calls.log"
+    for name in ("ruff", "mypy", "python"):
+        fails = "echo 'deliberate finding' >&2; exit 1" if name == failing else "exit 0"
+        (venv_bin / name).write_text(f'#!/bin/sh\necho {name} "$@" >>{calls}\n{fails}\n')
+    for name in ("node", "npm", "sshd", "ssh", "ssh-keygen", "rsync", "systemd-analyze",
+                 "chromium"):  # the test tools, present
+        (tools / name).write_text("#!/bin/sh\nexit 0\n")
+    for path in [*venv_bin.iterdir(), *tools.iterdir()]:
+        path.chmod(0o755)
+    for name in ("bash", "cat", "cut", "sha256sum", "dirname", "sed"):
+        found = shutil.which(name)
+        assert found, name
+        (tools / name).symlink_to(found)
+    python = "/usr/bin/python3" if Path("/usr/bin/python3").exists() else sys.executable
+    (tools / "python3").symlink_to(python)
+    version = subprocess.run([python, "-V"], capture_output=True, text=True, check=True)
+    pyproject_hash = hashlib.sha256((src / "pyproject.toml").read_bytes()).hexdigest()
+    (venv_bin.parent / ".arbiterd-dev-stamp").write_text(
+        f"{pyproject_hash} {version.stdout.strip()}\ntest,dev,bench\n")
+    result = subprocess.run(
+        ["bash", str(src / "install.sh"), "test", "-q", "tests/x.py"], capture_output=True,
+        text=True, timeout=60, check=False, cwd=tmp_path,
+        env={"PATH": str(tools), "ARBITERD_DEV_VENV": str(venv_bin.parent),
+             "ARBITERD_CHROMIUM": str(tools / "chromium")})
+    every_step = ["ruff check .", "mypy", "python -m pytest -q tests/x.py"]
+    ran = calls.read_text().splitlines()
+    if failing is None:
+        assert result.returncode == 0, result.stderr
+        assert ran == every_step
+        return
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert ran == every_step[:["ruff", "mypy"].index(failing) + 1]  # nothing after the failure
+    assert "deliberate finding" in result.stderr
+    assert f"install.sh: error: gate {failing} failed" in result.stderr
+    assert "the tests did not run" in result.stderr
+    assert "running the test suite" not in result.stdout
 
 
 def test_arduino_rule_names_the_usual_boards_for_dialout_only() -> None:

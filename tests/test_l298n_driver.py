@@ -10,8 +10,9 @@ import pytest
 
 from drivers.base import DriverFault
 from drivers.l298n import L298NDriver, mock_pin_factory
-from tests.conftest import close_to, eventually
-from tests.rigs import RIGS, Rig, restart_pigpiod_and_reopen
+from tests.support.compare import close_to
+from tests.support.rigs import RIGS, Rig, restart_pigpiod_and_reopen
+from tests.support.wait import eventually
 
 pytestmark = pytest.mark.timeout(60)
 

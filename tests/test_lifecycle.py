@@ -7,7 +7,8 @@ import threading
 import time
 from pathlib import Path
 
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 
 class NotifySocket:
@@ -46,12 +47,12 @@ class NotifySocket:
 def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
     notify = NotifySocket(tmp_path / "notify.sock")
     env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "400000"}
-    daemon = DaemonProcess(tmp_path, "[control]\nallow_fault_injection = true\n", env=env)
+    daemon = DaemonSubprocess(tmp_path, "[control]\nallow_fault_injection = true\n", env=env)
     try:
         with daemon:
-            wait_for(lambda: "READY=1" in notify.lines(), 10, "READY=1")
+            wait_for(lambda: "READY=1" in notify.lines(), "READY=1", within_s=10)
             assert any(line.startswith("STATUS=ready") for line in notify.lines())
-            wait_for(lambda: len(notify.times_of("WATCHDOG=1")) >= 6, 10, "watchdog pings")
+            wait_for(lambda: len(notify.times_of("WATCHDOG=1")) >= 6, "watchdog pings", within_s=10)
             pings = notify.times_of("WATCHDOG=1")
             gaps = [b - a for a, b in zip(pings[-5:], pings[-4:], strict=False)]
             # WATCHDOG_USEC 400 ms -> one ping per ~200 ms (ticks are 20 ms apart)
@@ -65,12 +66,12 @@ def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
             during = [t for t in notify.times_of("WATCHDOG=1")
                       if stall_start + 0.05 < t < stall_end - 0.05]
             assert during == [], "watchdog was pet while the event loop was stalled"
-            wait_for(lambda: any(t > stall_end for t in notify.times_of("WATCHDOG=1")), 5,
-                     "pings to resume after the stall")
+            wait_for(lambda: any(t > stall_end for t in notify.times_of("WATCHDOG=1")),
+                     "pings to resume after the stall", within_s=5)
 
             status, _ = daemon.post("/api/cmd_vel", {"linear": {"x": 0.5}})
             assert status == 200
-            wait_for(lambda: daemon.wheels() and daemon.wheels()[-1][1] > 1.0, 5, "motion")
+            wait_for(lambda: daemon.wheels() and daemon.wheels()[-1][1] > 1.0, "motion", within_s=5)
             code = daemon.stop(signal.SIGTERM)
         assert code == 0, daemon.log()
         assert "STOPPING=1" in notify.lines()
@@ -82,9 +83,9 @@ def test_ready_watchdog_stall_and_sigterm(tmp_path: Path) -> None:
 
 
 def test_sigint_also_takes_the_shutdown_path(tmp_path: Path) -> None:
-    with DaemonProcess(tmp_path) as daemon:
+    with DaemonSubprocess(tmp_path) as daemon:
         daemon.post("/api/cmd_vel", {"linear": {"x": 0.3}})
-        wait_for(lambda: daemon.wheels() and daemon.wheels()[-1][1] > 0, 5, "motion")
+        wait_for(lambda: daemon.wheels() and daemon.wheels()[-1][1] > 0, "motion", within_s=5)
         assert daemon.stop(signal.SIGINT) == 0
     assert daemon.wheels()[-1][1:] == (0.0, 0.0)
     assert "shutting down: signal SIGINT" in daemon.log()
@@ -93,8 +94,8 @@ def test_sigint_also_takes_the_shutdown_path(tmp_path: Path) -> None:
 def test_no_watchdog_pings_without_watchdog_usec(tmp_path: Path) -> None:
     notify = NotifySocket(tmp_path / "notify.sock")
     try:
-        with DaemonProcess(tmp_path, env={"NOTIFY_SOCKET": str(notify.path)}) as daemon:
-            wait_for(lambda: "READY=1" in notify.lines(), 10, "READY=1")
+        with DaemonSubprocess(tmp_path, env={"NOTIFY_SOCKET": str(notify.path)}) as daemon:
+            wait_for(lambda: "READY=1" in notify.lines(), "READY=1", within_s=10)
             daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})  # some ticks pass meanwhile
             status, health = daemon.get("/api/health")
             assert status == 200 and health["components"]["control"]["status"] == "ok"

@@ -7,14 +7,15 @@ from pathlib import Path
 
 from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MotorPair
-from tests.conftest import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 
 def test_an_arduino_plugged_in_after_boot_drives_after_a_fresh_command(tmp_path: Path) -> None:
     link = tmp_path / "arduino"
     toml = (f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{link}"\n'
             f'reset_wait_s = 0.05\n[control]\nreconnect_min_s = 0.1\nreconnect_max_s = 0.4\n')
-    with DaemonProcess(tmp_path, toml) as daemon:
+    with DaemonSubprocess(tmp_path, toml) as daemon:
         code, health = daemon.get("/api/health")
         assert code == 503 and health["driver"] == "serial", health
         fault = health["components"]["control"]["fault"]

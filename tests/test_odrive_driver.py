@@ -24,9 +24,10 @@ from drivers.base import DriverFault
 from drivers.odrive_can import ODriveCanDriver
 from sim.motor_model import MotorPair
 from sim.odrive_emulator import ODriveEmulator
-from tests.conftest import close_to, eventually, wait_for
-from tests.daemon_proc import REPO
-from tests.rigs import RIG_OPTIONS, Rig, wired_rig
+from tests.support.compare import close_to
+from tests.support.paths import REPO
+from tests.support.rigs import RIG_OPTIONS, Rig, wired_rig
+from tests.support.wait import eventually, wait_for
 
 WHEEL_RADIUS = 0.05
 WHEEL_SEPARATION = 0.30
@@ -558,7 +559,7 @@ def test_bench_measures_every_command_reaching_the_emulated_odrive() -> None:
 
 
 def test_daemon_survives_odrive_heartbeat_loss(tmp_path: Path) -> None:
-    from tests.daemon_proc import DaemonProcess
+    from tests.support.daemon_subprocess import DaemonSubprocess
 
     port = _free_udp_port()
     try:
@@ -581,7 +582,7 @@ reconnect_max_s = 0.5
 """
     drive = {"linear": {"x": 0.2}}  # 4 rad/s on both 0.05 m wheels
     try:
-        with DaemonProcess(tmp_path, config, use_mock_log=False) as daemon:
+        with DaemonSubprocess(tmp_path, config, use_mock_log=False) as daemon:
             wait_for(lambda: daemon.get("/api/health")[0] == 200, "a healthy daemon", within_s=10)
 
             def driving() -> bool:

@@ -22,16 +22,18 @@ from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
 from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
 from sim.wiring import EMULATORS
-from tests.async_daemon import (
-    DaemonClient,
+from tests.support.async_daemon_subprocess import (
+    AsyncDaemonSubprocess,
+    async_daemon_subprocess,
     driver_daemon_config,
     reaped,
-    spawn_daemon,
     terminate_cleanly,
 )
-from tests.conftest import close_to, eventually
-from tests.daemon_proc import REPO, free_port
-from tests.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
+from tests.support.compare import close_to
+from tests.support.net import free_port
+from tests.support.paths import REPO
+from tests.support.rigs import FULL_DUTY_SPEED, Rig, restart_pigpiod_and_reopen, wired_rig
+from tests.support.wait import eventually
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -353,17 +355,17 @@ async def test_an_error_answer_is_a_fault_but_the_wheels_can_still_be_zeroed(
 
 
 @pytest.fixture
-async def daemon(tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, Rig]]:
+async def daemon(tmp_path: Path) -> AsyncIterator[tuple[AsyncDaemonSubprocess, Rig]]:
     with running_rig(tmp_path) as the_rig:
         port = free_port()
         config = driver_daemon_config(tmp_path, "pigpio", the_rig.options, port)
-        async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
+        async with async_daemon_subprocess(config, port, tmp_path / "daemon.log") as client:
             yield client, the_rig
         assert the_rig.observed_targets() == (0.0, 0.0)
 
 
 async def test_daemon_survives_pigpiod_stopping_and_restarting(
-        daemon: tuple[DaemonClient, Rig]) -> None:
+        daemon: tuple[AsyncDaemonSubprocess, Rig]) -> None:
     client, the_rig = daemon
     emulator = the_rig.emulator
     assert await client.cmd_vel(0.2) == 200

@@ -26,8 +26,8 @@ from daemon.telemetry import SCAN as SCAN_KEY
 from daemon.telemetry import OdomSample
 from daemon.topics import TopicOut
 from sensors.scan import LaserScan
-from tests.conftest import wait_for
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 CHANNELS = channels_by_bus([TopicOut("/odom", ODOMETRY, ODOM_KEY, odometry_msg, "20 Hz"),
                             TopicOut("/tf", TF_MESSAGE, ODOM_KEY, tf_msg, "20 Hz"),

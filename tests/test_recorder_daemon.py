@@ -11,7 +11,6 @@ import subprocess
 import sys
 import time
 import urllib.request
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,33 +20,34 @@ from mcap_ros2.decoder import DecoderFactory
 
 from daemon.recorder.files import inspect
 from daemon.recorder.writer import recordings
-from tests.conftest import close_to, wait_for
-from tests.daemon_proc import REPO, DaemonProcess
+from tests.support.compare import close_to
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 INTEROP = REPO / "tests" / "interop"
 RECORDED = {"/odom", "/tf", "/scan", "/commands", "/latency_reports", "/rosout", "/diagnostics",
             "/odom_ground_truth", "/autonomy/state", "/collision_monitor/state"}
-Start = Callable[..., DaemonProcess]
 
 
 def record_toml(directory: Path, extra: str = "") -> str:
     return f'[record]\nenabled = true\ndirectory = "{directory}"\n{extra}'
 
 
-def drive(daemon: DaemonProcess, linear: float, angular: float, cmd_id: str) -> None:
+def drive(daemon: DaemonSubprocess, linear: float, angular: float, cmd_id: str) -> None:
     status, body = daemon.post("/api/cmd_vel", {
         "linear": {"x": linear}, "angular": {"z": angular}, "id": cmd_id,
         "t_sent": time.time() * 1000})
     assert status == 200, body
 
 
-def pose(daemon: DaemonProcess) -> dict[str, float]:
+def pose(daemon: DaemonSubprocess) -> dict[str, float]:
     status, body = daemon.get("/api/status")
     assert status == 200
     return dict(body["pose"])
 
 
-def drive_and_stop(daemon: DaemonProcess) -> dict[str, float]:
+def drive_and_stop(daemon: DaemonSubprocess) -> dict[str, float]:
     """Drive a little, stop, and return the pose once the robot stands still."""
     start = pose(daemon)
 
@@ -100,9 +100,9 @@ def the_recording(directory: Path) -> Path:
 
 
 def test_a_sigterm_recording_reads_back_in_python_and_node(
-        daemon_process: Start, tmp_path: Path) -> None:
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
     rec = tmp_path / "rec"
-    daemon = daemon_process(record_toml(rec), args=("--sim",))
+    daemon = daemon_subprocess(record_toml(rec), args=("--sim",))
     final = drive_and_stop(daemon)  # /odom went out many times since the robot stood still
     assert daemon.stop() == 0
 
@@ -139,9 +139,9 @@ def test_a_sigterm_recording_reads_back_in_python_and_node(
 
 
 def test_after_sigkill_all_but_the_last_second_reads_back(
-        daemon_process: Start, tmp_path: Path) -> None:
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
     rec = tmp_path / "rec"
-    daemon = daemon_process(record_toml(rec), args=("--sim",))
+    daemon = daemon_subprocess(record_toml(rec), args=("--sim",))
     wait_for(lambda: recordings(rec) and inspect(the_recording(rec)).duration_s > 2.0,
              "two seconds on disk", within_s=20)
     killed_at = time.time()
@@ -158,10 +158,10 @@ def test_after_sigkill_all_but_the_last_second_reads_back(
 
 
 def test_an_unwritable_directory_degrades_health_and_the_robot_still_drives(
-        daemon_process: Start, tmp_path: Path) -> None:
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory\n")
-    daemon = daemon_process(record_toml(blocker / "recordings"), args=("--sim",))
+    daemon = daemon_subprocess(record_toml(blocker / "recordings"), args=("--sim",))
 
     def degraded() -> Any:
         _, health = daemon.get("/api/health")
@@ -174,9 +174,10 @@ def test_an_unwritable_directory_degrades_health_and_the_robot_still_drives(
     assert daemon.stop() == 0
 
 
-def test_http_control_listing_and_download(daemon_process: Start, tmp_path: Path) -> None:
+def test_http_control_listing_and_download(daemon_subprocess: StartDaemonSubprocess,
+                                           tmp_path: Path) -> None:
     rec = tmp_path / "rec"
-    daemon = daemon_process(f'[record]\ndirectory = "{rec}"\n[security]\ntoken = "s3cret"\n',
+    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n[security]\ntoken = "s3cret"\n',
                             args=("--sim",))
     assert daemon.get("/api/recordings")[1]["recordings"] == []
     status, _ = daemon.post("/api/record", {"enabled": True})

@@ -8,8 +8,8 @@ from typing import Any
 from daemon.rosbridge import access
 from daemon.rosbridge.access import ANY, TABLE
 from daemon.rosbridge.session import OPS, TARGET_FIELDS, ClientSession
-from tests.conftest import Robot, running_robot
-from tests.test_rosbridge_server import TWIST, Client, _upgrade_status, connect
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import TWIST, Client, connect, upgrade_status
 
 TOKEN = "s3cret"
 SAMPLE_TOPIC = "/walk"
@@ -49,7 +49,7 @@ def sample_frame(op: str, target: str, rid: str) -> dict[str, Any]:
     return frame
 
 
-def drive_rules(robot: Robot) -> list[tuple[str, str]]:
+def drive_rules(robot: InProcessDaemon) -> list[tuple[str, str]]:
     """The table's drive rules, and advertising and publishing on every incoming topic the
     robot's components declare with drive access."""
     table = [(op, target) for (op, target), need in TABLE.items() if need == "drive"]
@@ -79,7 +79,7 @@ async def no_access_refusals(client: Client) -> list[dict[str, Any]]:
 
 
 async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> None:
-    async with running_robot(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
+    async with in_process_daemon(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
         rules = drive_rules(robot)
         assert len(rules) >= 13
         async with connect(robot.ws_url) as anonymous:
@@ -94,7 +94,7 @@ async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> No
             assert await no_access_refusals(owner) == []
 
 
-def assert_nothing_happened(robot: Robot) -> None:
+def assert_nothing_happened(robot: InProcessDaemon) -> None:
     assert not robot.moving()
     assert not robot.ctx.control.arbiter.estop_engaged
     graph = robot.component("rosbridge").graph
@@ -104,7 +104,7 @@ def assert_nothing_happened(robot: Robot) -> None:
 
 async def test_read_and_open_ops_need_no_token(tmp_path: Path) -> None:
     config = f'[security]\ntoken = "{TOKEN}"\n'
-    async with running_robot(tmp_path, config) as robot, connect(robot.ws_url) as anonymous:
+    async with in_process_daemon(tmp_path, config) as robot, connect(robot.ws_url) as anonymous:
         for (op, target), need in TABLE.items():
             if need != "drive":
                 await anonymous.send(**sample_frame(op, sample_target(op, target), f"{op}"))
@@ -113,6 +113,6 @@ async def test_read_and_open_ops_need_no_token(tmp_path: Path) -> None:
 
 async def test_read_requires_token_refuses_the_tokenless_upgrade(tmp_path: Path) -> None:
     config = f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
-    async with running_robot(tmp_path, config) as robot:
-        assert await _upgrade_status(robot.ws_url) == 401
-        assert await _upgrade_status(robot.ws_url, Authorization=f"Bearer {TOKEN}") == 101
+    async with in_process_daemon(tmp_path, config) as robot:
+        assert await upgrade_status(robot.ws_url) == 401
+        assert await upgrade_status(robot.ws_url, Authorization=f"Bearer {TOKEN}") == 101

@@ -22,7 +22,7 @@ from daemon.rosbridge import binary
 from daemon.rosbridge.outbox import SharedMessage, SubscribeOptions, TopicQueue
 from daemon.telemetry import OdomSample
 from sensors.scan import LaserScan
-from tests.conftest import close_to
+from tests.support.compare import close_to
 
 
 def decode(type_name: str, data: bytes) -> Any:

@@ -15,7 +15,7 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from daemon.messages.definitions import LASER_SCAN, ODOMETRY
 from daemon.messages.msgtypes import full_text
-from tests.conftest import Robot
+from tests.support.in_process_daemon import InProcessDaemon
 
 TIMEOUT = 10.0
 
@@ -25,7 +25,7 @@ def decode(type_name: str, data: bytes) -> Any:
 
 
 @asynccontextmanager
-async def connect(robot: Robot) -> AsyncIterator[aiohttp.ClientWebSocketResponse]:
+async def connect(robot: InProcessDaemon) -> AsyncIterator[aiohttp.ClientWebSocketResponse]:
     async with aiohttp.ClientSession() as session, session.ws_connect(robot.ws_url) as ws:
         yield ws
 
@@ -38,7 +38,7 @@ async def next_frame(ws: aiohttp.ClientWebSocketResponse, kind: aiohttp.WSMsgTyp
             return message.data
 
 
-async def test_cbor_raw_carries_cdr_with_the_server_clock(robot: Robot) -> None:
+async def test_cbor_raw_carries_cdr_with_the_server_clock(robot: InProcessDaemon) -> None:
     async with connect(robot) as ws:
         await ws.send_json({"op": "subscribe", "topic": "/odom", "compression": "cbor-raw"})
         body = cbor2.loads(await next_frame(ws, aiohttp.WSMsgType.BINARY))
@@ -61,7 +61,7 @@ async def barrier(ws: aiohttp.ClientWebSocketResponse) -> None:
             return
 
 
-async def relay(robot: Robot, type_name: str, msg: dict[str, Any],
+async def relay(robot: InProcessDaemon, type_name: str, msg: dict[str, Any],
                 compressions: tuple[str, ...]) -> list[Any]:
     """One client publishes ``msg`` on /relayed; one subscriber per compression receives it."""
     async with connect(robot) as talker, contextlib.AsyncExitStack() as stack:
@@ -82,7 +82,7 @@ SCAN = {"header": {"stamp": {"sec": 1700000000, "nanosec": 500000000}, "frame_id
         "ranges": [1.0, None, 2.5], "intensities": [1, 1, 1]}
 
 
-async def test_cbor_and_json_clients_get_the_same_scan(robot: Robot) -> None:
+async def test_cbor_and_json_clients_get_the_same_scan(robot: InProcessDaemon) -> None:
     raw, values, plain = await relay(robot, LASER_SCAN, SCAN, ("cbor-raw", "cbor", "none"))
     raw_scan = decode(LASER_SCAN, cbor2.loads(raw)["msg"]["bytes"])
     cbor_scan = cbor2.loads(values)["msg"]
@@ -96,14 +96,14 @@ async def test_cbor_and_json_clients_get_the_same_scan(robot: Robot) -> None:
     assert json_scan["ranges"] == [1.0, None, 2.5]  # the JSON path is unchanged
 
 
-async def test_subscribers_share_one_encoded_frame(robot: Robot) -> None:
+async def test_subscribers_share_one_encoded_frame(robot: InProcessDaemon) -> None:
     first, second = await relay(robot, "std_msgs/msg/String", {"data": "hi"},
                                 ("cbor-raw", "cbor-raw"))
     assert first == second  # same secs/nsecs too: encoded once, at the first send
     assert cbor2.loads(first)["msg"]["bytes"] == b"\x00\x01\x00\x00\x03\x00\x00\x00hi\x00"
 
 
-async def test_png_is_refused_with_a_status_error(robot: Robot) -> None:
+async def test_png_is_refused_with_a_status_error(robot: InProcessDaemon) -> None:
     async with connect(robot) as ws:
         await ws.send_json({"op": "subscribe", "id": "s1", "topic": "/odom",
                             "compression": "png"})

@@ -29,6 +29,7 @@ from daemon.rosbridge.codec import (
 from daemon.rosbridge.limits import RateLimitedLog, TokenBucket
 from daemon.rosbridge.outbox import EVENT_QUEUE, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.telemetry import OdomSample
+from tests.support.rosbridge import FakeScan
 
 
 @pytest.mark.parametrize(("given", "expected"), [
@@ -104,15 +105,6 @@ def test_non_finite_floats_encode_as_null_never_nan() -> None:
     text = encode({"a": math.nan, "b": [1.0, math.inf, -math.inf], "c": np.array([np.nan, 2.0])})
     assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text) == {"a": None, "b": [1.0, None, None], "c": [None, 2.0]}
-
-
-class FakeScan:
-    stamp = 1700000000.25
-    frame_id = "laser"
-    angle_min, angle_max, angle_increment = -math.pi, math.pi, math.radians(1)
-    time_increment, scan_time, range_min, range_max = 0.0, 0.1, 0.12, 12.0
-    ranges = np.array([1.25, np.inf, np.nan, 0.98], dtype=np.float32)
-    intensities = np.array([10, 0, 0, 12], dtype=np.float32)
 
 
 def test_scan_conversion_checks_against_laserscan_and_sends_null() -> None:

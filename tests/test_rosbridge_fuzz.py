@@ -6,16 +6,16 @@ from typing import Any
 
 from daemon.bench.rosbridge_attacks import TEXT_CATEGORIES, run_attack
 from daemon.bench.rosbridge_flood import measure, rss_mb
-from tests.conftest import Robot, eventually, running_robot
-from tests.test_rosbridge_hardening import OWNER, STALL_LIMIT_MS, WITH_TOKEN, bridge
-from tests.test_rosbridge_server import TWIST, connect
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import OWNER, STALL_LIMIT_MS, TWIST, WITH_TOKEN, bridge, connect
+from tests.support.wait import eventually
 
 WARM_UP_S = 5
 FUZZ_S = 25
 RSS_GROWTH_MB = 30.0  # after the warm-up; the daemon in this test process holds ~100 MB
 
 
-def nothing_moved(robot: Robot) -> None:
+def nothing_moved(robot: InProcessDaemon) -> None:
     wheels = [(c.left_rad_s, c.right_rad_s) for c in robot.driver.commands]
     assert all(left == 0.0 and right == 0.0 for left, right in wheels), "a wheel turned"
     assert not robot.ctx.control.arbiter.estop_engaged
@@ -26,7 +26,7 @@ def nothing_moved(robot: Robot) -> None:
 
 async def test_tokenless_fuzz_moves_nothing_and_leaks_nothing(
         tmp_path: Path, record_property: Any) -> None:
-    async with running_robot(tmp_path, WITH_TOKEN) as robot:
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot:
         await run_attack(robot.ws_url, "fuzz", "--seconds", str(WARM_UP_S), "--seed", "1")
         rss_before = rss_mb()
         window = await measure(robot.daemon, run_attack(
@@ -50,7 +50,7 @@ async def test_tokenless_fuzz_moves_nothing_and_leaks_nothing(
         await still_drives_with_the_token(robot)
 
 
-async def still_drives_with_the_token(robot: Robot) -> None:
+async def still_drives_with_the_token(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url, headers=OWNER) as owner:
         assert (await owner.call("/rosapi/get_time"))["result"] is True
         await owner.send(op="publish", topic="/cmd_vel", msg=TWIST)
@@ -61,7 +61,7 @@ async def test_fuzz_without_a_token_configured_keeps_the_bridge_answering(
         tmp_path: Path) -> None:
     """Without a token configured every client may drive: the same junk is refused field by
     field, and the bridge keeps answering."""
-    async with running_robot(tmp_path) as robot:
+    async with in_process_daemon(tmp_path) as robot:
         report = await run_attack(robot.ws_url, "fuzz", "--seconds", "5", "--seed", "3")
         assert report["replies"].get("status", 0) > 0
         async with connect(robot.ws_url) as client:

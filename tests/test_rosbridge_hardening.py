@@ -30,15 +30,17 @@ from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.writer import SLICE
 from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
-from tests.conftest import Robot, eventually, running_robot
-from tests.test_rosbridge_server import Client, _upgrade_status, connect
-
-TOKEN = "s3cret"
-WITH_TOKEN = f'[security]\ntoken = "{TOKEN}"\n'
-OWNER = {"Authorization": f"Bearer {TOKEN}"}
-# the deadman (cmd_vel_timeout, 0.5 s) must be able to fire; on a shared 2-core box garbage
-# collection and scheduling alone stall a loop for up to ~150 ms, the bugs did for seconds
-STALL_LIMIT_MS = 400.0
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import (
+    OWNER,
+    STALL_LIMIT_MS,
+    WITH_TOKEN,
+    Client,
+    bridge,
+    connect,
+    upgrade_status,
+)
+from tests.support.wait import eventually
 
 
 def set_limits(monkeypatch: pytest.MonkeyPatch, **values: float) -> None:
@@ -47,11 +49,7 @@ def set_limits(monkeypatch: pytest.MonkeyPatch, **values: float) -> None:
         monkeypatch.setenv(env_name("rosbridge", key), str(value))
 
 
-def bridge(robot: Robot) -> Any:
-    return robot.component("rosbridge")
-
-
-async def under_attack(robot: Robot, *args: str) -> tuple[dict[str, Any], Window]:
+async def under_attack(robot: InProcessDaemon, *args: str) -> tuple[dict[str, Any], Window]:
     window = await measure(robot.daemon, run_attack(robot.ws_url, *args), 0)
     return window.detail, window
 
@@ -64,7 +62,8 @@ def assert_no_stall(window: Window) -> None:
 # -- no request does unbounded work on the loop -------------------------------------------------
 
 
-async def test_rosapi_over_1500_topics_in_1_byte_fragments_does_not_stall(robot: Robot) -> None:
+async def test_rosapi_over_1500_topics_in_1_byte_fragments_does_not_stall(
+        robot: InProcessDaemon) -> None:
     report, window = await under_attack(robot, "advertise-many", "--topics", "1500",
                                         "--per-client", "100", "--fragment-size", "1")
     assert report["statuses"] == {}, report
@@ -73,7 +72,7 @@ async def test_rosapi_over_1500_topics_in_1_byte_fragments_does_not_stall(robot:
     assert_no_stall(window)
 
 
-async def test_ten_thousand_subscribes_do_not_stall(robot: Robot) -> None:
+async def test_ten_thousand_subscribes_do_not_stall(robot: InProcessDaemon) -> None:
     report, window = await under_attack(robot, "subscribe-flood", "--count", "10000")
     assert_no_stall(window)
     # what the budgets refused, they refused by name
@@ -84,7 +83,7 @@ async def test_subscribe_bookkeeping_is_cheap_with_the_budgets_raised(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, ops_per_second=1e6, ops_burst=10**6,
                max_subscriptions_per_client=20_000)
-    async with running_robot(tmp_path) as robot:
+    async with in_process_daemon(tmp_path) as robot:
         report, window = await under_attack(robot, "subscribe-flood", "--count", "10000")
     assert report["statuses"] == {}, report
     assert_no_stall(window)
@@ -97,7 +96,7 @@ def synthetic_scan(rays: int = 720) -> LaserScan:
 
 
 @contextlib.asynccontextmanager
-async def scans_at_10_hz(robot: Robot) -> AsyncIterator[None]:
+async def scans_at_10_hz(robot: InProcessDaemon) -> AsyncIterator[None]:
     async def publish() -> None:
         while True:
             robot.ctx.bus.publish(SCAN, synthetic_scan())
@@ -111,7 +110,7 @@ async def scans_at_10_hz(robot: Robot) -> AsyncIterator[None]:
 
 
 async def test_scan_subscribers_in_1_byte_fragments_leave_the_ticks_on_time(
-        robot: Robot) -> None:
+        robot: InProcessDaemon) -> None:
     latency = robot.daemon.latency
     async with scans_at_10_hz(robot):
         late_before = latency.late_ticks
@@ -123,7 +122,7 @@ async def test_scan_subscribers_in_1_byte_fragments_leave_the_ticks_on_time(
     assert late <= window.ticks // 4, f"{late} of {window.ticks} ticks were late"
 
 
-async def test_a_service_answer_of_many_fragments_arrives_whole(robot: Robot) -> None:
+async def test_a_service_answer_of_many_fragments_arrives_whole(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="call_service", service="/rosapi/topics_and_raw_types",
                           id="raw", fragment_size=1)
@@ -139,7 +138,7 @@ async def test_a_service_answer_of_many_fragments_arrives_whole(robot: Robot) ->
         assert answer["result"] is True and "/odom" in answer["values"]["topics"]
 
 
-async def test_queue_length_out_of_range_is_a_clear_error(robot: Robot) -> None:
+async def test_queue_length_out_of_range_is_a_clear_error(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/odom", id="q", queue_length=2**63)
         status = await client.op("status", id="q")
@@ -158,7 +157,7 @@ async def test_per_client_budgets_name_their_config_key(
     set_limits(monkeypatch, max_topics_per_client=2, max_subscriptions_per_client=2,
                max_services_per_client=1, max_fragment_sets_per_client=1, ops_per_second=20,
                ops_burst=40)
-    async with running_robot(tmp_path) as robot:
+    async with in_process_daemon(tmp_path) as robot:
         async with connect(robot.ws_url) as client:
             for i in range(3):
                 await client.send(op="advertise", topic=f"/t{i}", type="std_msgs/String",
@@ -187,7 +186,7 @@ async def test_a_client_kept_over_its_request_rate_is_closed(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, ops_per_second=5, ops_burst=5)
     monkeypatch.setattr(session_module, "THROTTLE_CLOSE_S", 0.5)
-    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as flooder, \
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as flooder, \
             connect(robot.ws_url) as polite:
         for i in range(50):
             await flooder.send(op="set_level", level="error", id=f"op{i}")
@@ -201,7 +200,7 @@ async def test_a_client_kept_over_its_request_rate_is_closed(
 async def test_calls_to_a_silent_provider_time_out(tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, call_timeout=0.3, max_pending_calls_per_client=2)
-    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as provider, \
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as provider, \
             connect(robot.ws_url) as caller:
         await provider.send(op="advertise_service", service="/silent", type="x/Y")
         await provider.call("/rosapi/get_time")
@@ -224,7 +223,7 @@ async def send_fragment(client: Client, rid: str, data: str, num: int, total: in
                                          "total": total}, ensure_ascii=False))
 
 
-async def test_fragment_limits_count_bytes_not_characters(robot: Robot) -> None:
+async def test_fragment_limits_count_bytes_not_characters(robot: InProcessDaemon) -> None:
     emoji = "😀" * 100_000  # 100 000 characters, 400 000 bytes of UTF-8
     async with connect(robot.ws_url) as client:
         for num in range(3):  # 1.2 MB in 300 000 characters: over 1 MiB
@@ -240,7 +239,7 @@ async def test_fragment_limits_count_bytes_not_characters(robot: Robot) -> None:
 
 async def test_empty_fragments_count(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, ops_per_second=1e6, ops_burst=10**6)
-    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as client:
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as client:
         await send_fragment(client, "huge", "", 0, 10**6)
         assert "max_fragments_per_message" in await refusal(client, "huge")
         for num in range(17_000):  # 64 bytes each: 1 MiB after 16 384 of them
@@ -254,7 +253,7 @@ async def test_empty_fragments_count(tmp_path: Path, monkeypatch: pytest.MonkeyP
 
 
 async def test_idle_tokenless_clients_cannot_lock_out_the_token_holder(tmp_path: Path) -> None:
-    async with running_robot(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http, \
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http, \
             contextlib.AsyncExitStack() as stack:
         opened = 0
         for _ in range(40):
@@ -264,13 +263,13 @@ async def test_idle_tokenless_clients_cannot_lock_out_the_token_holder(tmp_path:
             except aiohttp.WSServerHandshakeError as exc:
                 assert exc.status == 503
         assert opened == 32 - 4  # reserved_clients
-        assert await _upgrade_status(robot.ws_url, **OWNER) == 101
+        assert await upgrade_status(robot.ws_url, **OWNER) == 101
 
 
 async def test_idle_unauthenticated_connections_time_out(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, idle_timeout=0.5)
-    async with running_robot(tmp_path, WITH_TOKEN) as robot, connect(robot.ws_url) as idle, \
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, connect(robot.ws_url) as idle, \
             connect(robot.ws_url) as reader, connect(robot.ws_url, headers=OWNER) as owner:
         await reader.send(op="subscribe", topic="/odom")
         closed = await idle.ws.receive(timeout=10)
@@ -282,7 +281,7 @@ async def test_idle_unauthenticated_connections_time_out(
 
 
 async def test_tokenless_clients_cannot_take_over_services_or_publish(tmp_path: Path) -> None:
-    async with running_robot(tmp_path, WITH_TOKEN) as robot, \
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, \
             connect(robot.ws_url, headers=OWNER) as owner, connect(robot.ws_url) as anonymous:
         await owner.send(op="advertise_service", service="/plan", type="x/Plan")
         await owner.send(op="advertise", topic="/chatter", type="std_msgs/String")
@@ -304,16 +303,16 @@ async def test_tokenless_clients_cannot_take_over_services_or_publish(tmp_path: 
 
 async def test_host_and_origin_are_checked_on_the_websocket(tmp_path: Path) -> None:
     config = '[security]\nallowed_hosts = ["robot.example"]\n'
-    async with running_robot(tmp_path, config) as robot:
+    async with in_process_daemon(tmp_path, config) as robot:
         url = robot.ws_url
-        assert await _upgrade_status(url, Host="evil.example") == 403
-        assert await _upgrade_status(url, Host="evil.example",
+        assert await upgrade_status(url, Host="evil.example") == 403
+        assert await upgrade_status(url, Host="evil.example",
                                      Origin="http://evil.example") == 403
-        assert await _upgrade_status(url, Host="localhost:9090",
+        assert await upgrade_status(url, Host="localhost:9090",
                                      Origin="http://evil.example") == 403
-        assert await _upgrade_status(url, Host="robot.example",
+        assert await upgrade_status(url, Host="robot.example",
                                      Origin="http://robot.example") == 101
-        assert await _upgrade_status(url, Host="127.0.0.1") == 101
+        assert await upgrade_status(url, Host="127.0.0.1") == 101
         assert bridge(robot).refused["host"] == 2
 
 
@@ -321,7 +320,7 @@ async def test_host_and_origin_are_checked_on_the_websocket(tmp_path: Path) -> N
 
 
 async def test_malformed_input_is_one_rate_limited_line_without_traceback(
-        robot: Robot, caplog: pytest.LogCaptureFixture) -> None:
+        robot: InProcessDaemon, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO)
     async with connect(robot.ws_url) as listener, connect(robot.ws_url) as client:
         await listener.send(op="subscribe", topic="/rosout")

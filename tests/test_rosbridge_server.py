@@ -6,8 +6,6 @@ import itertools
 import json
 import logging
 import time
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
@@ -15,88 +13,16 @@ import aiohttp
 import pytest
 
 from daemon.telemetry import ROBOT_INFO, SCAN
-from tests.conftest import Robot, eventually
-from tests.conftest import running_robot as running_daemon
-
-TIMEOUT = 10.0
-
-
-class Client:
-    """A rosbridge client on an aiohttp WebSocket that remembers everything it received."""
-
-    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
-        self.ws = ws
-        self.received: list[dict[str, Any]] = []
-        self.raw: list[str] = []
-        self.calls = 0
-
-    async def send(self, **frame: Any) -> None:
-        await self.ws.send_str(json.dumps(frame))
-
-    async def expect(self, predicate: Callable[[dict[str, Any]], bool],
-                     within: float = TIMEOUT, what: str = "a message") -> dict[str, Any]:
-        """The first message matching ``predicate`` (waits for it)."""
-        deadline = time.monotonic() + within
-        while True:
-            for i in range(len(self.received)):
-                if predicate(self.received[i]):
-                    return self.received[i]
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise AssertionError(f"timed out waiting for {what}; got "
-                                     f"{[m.get('op') for m in self.received[-10:]]}")
-            await self._read(remaining)
-
-    async def _read(self, within: float) -> None:
-        try:
-            message = await self.ws.receive(timeout=within)
-        except TimeoutError:
-            return
-        if message.type != aiohttp.WSMsgType.TEXT:
-            raise AssertionError(f"socket closed or not text: {message.type} {message.data}")
-        self.raw.append(message.data)
-        self.received.append(json.loads(message.data))
-
-    async def op(self, op: str, **fields: Any) -> dict[str, Any]:
-        return await self.expect(
-            lambda m: m.get("op") == op and all(m.get(k) == v for k, v in fields.items()),
-            TIMEOUT, f"{op} {fields}")
-
-    async def count(self, op: str, n: int) -> list[dict[str, Any]]:
-        """Wait until ``n`` messages of ``op`` have arrived; all of them."""
-        def matching() -> list[dict[str, Any]]:
-            return [m for m in self.received if m.get("op") == op]
-        await self.expect(lambda m: len(matching()) >= n, what=f"{n} {op} messages")
-        return matching()
-
-    async def call(self, service: str, args: Any = None, rid: str = "") -> dict[str, Any]:
-        self.calls += 1
-        rid = rid or f"call-{self.calls}"
-        frame: dict[str, Any] = {"op": "call_service", "service": service, "id": rid}
-        if args is not None:
-            frame["args"] = args
-        await self.send(**frame)
-        return await self.op("service_response", id=rid)
-
-    def published(self, topic: str) -> list[dict[str, Any]]:
-        return [m["msg"] for m in self.received if m.get("op") == "publish"
-                and m.get("topic") == topic]
-
-
-@asynccontextmanager
-async def connect(url: str, **kw: Any) -> AsyncIterator[Client]:
-    async with aiohttp.ClientSession() as session, session.ws_connect(url, **kw) as ws:
-        yield Client(ws)
-
-
-TWIST = {"linear": {"x": 0.3, "y": 0, "z": 0}, "angular": {"x": 0, "y": 0, "z": 0.2}}
-
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import TIMEOUT, TWIST, FakeScan, connect, upgrade_status
+from tests.support.wait import eventually
 
 # -- driving ---------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("spelling", ["geometry_msgs/Twist", "geometry_msgs/msg/Twist"])
-async def test_cmd_vel_drives_with_either_type_spelling(robot: Robot, spelling: str) -> None:
+async def test_cmd_vel_drives_with_either_type_spelling(robot: InProcessDaemon,
+                                                        spelling: str) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/cmd_vel", type=spelling, id="adv")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST)
@@ -106,7 +32,8 @@ async def test_cmd_vel_drives_with_either_type_spelling(robot: Robot, spelling: 
         assert not [m for m in client.received if m.get("op") == "status"]
 
 
-async def test_twist_stamped_on_cmd_vel_and_publish_without_advertise(robot: Robot) -> None:
+async def test_twist_stamped_on_cmd_vel_and_publish_without_advertise(
+        robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="publish", topic="cmd_vel", msg={
             "header": {"stamp": {"secs": 1, "nsecs": 2}, "frame_id": "base_link"},
@@ -114,7 +41,7 @@ async def test_twist_stamped_on_cmd_vel_and_publish_without_advertise(robot: Rob
         await eventually(robot.moving, "the wheels to turn")
 
 
-async def test_bad_command_is_a_status_error_and_no_motion(robot: Robot) -> None:
+async def test_bad_command_is_a_status_error_and_no_motion(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/cmd_vel", type="geometry_msgs/Twist")
         bad = [({"linear": {"x": "fast"}}, "msg.linear.x: expected float64"),
@@ -129,7 +56,7 @@ async def test_bad_command_is_a_status_error_and_no_motion(robot: Robot) -> None
         assert robot.ctx.control.decision.source is None
 
 
-async def test_stamped_command_gets_a_latency_report(robot: Robot) -> None:
+async def test_stamped_command_gets_a_latency_report(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/latency_reports", type="std_msgs/String")
         await client.send(op="advertise", topic="/stamped_cmd_vel", type="std_msgs/msg/String")
@@ -149,7 +76,7 @@ async def test_stamped_command_gets_a_latency_report(robot: Robot) -> None:
         assert "not a JSON command" in status["msg"]
 
 
-async def test_estop_topic_latches_and_refuses_commands(robot: Robot) -> None:
+async def test_estop_topic_latches_and_refuses_commands(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="publish", topic="/estop", msg={"data": True})
         await eventually(lambda: robot.ctx.control.arbiter.estop_engaged, "the e-stop")
@@ -163,7 +90,7 @@ async def test_estop_topic_latches_and_refuses_commands(robot: Robot) -> None:
         await eventually(robot.moving, "the wheels to turn after release")
 
 
-async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> None:
+async def test_disconnect_while_driving_brakes_within_one_tick(robot: InProcessDaemon) -> None:
     ticks: list[float] = []
     control = robot.ctx.control
     control.on_tick.add(lambda now, on_time: ticks.append(now))
@@ -178,14 +105,16 @@ async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> 
     driver = robot.driver
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/cmd_vel", type="geometry_msgs/msg/Twist")
-        speed = 0.0
-        deadline = time.monotonic() + TIMEOUT
-        while speed < 3.0:  # wheel rad/s at 0.3 m/s on 0.05 m wheels is 6
-            assert time.monotonic() < deadline, "never got up to speed"
+
+        async def speed_once_up() -> float | None:  # wheel rad/s at 0.3 m/s on 0.05 m wheels is 6
             await client.send(op="publish", topic="/cmd_vel",
                               msg={"linear": {"x": 0.3}, "angular": {"z": 0.0}})
             await asyncio.sleep(0.02)
-            speed = driver.commands[-1].left_rad_s
+            speed: float = driver.commands[-1].left_rad_s
+            return speed if speed >= 3.0 else None
+
+        speed = await eventually(speed_once_up, "the wheels up to speed", within_s=TIMEOUT,
+                                 interval_s=0)
         t_close = time.monotonic()
     await eventually(lambda: drops, "the server to drop the client's command source")
     braking = await eventually(lambda: next(
@@ -203,7 +132,7 @@ async def test_disconnect_while_driving_brakes_within_one_tick(robot: Robot) -> 
 # -- telemetry ----------------------------------------------------------------------------------
 
 
-async def test_odom_and_tf_follow_the_robot(robot: Robot) -> None:
+async def test_odom_and_tf_follow_the_robot(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/odom", type="nav_msgs/Odometry")
         await client.send(op="subscribe", topic="/tf")
@@ -219,9 +148,7 @@ async def test_odom_and_tf_follow_the_robot(robot: Robot) -> None:
             "odom", "base_link")
 
 
-async def test_scan_non_finite_ranges_arrive_as_null(robot: Robot) -> None:
-    from tests.test_rosbridge_codec import FakeScan
-
+async def test_scan_non_finite_ranges_arrive_as_null(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/scan", id="s")
         await client.call("/rosapi/get_time")  # the subscription is in place before publishing
@@ -234,7 +161,7 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: Robot) -> None:
         assert "NaN" not in raw and "Infinity" not in raw
 
 
-async def test_robot_info_latest_value_on_subscribe(robot: Robot) -> None:
+async def test_robot_info_latest_value_on_subscribe(robot: InProcessDaemon) -> None:
     await eventually(lambda: robot.ctx.bus.latest(ROBOT_INFO), "a robot_info")
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/robot_info")
@@ -242,7 +169,7 @@ async def test_robot_info_latest_value_on_subscribe(robot: Robot) -> None:
         assert json.loads(info["msg"]["data"])["mode"] == "sim"
 
 
-async def test_rosout_carries_daemon_log_lines(robot: Robot) -> None:
+async def test_rosout_carries_daemon_log_lines(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/rosout", type="rcl_interfaces/msg/Log")
         await client.call("/rosapi/get_time")
@@ -255,7 +182,7 @@ async def test_rosout_carries_daemon_log_lines(robot: Robot) -> None:
 # -- protocol rules -------------------------------------------------------------------------------
 
 
-async def test_throttle_rate_drops_messages_inside_the_window(robot: Robot) -> None:
+async def test_throttle_rate_drops_messages_inside_the_window(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as pub, connect(robot.ws_url) as sub:
         await sub.send(op="subscribe", topic="/chatter", type="std_msgs/String",
                        throttle_rate=60000, id="slow")
@@ -275,7 +202,7 @@ async def test_throttle_rate_drops_messages_inside_the_window(robot: Robot) -> N
         assert queues[0].dropped == 9 and not queues[0].queue
 
 
-async def test_queue_length_keeps_the_newest_paced_by_throttle(robot: Robot) -> None:
+async def test_queue_length_keeps_the_newest_paced_by_throttle(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as pub, connect(robot.ws_url) as sub:
         await sub.send(op="subscribe", topic="/chatter", type="std_msgs/String",
                        throttle_rate=300, queue_length=3)
@@ -293,7 +220,7 @@ async def test_queue_length_keeps_the_newest_paced_by_throttle(robot: Robot) -> 
         assert all(gap >= 0.25 for gap in gaps), gaps
 
 
-async def test_several_subscriptions_merge_and_unsubscribe_by_id(robot: Robot) -> None:
+async def test_several_subscriptions_merge_and_unsubscribe_by_id(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/odom", throttle_rate=1000, id="a")
         await client.send(op="subscribe", topic="/odom", throttle_rate=50, id="b")
@@ -309,7 +236,7 @@ async def test_several_subscriptions_merge_and_unsubscribe_by_id(robot: Robot) -
         assert session not in robot.component("rosbridge").graph.topics["/odom"].subscribers
 
 
-async def test_fragments_in_both_directions(robot: Robot) -> None:
+async def test_fragments_in_both_directions(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         text = json.dumps({"op": "publish", "topic": "/cmd_vel", "msg": TWIST, "id": "big"})
         pieces = [text[i:i + 20] for i in range(0, len(text), 20)]
@@ -331,7 +258,7 @@ async def test_fragments_in_both_directions(robot: Robot) -> None:
         assert "'total' changed" in (await client.op("status", id="x"))["msg"]
 
 
-async def test_fragmented_service_call_and_fragmented_response(robot: Robot) -> None:
+async def test_fragmented_service_call_and_fragmented_response(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         text = json.dumps({"op": "call_service", "service": "/rosapi/topics_and_raw_types",
                            "id": "raw", "fragment_size": 500})
@@ -413,7 +340,7 @@ MALFORMED: list[tuple[Any, str]] = [
 
 
 async def test_fifty_malformed_frames_give_fifty_status_errors_and_a_live_socket(
-        robot: Robot) -> None:
+        robot: InProcessDaemon) -> None:
     assert len(MALFORMED) == 50
     async with connect(robot.ws_url) as client:
         for frame, _ in MALFORMED:
@@ -434,7 +361,7 @@ async def test_fifty_malformed_frames_give_fifty_status_errors_and_a_live_socket
 # -- client topics and services -------------------------------------------------------------------
 
 
-async def test_client_topics_relay_time_bytes_and_latch(robot: Robot) -> None:
+async def test_client_topics_relay_time_bytes_and_latch(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as pub, connect(robot.ws_url) as sub:
         await pub.send(op="advertise", topic="/stamped", type="geometry_msgs/TwistStamped")
         await pub.send(op="advertise", topic="/blob", type="std_msgs/UInt8MultiArray",
@@ -459,7 +386,7 @@ async def test_client_topics_relay_time_bytes_and_latch(robot: Robot) -> None:
         assert "/blob" not in topics and "/stamped" not in topics
 
 
-async def test_client_provided_service_round_trip(robot: Robot) -> None:
+async def test_client_provided_service_round_trip(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as provider, connect(robot.ws_url) as caller:
         await provider.send(op="advertise_service", service="/add", type="example/AddTwo")
         await provider.call("/rosapi/get_time")
@@ -479,12 +406,12 @@ async def test_client_provided_service_round_trip(robot: Robot) -> None:
     assert failed["values"] == "Service /nothing does not exist"
 
 
-async def caller_failure(robot: Robot) -> dict[str, Any]:
+async def caller_failure(robot: InProcessDaemon) -> dict[str, Any]:
     async with connect(robot.ws_url) as client:
         return await client.call("/nothing")
 
 
-async def test_pending_call_fails_when_the_provider_leaves(robot: Robot) -> None:
+async def test_pending_call_fails_when_the_provider_leaves(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as caller:
         async with connect(robot.ws_url) as provider:
             await provider.send(op="advertise_service", service="/slow", type="x/Y")
@@ -499,7 +426,7 @@ async def test_pending_call_fails_when_the_provider_leaves(robot: Robot) -> None
 
 
 @pytest.mark.parametrize("prefix", ["/rosapi/", "rosapi/"])
-async def test_rosapi_services_with_and_without_slash(robot: Robot, prefix: str) -> None:
+async def test_rosapi_services_with_and_without_slash(robot: InProcessDaemon, prefix: str) -> None:
     async with connect(robot.ws_url) as client:
         topics = (await client.call(prefix + "topics", rid="t"))
         assert topics["service"] == prefix + "topics" and topics["result"] is True
@@ -543,7 +470,7 @@ async def test_rosapi_services_with_and_without_slash(robot: Robot, prefix: str)
 
 
 async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> None:
-    async with running_daemon(tmp_path, '[security]\ntoken = "s3cret"\n') as robot:
+    async with in_process_daemon(tmp_path, '[security]\ntoken = "s3cret"\n') as robot:
         async with connect(robot.ws_url) as anonymous:
             await anonymous.send(op="subscribe", topic="/odom")
             await anonymous.op("publish", topic="/odom")
@@ -567,37 +494,28 @@ async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> No
             assert not [m for m in header.received if m.get("op") == "status"]
 
 
-async def _upgrade_status(url: str, **headers: str) -> int:
-    async with aiohttp.ClientSession() as session:
-        try:
-            async with session.ws_connect(url, headers=headers):
-                return 101
-        except aiohttp.WSServerHandshakeError as exc:
-            return exc.status
-
-
 async def test_origin_allow_list(tmp_path: Path) -> None:
     config = '[security]\nallowed_origins = ["https://console.example"]\n'
-    async with running_daemon(tmp_path, config) as robot:
+    async with in_process_daemon(tmp_path, config) as robot:
         url = robot.ws_url
-        assert await _upgrade_status(url, Origin="https://evil.example") == 403
-        assert await _upgrade_status(url, Origin="http://localhost:3000") == 101
-        assert await _upgrade_status(url, Origin="https://console.example") == 101
-        assert await _upgrade_status(url, Origin="http://127.0.0.1:8080") == 101
+        assert await upgrade_status(url, Origin="https://evil.example") == 403
+        assert await upgrade_status(url, Origin="http://localhost:3000") == 101
+        assert await upgrade_status(url, Origin="https://console.example") == 101
+        assert await upgrade_status(url, Origin="http://127.0.0.1:8080") == 101
         assert robot.component("rosbridge").refused["origin"] == 1
 
 
 async def test_client_limit(tmp_path: Path) -> None:
-    async with running_daemon(tmp_path) as robot:
+    async with in_process_daemon(tmp_path) as robot:
         robot.component("rosbridge").max_clients = 2
         async with connect(robot.ws_url), connect(robot.ws_url) as second:
             await second.call("/rosapi/get_time")
-            assert await _upgrade_status(robot.ws_url) == 503
+            assert await upgrade_status(robot.ws_url) == 503
         await eventually(lambda: not robot.component("rosbridge").clients, "the clients to leave")
-        assert await _upgrade_status(robot.ws_url) == 101
+        assert await upgrade_status(robot.ws_url) == 101
 
 
-async def test_plain_http_get_is_told_to_upgrade(robot: Robot) -> None:
+async def test_plain_http_get_is_told_to_upgrade(robot: InProcessDaemon) -> None:
     async with aiohttp.ClientSession() as session, session.get(
             robot.ws_url.replace("ws://", "http://")) as response:
         assert response.status == 426

@@ -15,9 +15,9 @@ import numpy as np
 
 from daemon.bench.rosbridge_flood import LoopProbe
 from daemon.telemetry import SCAN
-from tests.conftest import Robot, eventually, running_robot
-from tests.test_rosbridge_hardening import STALL_LIMIT_MS
-from tests.test_rosbridge_server import connect
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import STALL_LIMIT_MS, connect
+from tests.support.wait import eventually
 
 STALL_S = 5.0
 
@@ -73,7 +73,7 @@ class BigScan:
     intensities: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
+async def publish_scans(robot: InProcessDaemon, stop: asyncio.Event) -> int:
     count = 0
     while not stop.is_set():
         robot.ctx.bus.publish(SCAN, BigScan(time.time()))  # type: ignore[arg-type]
@@ -83,7 +83,7 @@ async def publish_scans(robot: Robot, stop: asyncio.Event) -> int:
 
 
 async def test_stalled_subscriber_costs_nobody_anything(tmp_path: Path) -> None:
-    async with running_robot(tmp_path) as robot, connect(robot.ws_url) as healthy:
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as healthy:
         port = int(robot.ws_url.rsplit(":", 1)[1].strip("/"))
         bridge = robot.component("rosbridge")
         frames = [json.dumps({"op": "subscribe", "topic": t}) for t in ("/scan", "/odom", "/tf")]

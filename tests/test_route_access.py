@@ -8,7 +8,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from tests.conftest import Robot, running_robot
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 
 TOKEN = "s3cret-Token"
 DOC = Path(__file__).resolve().parent.parent / "docs" / "http-api.md"
@@ -19,14 +19,14 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
 
 
 @pytest.fixture
-async def locked(tmp_path: Path) -> AsyncIterator[Robot]:
+async def locked(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
     """Token configured, reads need it too, every optional route registered (sim, lidar,
     fault injection)."""
-    async with running_robot(tmp_path, LOCKED) as robot:
+    async with in_process_daemon(tmp_path, LOCKED) as robot:
         yield robot
 
 
-def routes(robot: Robot) -> list[tuple[str, str, str]]:
+def routes(robot: InProcessDaemon) -> list[tuple[str, str, str]]:
     table: list[tuple[str, str, str]] = robot.ctx.http.access_table()
     return table
 
@@ -36,7 +36,8 @@ def concrete(path: str) -> str:
     return re.sub(r"\{[^}]+\}", "x", path)
 
 
-async def status_of(robot: Robot, method: str, path: str, token: str | None = None) -> int:
+async def status_of(robot: InProcessDaemon, method: str, path: str,
+                    token: str | None = None) -> int:
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     async with aiohttp.ClientSession() as session, session.request(
             method, robot.http_url + concrete(path), headers=headers) as response:
@@ -63,7 +64,7 @@ def test_access_levels_are_checked_at_registration() -> None:
     assert http.access_table() == [("POST", "/y", "drive")]
 
 
-async def test_every_route_is_in_the_access_table(locked: Robot) -> None:
+async def test_every_route_is_in_the_access_table(locked: InProcessDaemon) -> None:
     declared = {(m, p) for m, p, _ in routes(locked)}
     in_router = {(r.method, r.resource.canonical) for r in locked.ctx.http.app.router.routes()
                  if r.resource is not None}
@@ -73,7 +74,7 @@ async def test_every_route_is_in_the_access_table(locked: Robot) -> None:
             "/api/estop", "/api/debug/stall"} <= paths
 
 
-async def test_without_the_token_every_route_answers_401(locked: Robot) -> None:
+async def test_without_the_token_every_route_answers_401(locked: InProcessDaemon) -> None:
     """All but the web console's page and files, which must load to ask for the token."""
     opened = {(m, p) for m, p, a in routes(locked) if a == "open"}
     assert opened == CONSOLE
@@ -84,7 +85,7 @@ async def test_without_the_token_every_route_answers_401(locked: Robot) -> None:
     assert not locked.moving()
 
 
-async def test_with_the_token_no_route_answers_401(locked: Robot) -> None:
+async def test_with_the_token_no_route_answers_401(locked: InProcessDaemon) -> None:
     for method, path, _ in routes(locked):
         # no body: the POSTs stop at 415, so nothing moves and nothing stalls
         status = await status_of(locked, method, path, TOKEN)
@@ -94,7 +95,7 @@ async def test_with_the_token_no_route_answers_401(locked: Robot) -> None:
 @pytest.mark.parametrize(("method", "path"), [
     ("GET", "/api/scan"), ("GET", "/api/sim/metrics"), ("POST", "/api/sim/reset"),
 ])
-async def test_the_three_formerly_open_routes_need_the_token(locked: Robot, method: str,
+async def test_the_three_formerly_open_routes_need_the_token(locked: InProcessDaemon, method: str,
                                                              path: str) -> None:
     assert await status_of(locked, method, path) == 401
     assert await status_of(locked, method, path, "wrong") == 401
@@ -104,7 +105,7 @@ async def test_the_three_formerly_open_routes_need_the_token(locked: Robot, meth
 async def test_open_health_is_the_documented_exception(tmp_path: Path) -> None:
     config = LOCKED.replace("read_requires_token = true\n",
                             "read_requires_token = true\nopen_health = true\n")
-    async with running_robot(tmp_path, config) as robot:
+    async with in_process_daemon(tmp_path, config) as robot:
         opened = {(m, p) for m, p, a in routes(robot) if a == "open"}
         assert opened == {("GET", "/api/health"), ("HEAD", "/api/health"), *CONSOLE}
         for method, path, access in routes(robot):
@@ -114,7 +115,7 @@ async def test_open_health_is_the_documented_exception(tmp_path: Path) -> None:
 
 async def test_reads_are_open_and_driving_is_not_without_read_requires_token(
         tmp_path: Path) -> None:
-    async with running_robot(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
+    async with in_process_daemon(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
         for method, path, access in routes(robot):
             status = await status_of(robot, method, path)
             if access == "drive":
@@ -134,6 +135,6 @@ def documented_access() -> set[tuple[str, str, str]]:
     return rows
 
 
-async def test_the_doc_and_the_router_agree(locked: Robot) -> None:
+async def test_the_doc_and_the_router_agree(locked: InProcessDaemon) -> None:
     served = {(m, p, a) for m, p, a in routes(locked) if m != "HEAD"}
     assert documented_access() == served

@@ -1,7 +1,6 @@
 # End to end: the real daemon streams from the emulated RPLIDAR and survives its faults.
 from __future__ import annotations
 
-import subprocess
 import sys
 import threading
 from collections.abc import Iterator
@@ -11,21 +10,17 @@ from typing import Any
 import pytest
 
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.daemon_proc import REPO, DaemonProcess, http, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.net import http
+from tests.support.wait import wait_for
 
 # Runs `arbiterd run` through daemon.cli.main in a subprocess of this interpreter.
 LAUNCH = "import sys; from daemon.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
-class LidarDaemon(DaemonProcess):
-    def start(self, wait_ready: bool = True) -> DaemonProcess:
-        self._log = self.log_path.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", LAUNCH, "run", "--config", str(self.config_path)],
-            cwd=REPO, env=self.env, stdout=self._log, stderr=subprocess.STDOUT, text=True)
-        if wait_ready:
-            wait_for(self._health_answers, 20.0, "the daemon's /api/health")
-        return self
+class LidarDaemon(DaemonSubprocess):
+    def command(self) -> list[str]:
+        return [sys.executable, "-c", LAUNCH, "run", "--config", str(self.config_path)]
 
 
 class HealthWatcher:
@@ -68,24 +63,24 @@ def rig(tmp_path: Path) -> Iterator[tuple[RplidarEmulator, LidarDaemon]]:
             yield emulator, daemon
 
 
-def lidar_health(daemon: DaemonProcess) -> dict[str, Any]:
+def lidar_health(daemon: DaemonSubprocess) -> dict[str, Any]:
     status, body = daemon.get("/api/health")
     assert status == 200, body
     lidar: dict[str, Any] = body["components"]["lidar"]
     return lidar
 
 
-def more_revolutions(daemon: DaemonProcess, extra: int = 3, timeout: float = 10.0) -> None:
+def more_revolutions(daemon: DaemonSubprocess, extra: int = 3, timeout: float = 10.0) -> None:
     target = lidar_health(daemon)["revolutions"] + extra
-    wait_for(lambda: lidar_health(daemon)["revolutions"] >= target, timeout,
-             f"{extra} more revolutions")
+    wait_for(lambda: lidar_health(daemon)["revolutions"] >= target, f"{extra} more revolutions",
+             within_s=timeout)
 
 
 def test_daemon_streams_and_survives_garbage_stall_and_unplug(
         rig: tuple[RplidarEmulator, LidarDaemon]) -> None:
     emulator, daemon = rig
     with HealthWatcher(daemon.base_url + "/api/health") as watcher:
-        wait_for(lambda: lidar_health(daemon)["revolutions"] >= 3, 15, "first revolutions")
+        wait_for(lambda: lidar_health(daemon)["revolutions"] >= 3, "first revolutions", within_s=15)
         lidar = lidar_health(daemon)
         assert lidar["status"] == "ok" and lidar["model"] == "A1M8" and lidar["mode"] == "Express"
         integrity = ("dropped_capsules", "dropped_nodes", "angle_misfits", "short_revolutions")
@@ -94,20 +89,23 @@ def test_daemon_streams_and_survives_garbage_stall_and_unplug(
         assert status == 200 and scan["frame_id"] == "laser" and len(scan["ranges"]) > 300
 
         emulator.inject_garbage(80)
-        wait_for(lambda: lidar_health(daemon)["dropped_capsules"] >= 1, 10, "a dropped capsule")
+        wait_for(lambda: lidar_health(daemon)["dropped_capsules"] >= 1, "a dropped capsule",
+                 within_s=10)
         more_revolutions(daemon)
         assert lidar_health(daemon)["status"] == "ok"
 
         emulator.stall(3.0)
-        wait_for(lambda: lidar_health(daemon)["stream_restarts"] >= 1, 10, "a stream restart")
+        wait_for(lambda: lidar_health(daemon)["stream_restarts"] >= 1, "a stream restart",
+                 within_s=10)
         more_revolutions(daemon, timeout=15)
         assert lidar_health(daemon)["device_resets"] >= 1
 
         emulator.unplug()
-        wait_for(lambda: lidar_health(daemon)["state"] == "disconnected", 10, "disconnected")
+        wait_for(lambda: lidar_health(daemon)["state"] == "disconnected", "disconnected",
+                 within_s=10)
         assert lidar_health(daemon)["status"] == "degraded"
         emulator.replug()
-        wait_for(lambda: lidar_health(daemon)["reconnects"] >= 1, 15, "a reconnect")
+        wait_for(lambda: lidar_health(daemon)["reconnects"] >= 1, "a reconnect", within_s=15)
         more_revolutions(daemon, timeout=15)
         lidar = lidar_health(daemon)
         assert lidar["status"] == "ok"

@@ -22,7 +22,7 @@ from sensors.rplidar.device import LidarManager, ManagerConfig
 from sensors.rplidar.settings import LIDAR_OPTIONS, LidarSettings
 from sensors.scan import LaserScan
 from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator
-from tests.conftest import Collector, wait_for
+from tests.support.wait import Collector, wait_for
 
 
 class Run:

@@ -22,7 +22,7 @@ from sensors.rplidar.device import LidarManager, ManagerConfig
 from sensors.rplidar.requests import Ans, Descriptor, Health
 from sensors.rplidar.streams import Discontinuity, Event, Samples, StreamParser
 from sim.rplidar_emulator import A1, RplidarEmulator
-from tests.conftest import Collector, wait_for
+from tests.support.wait import Collector, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,10 +6,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tests.async_daemon import driver_daemon_config
-from tests.conftest import wait_for
-from tests.daemon_proc import REPO, free_port, read_wheel_log
-from tests.rigs import Rig
+from tests.support.async_daemon_subprocess import driver_daemon_config
+from tests.support.mock_wheel_log import read_wheel_log
+from tests.support.net import free_port
+from tests.support.paths import REPO
+from tests.support.rigs import Rig
+from tests.support.wait import wait_for
 
 
 def write_config(tmp_path: Path, driver: str, options: dict[str, Any]) -> Path:

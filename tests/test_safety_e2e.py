@@ -2,28 +2,28 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from typing import Any
 
 from daemon.safety.settings import COLLISION_MONITOR_OPTIONS
-from tests.conftest import DaemonProcess, wait_for
-from tests.daemon_proc import REPO
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 WALL_X = 3.0  # tests/scenarios/wall.toml: the robot starts at x = 0 facing this wall
 FOOTPRINT = 0.2  # [sim] footprint_radius default
 STOP_MARGIN = COLLISION_MONITOR_OPTIONS["stop_margin_m"].default
 
 
-def status(daemon: DaemonProcess) -> dict[str, Any]:
+def status(daemon: DaemonSubprocess) -> dict[str, Any]:
     code, body = daemon.get("/api/status")
     assert code == 200, body
     return body  # type: ignore[no-any-return]
 
 
 def test_driving_at_a_wall_over_http_and_wandering(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
+        daemon_subprocess: StartDaemonSubprocess) -> None:
     world = REPO / "tests" / "scenarios" / "wall.toml"
-    daemon = daemon_process(f'[sim]\ndriver = "mock"\nworld_file = "{world}"\n',
+    daemon = daemon_subprocess(f'[sim]\ndriver = "mock"\nworld_file = "{world}"\n',
                             args=("--sim",))
     wait_for(lambda: status(daemon)["safety"]["zone"] != "unknown", "the first revolution")
 
@@ -50,7 +50,7 @@ def test_driving_at_a_wall_over_http_and_wandering(
     assert "collision monitor:" in daemon.log()  # changes of action are logged
 
 
-def drive_at_the_wall(daemon: DaemonProcess, seconds: float) -> tuple[float, set[str]]:
+def drive_at_the_wall(daemon: DaemonSubprocess, seconds: float) -> tuple[float, set[str]]:
     """A teleop holding 1 m/s toward the wall at ~20 Hz; the closest the footprint came to
     the wall (ground truth) and the safety actions /api/status showed."""
     closest, actions = float("inf"), set()
@@ -66,7 +66,7 @@ def drive_at_the_wall(daemon: DaemonProcess, seconds: float) -> tuple[float, set
     return closest, actions
 
 
-def watch_for(daemon: DaemonProcess, seconds: float) -> dict[str, Any]:
+def watch_for(daemon: DaemonSubprocess, seconds: float) -> dict[str, Any]:
     """Poll /api/sim/metrics for ``seconds``, failing at the first collision; the last."""
     deadline = time.monotonic() + seconds
     while True:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tests.conftest import Robot, eventually, running_robot
-from tests.test_rosbridge_server import connect
+from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.rosbridge import connect
+from tests.support.wait import eventually
 
 
-async def test_autonomy_mode_topic_and_both_state_topics(robot: Robot) -> None:
+async def test_autonomy_mode_topic_and_both_state_topics(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/autonomy/state", id="a")
         await client.send(op="subscribe", topic="/collision_monitor/state", id="c")
@@ -28,7 +29,7 @@ async def test_autonomy_mode_topic_and_both_state_topics(robot: Robot) -> None:
         await eventually(lambda: robot.component("autonomy").mode == "off", "mode off")
 
 
-async def test_a_bad_mode_is_a_status_error(robot: Robot) -> None:
+async def test_a_bad_mode_is_a_status_error(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="advertise", topic="/autonomy/mode", type="std_msgs/msg/String")
         await client.send(op="publish", topic="/autonomy/mode", msg={"data": "dance"}, id="p")
@@ -38,7 +39,7 @@ async def test_a_bad_mode_is_a_status_error(robot: Robot) -> None:
 
 
 async def test_switching_autonomy_needs_the_token(tmp_path: Path) -> None:
-    async with running_robot(tmp_path, '[security]\ntoken = "sesame"\n') as robot, \
+    async with in_process_daemon(tmp_path, '[security]\ntoken = "sesame"\n') as robot, \
             connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/autonomy/state")  # reading is open
         await client.expect(lambda m: m.get("topic") == "/autonomy/state", what="a state")

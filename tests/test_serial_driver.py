@@ -17,10 +17,15 @@ from drivers.arduino_serial import SerialBridgeDriver
 from drivers.base import DriverClosed, DriverFault, EncoderReading
 from sim.arduino_emulator import ArduinoEmulator, Firmware
 from sim.motor_model import MotorPair, WheelMotor
-from tests.async_daemon import DaemonClient, driver_daemon_config, spawn_daemon
-from tests.conftest import eventually
-from tests.daemon_proc import REPO, free_port
-from tests.rigs import Rig, wired_rig
+from tests.support.async_daemon_subprocess import (
+    AsyncDaemonSubprocess,
+    async_daemon_subprocess,
+    driver_daemon_config,
+)
+from tests.support.net import free_port
+from tests.support.paths import REPO
+from tests.support.rigs import Rig, wired_rig
+from tests.support.wait import eventually
 
 MAX_WHEEL_SPEED = 20.0
 WHEEL_RADIUS = 0.05
@@ -470,22 +475,22 @@ async def test_silent_board_is_a_read_timeout(serial_rig: Rig) -> None:
 
 @pytest.fixture
 async def daemon(serial_rig: Rig,
-                 tmp_path: Path) -> AsyncIterator[tuple[DaemonClient, ArduinoEmulator]]:
+                 tmp_path: Path) -> AsyncIterator[tuple[AsyncDaemonSubprocess, ArduinoEmulator]]:
     emulator = serial_rig.emulator
     emulator.firmware.auto_stop_s = 1.0
     port = free_port()
     config = driver_daemon_config(tmp_path, "serial", serial_rig.options, port)
-    async with spawn_daemon(config, port, tmp_path / "daemon.log") as client:
+    async with async_daemon_subprocess(config, port, tmp_path / "daemon.log") as client:
         yield client, emulator
     assert emulator.motors.targets() == (0.0, 0.0)
 
 
-async def drive_and_expect_motion(client: DaemonClient, emulator: ArduinoEmulator) -> None:
+async def drive_and_expect_motion(client: AsyncDaemonSubprocess, emulator: ArduinoEmulator) -> None:
     assert await client.cmd_vel(0.2) == 200
     await eventually(lambda: min(emulator.motors.targets()) > 0, "wheels to turn")
 
 
-async def recover_and_stay_still(client: DaemonClient, emulator: ArduinoEmulator,
+async def recover_and_stay_still(client: AsyncDaemonSubprocess, emulator: ArduinoEmulator,
                                  since: float) -> None:
     body = await client.wait_health("ok")
     assert body["components"]["control"]["reconnects"] >= 1
@@ -496,7 +501,7 @@ async def recover_and_stay_still(client: DaemonClient, emulator: ArduinoEmulator
 
 
 async def test_daemon_survives_the_port_vanishing(
-        daemon: tuple[DaemonClient, ArduinoEmulator]) -> None:
+        daemon: tuple[AsyncDaemonSubprocess, ArduinoEmulator]) -> None:
     client, emulator = daemon
     await drive_and_expect_motion(client, emulator)
     emulator.unplug()
@@ -512,7 +517,7 @@ async def test_daemon_survives_the_port_vanishing(
 
 
 async def test_daemon_survives_garbage_from_the_board(
-        daemon: tuple[DaemonClient, ArduinoEmulator]) -> None:
+        daemon: tuple[AsyncDaemonSubprocess, ArduinoEmulator]) -> None:
     client, emulator = daemon
     await drive_and_expect_motion(client, emulator)
     emulator.garbage = True

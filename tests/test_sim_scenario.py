@@ -15,27 +15,33 @@ from drivers import DRIVERS
 from sim.raycast import RayCaster
 from sim.settings import SimConfig
 from sim.stepper import build_world
-from tests.conftest import wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 LINEAR, ANGULAR = 0.5, 0.6
 
 
-def status(daemon: DaemonProcess) -> dict[str, Any]:
+def status(daemon: DaemonSubprocess) -> dict[str, Any]:
     code, body = daemon.get("/api/status")
     assert code == 200, body
     return body  # type: ignore[no-any-return]
 
 
-def drive_until(daemon: DaemonProcess, command: Callable[[dict[str, Any]], dict[str, Any]],
-                done: Callable[[dict[str, Any]], bool], timeout: float = 20.0) -> None:
+def drive_until(daemon: DaemonSubprocess, command: Callable[[dict[str, Any]], dict[str, Any]],
+                done: Callable[[dict[str, Any]], bool], within_s: float = 20.0) -> None:
     """Send ``command(status)`` at ~20 Hz until ``done(status)``, then command zero."""
-    deadline = time.monotonic() + timeout
-    while not done(now := status(daemon)):
-        assert time.monotonic() < deadline, f"gave up: {now}"
+    now: dict[str, Any] = {}
+
+    def done_else_command() -> bool:
+        nonlocal now
+        if done(now := status(daemon)):
+            return True
         code, body = daemon.post("/api/cmd_vel", command(now))
         assert code == 200, body
-        time.sleep(0.05)
+        return False
+
+    wait_for(done_else_command, lambda: f"the goal; last status: {now}", within_s=within_s,
+             interval_s=0.05)
     assert daemon.post("/api/cmd_vel", {})[0] == 200
 
 
@@ -44,7 +50,7 @@ def approach(remaining: float, fastest: float, gain: float, slowest: float) -> f
     return max(slowest, min(fastest, gain * remaining))
 
 
-def at_rest(daemon: DaemonProcess) -> bool:
+def at_rest(daemon: DaemonSubprocess) -> bool:
     truth = status(daemon)["ground_truth"]
     return abs(truth["v"]) < 1e-3 and abs(truth["w"]) < 1e-3
 
@@ -54,13 +60,13 @@ def heading_error(a: float, b: float) -> float:
 
 
 @pytest.fixture(params=sorted(DRIVERS))
-def sim_daemon(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[DaemonProcess]:
+def sim_daemon(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[DaemonSubprocess]:
     toml = f'[sim]\ndriver = "{request.param}"\n'
-    with DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
         yield daemon
 
 
-def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonProcess) -> None:
+def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonSubprocess) -> None:
     daemon = sim_daemon
     code, health = daemon.get("/api/health")
     assert code == 200 and health["mode"] == "sim", health
@@ -93,7 +99,7 @@ def test_drive_one_metre_turn_ninety_degrees(sim_daemon: DaemonProcess) -> None:
     assert code == 200 and health["components"]["control"]["wheel_guard"]["trips"] == 0
 
 
-def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:
+def latest_scan_after(daemon: DaemonSubprocess, stamp: float) -> dict[str, Any]:
     def fresh() -> dict[str, Any] | None:
         code, scan = daemon.get("/api/scan")
         return scan if code == 200 and scan["stamp"] > stamp else None
@@ -102,7 +108,7 @@ def latest_scan_after(daemon: DaemonProcess, stamp: float) -> dict[str, Any]:
     return result
 
 
-def check_scan_matches_world(daemon: DaemonProcess, truth: dict[str, Any]) -> None:
+def check_scan_matches_world(daemon: DaemonSubprocess, truth: dict[str, Any]) -> None:
     """The scan read through the emulated RPLIDAR's bytes equals a ray cast of the world from
     the true pose, within the lidar noise (sigma 0.02 m) and binning to 1° rays."""
     scan = latest_scan_after(daemon, time.time() + 0.05)
@@ -124,7 +130,7 @@ def test_driving_into_an_obstacle_counts_a_collision(tmp_path: Path) -> None:
     # the collision monitor would stop the robot short of it (tests/test_simulate.py)
     toml = ('[sim]\ndriver = "serial"\nnoise = false\n'
             '[collision_monitor]\nenabled = false\n')
-    with DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",), use_mock_log=False) as daemon:
         sim = SimConfig.from_section({"seed": 1, "noise": False})
         world = build_world(sim)
         # face the nearest obstacle straight ahead, 1.5 m clear of it
@@ -137,7 +143,7 @@ def test_driving_into_an_obstacle_counts_a_collision(tmp_path: Path) -> None:
         code, _ = daemon.post("/api/sim/reset", {"x": x, "y": y, "theta": bearing})
         assert code == 200
         drive_until(daemon, lambda s: {"linear": {"x": 1.0}},
-                    lambda s: s["ground_truth"]["collisions"] >= 1, timeout=10)
+                    lambda s: s["ground_truth"]["collisions"] >= 1, within_s=10)
         truth = status(daemon)["ground_truth"]
         clearance = math.hypot(truth["x"] - target.x, truth["y"] - target.y)
         assert clearance >= target.r + sim.footprint_radius - 1e-3, "passed through"

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from daemon.safety.settings import COLLISION_MONITOR_OPTIONS
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"
 STOP_MARGIN = COLLISION_MONITOR_OPTIONS["stop_margin_m"].default

@@ -17,8 +17,11 @@ from drivers import DRIVERS, create_driver, driver_class
 from drivers.mock import MockDriver
 from sim.motor_model import MotorPair, WheelMotor
 from sim.wiring import EMULATORS
-from tests.conftest import DaemonProcess, close_to, eventually, running_robot, wait_for
-from tests.rigs import FULL_DUTY_SPEED, Rig, wired_rig
+from tests.support.compare import close_to
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.in_process_daemon import in_process_daemon
+from tests.support.rigs import FULL_DUTY_SPEED, Rig, wired_rig
+from tests.support.wait import eventually, wait_for
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -135,7 +138,7 @@ async def test_a_blocked_event_loop_cannot_keep_the_robot_driving(tmp_path: Path
     # a deadman far longer than the stall: only the supervisor can stop the wheels in time,
     # and the command is still "live" when the loop comes back
     extra = f"[control]\ncmd_vel_timeout = 10.0\nstall_stop_s = {STALL_STOP_S}\n"
-    async with running_robot(tmp_path, extra) as robot:
+    async with in_process_daemon(tmp_path, extra) as robot:
         control, driver = robot.ctx.control, robot.driver
         applied = await control.submit("teleop", Twist(0.3, 0.0), t_recv=time.monotonic())
         assert applied.accepted and robot.moving()
@@ -163,7 +166,7 @@ async def test_a_blocked_event_loop_cannot_keep_the_robot_driving(tmp_path: Path
 async def test_without_a_supervisor_a_blocked_loop_keeps_driving(tmp_path: Path,
                                                                  caplog: Any) -> None:
     extra = "[control]\ncmd_vel_timeout = 10.0\nstall_stop_s = 0\n"
-    async with running_robot(tmp_path, extra) as robot:
+    async with in_process_daemon(tmp_path, extra) as robot:
         assert "the stall supervisor is DISABLED" in caplog.text
         await robot.ctx.control.submit("teleop", Twist(0.3, 0.0), t_recv=time.monotonic())
         time.sleep(STALL_STOP_S * 3)  # noqa: ASYNC251 - the blocked loop is the point
@@ -200,7 +203,7 @@ def driver_toml(driver: str, options: dict[str, Any]) -> str:
             f"stall_stop_s = {STALL_STOP_S}\n")
 
 
-def stall_while_driving(daemon: DaemonProcess, record: Callable[[], Record],
+def stall_while_driving(daemon: DaemonSubprocess, record: Callable[[], Record],
                         seconds: float = 3.0) -> tuple[float, float]:
     """Drive, stall the event loop for ``seconds``, check what the device saw, drive again;
     returns when the stall was asked for and when the device was told zero."""
@@ -235,12 +238,12 @@ def stall_while_driving(daemon: DaemonProcess, record: Callable[[], Record],
 
 
 def test_injected_stall_serial_board_sees_m_0_0(
-        tmp_path: Path, daemon_process: Callable[..., DaemonProcess]) -> None:
+        tmp_path: Path, daemon_subprocess: StartDaemonSubprocess) -> None:
     motors = RecordingMotors(EMULATORS["serial"].counts_per_rev)
     with wired_rig("serial", tmp_path, motors) as rig:
         board = rig.emulator
         board.firmware.auto_stop_s = 30.0
-        daemon = daemon_process(driver_toml("serial", rig.options), use_mock_log=False)
+        daemon = daemon_subprocess(driver_toml("serial", rig.options), use_mock_log=False)
         asked, zero_at = stall_while_driving(daemon, lambda: list(motors.record))
         lines = [c for c in board.firmware.history if asked <= c.t_mono <= zero_at
                  and c.text[:1] in "mo"]
@@ -250,18 +253,18 @@ def test_injected_stall_serial_board_sees_m_0_0(
 
 
 def test_injected_stall_pigpiod_sees_duty_zero(
-        tmp_path: Path, daemon_process: Callable[..., DaemonProcess]) -> None:
+        tmp_path: Path, daemon_subprocess: StartDaemonSubprocess) -> None:
     motors = RecordingMotors(EMULATORS["pigpio"].counts_per_rev, FULL_DUTY_SPEED)
     with wired_rig("pigpio", tmp_path, motors, watch_interval=0.25) as rig:
-        daemon = daemon_process(driver_toml("pigpio", rig.options), use_mock_log=False)
+        daemon = daemon_subprocess(driver_toml("pigpio", rig.options), use_mock_log=False)
         asked, zero_at = stall_while_driving(daemon, lambda: list(motors.record))
         print(f"pigpio: duty 0 reached pigpiod {(zero_at - asked) * 1e3:.0f} ms after the "
               "stall request")
 
 
 def test_injected_stall_mock_wheel_log_shows_zero(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process("[control]\nallow_fault_injection = true\ncmd_vel_timeout = 10.0\n"
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess("[control]\nallow_fault_injection = true\ncmd_vel_timeout = 10.0\n"
                             f"stall_stop_s = {STALL_STOP_S}\n")
 
     def record() -> Record:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.deploy_helpers import SYSTEMD_DIR, unit_values
+from tests.support.deploy import SYSTEMD_DIR, unit_values
 
 SERVICE = SYSTEMD_DIR / "arbiterd.service"
 TARGET = SYSTEMD_DIR / "robot.target"

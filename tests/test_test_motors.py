@@ -9,7 +9,6 @@ import os
 import select
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,8 @@ from daemon.bringup.motors import NO_HAND_TURN
 from daemon.config import Config, load_config
 from sim.arduino_emulator import ArduinoEmulator
 from sim.motor_model import MISWIRES, MotorPair, PairWiring
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
+from tests.support.wait import wait_for
 
 HOST_LOOP = ("pigpio", "l298n")  # the speed loop (and the direction flags) on the host
 SWAPPED_PINS = {
@@ -164,11 +164,16 @@ def test_a_wheel_that_does_not_turn_is_not_blamed_on_the_encoder() -> None:
 
 def read_until(fd: int, text: str, seen: bytearray, within_s: float = 20.0) -> None:
     """Read the terminal's output until ``text`` appears (after what was already matched)."""
-    deadline = time.monotonic() + within_s
-    while text.encode() not in seen:
-        assert time.monotonic() < deadline, f"no {text!r} on the terminal: {bytes(seen)!r}"
+
+    def appeared() -> bool:
+        if text.encode() in seen:
+            return True
         if select.select([fd], [], [], 0.1)[0]:
-            seen += os.read(fd, 4096)
+            seen.extend(os.read(fd, 4096))
+        return False
+
+    wait_for(appeared, lambda: f"{text!r} on the terminal: {bytes(seen)!r}", within_s=within_s,
+             interval_s=0)
     del seen[:seen.index(text.encode()) + len(text)]
 
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
 
 SEEDS = range(1, 21)
 SECONDS = 600

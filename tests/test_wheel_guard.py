@@ -12,8 +12,9 @@ import pytest
 
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from drivers import EncoderReading
-from tests.conftest import close_to, wait_for
-from tests.daemon_proc import DaemonProcess
+from tests.support.compare import close_to
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 TIME_S = 0.5
 
@@ -61,23 +62,29 @@ def test_a_wheel_within_tolerance_or_a_short_miss_never_trips() -> None:
 # -- in the simulated robot ------------------------------------------------------------------
 
 
-def status(daemon: DaemonProcess) -> dict[str, Any]:
+def status(daemon: DaemonSubprocess) -> dict[str, Any]:
     code, body = daemon.get("/api/status")
     assert code == 200, body
     return body  # type: ignore[no-any-return]
 
 
-def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonProcess:
+def sim_daemon(tmp_path: Path, driver: str, miswire: list[str]) -> DaemonSubprocess:
     toml = (f'[sim]\ndriver = "{driver}"\nmiswire = {miswire!r}\nlidar = false\n'
             f'[control]\nwheel_mismatch_time_s = {TIME_S}\n').replace("'", '"')
-    return DaemonProcess(tmp_path, toml, args=("--sim",), use_mock_log=False)
+    return DaemonSubprocess(tmp_path, toml, args=("--sim",), use_mock_log=False)
+
+
+def refused(daemon: DaemonSubprocess, twist: dict[str, Any]) -> int | None:
+    """Drive with ``twist``: the status of the refusal, or None when accepted."""
+    code: int = daemon.post("/api/cmd_vel", twist)[0]
+    return None if code == 200 else code
 
 
 def test_the_guard_stops_a_robot_with_a_reversed_motor(tmp_path: Path) -> None:
     with sim_daemon(tmp_path, "pigpio", ["left_motor_reversed"]) as daemon:
         start = status(daemon)["ground_truth"]["theta"]
-        while (code := daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0]) == 200:
-            time.sleep(0.05)
+        code = wait_for(lambda: refused(daemon, {"linear": {"x": 0.2}}),
+                        "the wheel guard to trip (a drive command refused)", interval_s=0.05)
         assert code == 409  # refused: the e-stop latched
         code, health = daemon.get("/api/health")
         control = health["components"]["control"]

@@ -12,7 +12,8 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess, wait_for
+from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.wait import wait_for
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
@@ -37,12 +38,12 @@ def _require_browser() -> None:
                     "tests/console (./install.sh dev does it)")
 
 
-def _wait_healthy(daemon: DaemonProcess) -> None:
-    wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok", 20,
-             "the simulated robot healthy (lidar streaming)")
+def _wait_healthy(daemon: DaemonSubprocess) -> None:
+    wait_for(lambda: daemon.get("/api/health")[1].get("status") == "ok",
+             "the simulated robot healthy (lidar streaming)", within_s=20)
 
 
-def _run_console(daemon: DaemonProcess, *args: str) -> Steps:
+def _run_console(daemon: DaemonSubprocess, *args: str) -> Steps:
     _wait_healthy(daemon)
     assert NODE is not None
     result = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
@@ -79,7 +80,7 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
     _require_browser()
     shots = tmp_path / "screenshots"
     shots.mkdir()
-    with DaemonProcess(tmp_path, SIM, args=("--sim",)) as daemon:
+    with DaemonSubprocess(tmp_path, SIM, args=("--sim",)) as daemon:
         steps = _run_console(daemon, "drive", "--shots", str(shots))
         assert daemon.stop() == 0
         log = daemon.log()
@@ -121,7 +122,7 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
 
 def test_console_with_a_token(tmp_path: Path) -> None:
     _require_browser()
-    with DaemonProcess(tmp_path, SIM + '[security]\ntoken = "console-t0ken"\n',
+    with DaemonSubprocess(tmp_path, SIM + '[security]\ntoken = "console-t0ken"\n',
                        args=("--sim",)) as daemon:
         steps = _run_console(daemon, "token", "--token", "console-t0ken")
         assert daemon.stop() == 0
@@ -143,7 +144,7 @@ def test_console_with_a_token(tmp_path: Path) -> None:
 def test_console_says_it_lost_the_robot_and_reconnects(tmp_path: Path) -> None:
     _require_browser()
     assert NODE is not None
-    with DaemonProcess(tmp_path, SIM, args=("--sim",)) as daemon:
+    with DaemonSubprocess(tmp_path, SIM, args=("--sim",)) as daemon:
         _wait_healthy(daemon)
         client = subprocess.Popen([NODE, str(HERE / "console_client.mjs"),
                                    daemon.base_url + "/", "reconnect"], cwd=HERE,
@@ -160,7 +161,7 @@ def test_console_says_it_lost_the_robot_and_reconnects(tmp_path: Path) -> None:
     assert ahead(back["drove"], "atRelease") >= 0.2
 
 
-def _follow(client: subprocess.Popen[str], daemon: DaemonProcess) -> Steps:
+def _follow(client: subprocess.Popen[str], daemon: DaemonSubprocess) -> Steps:
     """The client's steps; stops the daemon when the page is ready, restarts it once lost."""
     steps: Steps = {}
     assert client.stdout is not None

@@ -6,13 +6,12 @@ import json
 import shutil
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import StartDaemonSubprocess
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
@@ -41,8 +40,8 @@ def _run_player(url: str) -> tuple[subprocess.CompletedProcess[str], list[dict[s
 
 
 def test_foxglove_player_decodes_cbor_raw_as_the_json_path_delivers(
-        daemon_process: Callable[..., DaemonProcess]) -> None:
-    daemon = daemon_process(args=("--sim",))
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess(args=("--sim",))
     result, steps = _run_player(f"ws://127.0.0.1:{daemon.ws_port}/")
     assert result.returncode == 0, (
         f"player failed:\n{result.stdout}\n{result.stderr}\n--- daemon ---\n{daemon.log()}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_subprocess import DaemonSubprocess
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
@@ -24,7 +24,7 @@ def _require_roslib() -> None:
                         "`npm ci` in tests/interop (./install.sh dev does it)")
 
 
-def _lidar_running(daemon: DaemonProcess) -> bool:
+def _lidar_running(daemon: DaemonSubprocess) -> bool:
     _, health = daemon.get("/api/health")
     if not isinstance(health, dict):
         return False
@@ -36,7 +36,7 @@ def _lidar_running(daemon: DaemonProcess) -> bool:
 def test_roslib_drives_the_simulated_robot(tmp_path: Path, flavour: str) -> None:
     _require_roslib()
     assert NODE is not None
-    with DaemonProcess(tmp_path, args=("--sim",)) as daemon:
+    with DaemonSubprocess(tmp_path, args=("--sim",)) as daemon:
         args = [NODE, str(HERE / "roslib_client.mjs"), f"ws://127.0.0.1:{daemon.ws_port}/"]
         if flavour == "roslib1":
             args.append("--v1")

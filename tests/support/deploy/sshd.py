@@ -5,9 +5,11 @@ import getpass
 import os
 import socket
 import subprocess
-import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from tests.support.net import free_port
+from tests.support.wait import wait_for
 
 SSHD = Path("/usr/sbin/sshd")
 START_TIMEOUT_S = 20.0
@@ -32,29 +34,23 @@ class SshServer:
                 self.process.wait(timeout=10)
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
 def keygen(path: Path) -> None:
     subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(path)], check=True,
                    timeout=30)
 
 
 def wait_listening(port: int, process: subprocess.Popen[bytes], log: Path) -> None:
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline:
+    def listening() -> bool:
         if process.poll() is not None:
             raise RuntimeError(f"sshd exited with {process.returncode}: {log.read_text()}")
         try:
             with socket.create_connection(("127.0.0.1", port), timeout=1):
-                return
+                return True
         except OSError:
-            time.sleep(0.05)
-    raise RuntimeError(f"sshd did not listen on {port}: {log.read_text()}")
+            return False
+
+    wait_for(listening, lambda: f"sshd to listen on {port}: {log.read_text()}",
+             within_s=START_TIMEOUT_S, interval_s=0.05)
 
 
 def start_sshd(work: Path, session_env: dict[str, str]) -> SshServer:

@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.deploy_helpers import fake_service_pid
+from tests.support.deploy import fake_service_pid
 
 FAKE_SYSTEMCTL = Path(__file__).with_name("fake_systemctl.py")
 OVERLAID = ("/etc", "/opt", "/usr/local", "/var")

@@ -15,7 +15,8 @@ from drivers import DRIVERS, MotorDriver, create_driver, driver_class
 from drivers.rosarduino import BAUDRATE, MOTOR_SPEEDS, OK, encode_command
 from sim.motor_model import MotorPair
 from sim.wiring import EMULATORS, Emulated
-from tests.daemon_proc import read_wheel_log
+from tests.support.mock_wheel_log import read_wheel_log
+from tests.support.wait import eventually
 
 #: Wheel speed at full duty of the PWM rigs' motors, rad/s (the driver's duty map says the same).
 FULL_DUTY_SPEED = 20.0
@@ -137,8 +138,6 @@ async def restart_pigpiod_and_reopen(rig: Rig, driver: MotorDriver) -> None:
     """With pigpiod down and ``driver`` closed: the wheels coast to a stop, pigpiod restarts,
     the driver reconnects (its second connect) and the wheels stay still until a fresh
     command."""
-    from tests.conftest import eventually  # here: conftest imports this module
-
     await eventually(lambda: all(abs(v) < 1e-3 for v in rig.motors.speeds()),
                      "the wheels to coast to a stop while pigpiod is down")
     rig.emulator.start()
@@ -153,7 +152,7 @@ RigFactory = Callable[..., AbstractContextManager[Rig]]
 
 
 def _rigs() -> dict[str, RigFactory]:
-    from tests.rigs.l298n import mock_pin_rig
+    from tests.support.rigs.l298n import mock_pin_rig
 
     table: dict[str, RigFactory] = {name: partial(wired_rig, name) for name in DRIVERS}
     table["l298n@pigpio"] = table["l298n"]  # the l298n driver through the emulated pigpiod

@@ -5,7 +5,6 @@ import asyncio
 import contextlib
 import signal
 import sys
-import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -13,11 +12,12 @@ from typing import Any
 import aiohttp
 
 from daemon.cli import _toml_value
-from tests.daemon_proc import REPO
+from tests.support.paths import REPO
+from tests.support.wait import eventually
 
 
-class DaemonClient:
-    """Talks to a daemon subprocess over its HTTP API."""
+class AsyncDaemonSubprocess:
+    """``arbiterd run`` as a subprocess of the test's event loop, and its HTTP API (aiohttp)."""
 
     def __init__(self, process: asyncio.subprocess.Process, port: int,
                  session: aiohttp.ClientSession) -> None:
@@ -34,16 +34,20 @@ class DaemonClient:
 
     async def wait_health(self, status: str, within_s: float = 10.0) -> dict[str, Any]:
         """Poll ``/api/health`` until its status is ``status`` (503 goes with ``error``)."""
-        deadline = time.monotonic() + within_s
-        while True:
+
+        async def reached() -> dict[str, Any] | None:
             assert self.process.returncode is None, "the daemon exited"
             with contextlib.suppress(aiohttp.ClientConnectionError):
                 code, body = await self.health()
                 if body["status"] == status:
                     assert code == (503 if status == "error" else 200)
                     return body
-            assert time.monotonic() < deadline, f"daemon health never became {status!r}"
-            await asyncio.sleep(0.05)
+            return None
+
+        body: dict[str, Any] = await eventually(
+            reached, f"the daemon's health to become {status!r}", within_s=within_s,
+            interval_s=0.05)
+        return body
 
 
 def driver_daemon_config(tmp_path: Path, driver: str, options: dict[str, Any],
@@ -75,7 +79,8 @@ enabled = false
 
 
 @contextlib.asynccontextmanager
-async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[DaemonClient]:
+async def async_daemon_subprocess(config: Path, port: int,
+                                  log: Path) -> AsyncIterator[AsyncDaemonSubprocess]:
     """Run the daemon until the block ends, then SIGTERM it and require exit status 0."""
     with log.open("wb") as log_file:
         process = await asyncio.create_subprocess_exec(
@@ -83,7 +88,7 @@ async def spawn_daemon(config: Path, port: int, log: Path) -> AsyncIterator[Daem
             stdout=asyncio.subprocess.DEVNULL, stderr=log_file)
         async with reaped(process), aiohttp.ClientSession(
                 timeout=aiohttp.ClientTimeout(total=5)) as session:
-            client = DaemonClient(process, port, session)
+            client = AsyncDaemonSubprocess(process, port, session)
             await client.wait_health("ok", within_s=20.0)
             yield client
             await terminate_cleanly(process)

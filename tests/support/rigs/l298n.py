@@ -12,7 +12,7 @@ from drivers.quadrature import quadrature_levels
 from sim.motor_model import MotorPair
 from sim.pigpiod_emulator import Wiring, l298n_driver_wiring
 from sim.wiring import EMULATORS, Emulated, mounted
-from tests.rigs import FULL_DUTY_SPEED, Cleanup, Rig, nothing_to_clean, rig_motors, section
+from tests.support.rigs import FULL_DUTY_SPEED, Cleanup, Rig, nothing_to_clean, rig_motors, section
 
 
 class MockPinBridge:

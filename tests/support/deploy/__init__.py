@@ -4,7 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from tests.support.paths import REPO
+
 SYSTEMD_DIR = REPO / "systemd"
 INSTALL_SH = REPO / "install.sh"
 DEPLOY_SH = REPO / "deploy-pi.sh"

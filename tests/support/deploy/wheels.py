@@ -7,7 +7,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.deploy_helpers import REPO
+from tests.support.paths import REPO
 
 SOURCE_DIRS = ("base", "daemon", "drivers", "sensors", "sim")
 

@@ -1,0 +1,1 @@
+# Test support: helpers, daemon harnesses and rigs for the tests (conftest.py keeps fixtures).
