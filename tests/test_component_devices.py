@@ -19,24 +19,17 @@ from daemon.components import COMPONENTS
 from daemon.config import load_config
 from daemon.http_api import json_response
 from drivers.devices import Actuator, create_device
-from drivers.pigpio_servo import SERVO_OPTIONS
+from drivers.pigpio_servo import SERVO_OPTIONS, ServoSettings
 from tests.support.in_process_daemon import in_process_daemon
 
 WAVER_OPTIONS: Options = {"enabled": Option(bool, True, "wave"), **SERVO_OPTIONS}
 
 
 @dataclass(frozen=True)
-class WaverSettings(SectionSettings, section="waver", options=WAVER_OPTIONS):
+class WaverSettings(ServoSettings, SectionSettings, section="waver", options=WAVER_OPTIONS):
+    """The servo's keys and its own switch."""
+
     enabled: bool
-    host: str
-    port: int
-    joints: list[str]
-    pins: list[int]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    timeout_s: float
 
 
 class Waver(BaseComponent):
