@@ -13,12 +13,15 @@ import tempfile
 import time
 from collections.abc import AsyncIterator, Awaitable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import aiohttp
 
 from daemon.bench import BenchResult, free_port, run_quietly
 from daemon.latency import LatencyTracker, summarize
+
+if TYPE_CHECKING:
+    from daemon.app import Daemon
 
 SUITE = "console"
 REPO = Path(__file__).resolve().parents[2]
@@ -183,7 +186,7 @@ def browser_available() -> bool:
     return bool(shutil.which("node")) and Path(CHROMIUM).exists() and modules.is_dir()
 
 
-async def _measure(daemon: Any, work: Awaitable[Any]) -> tuple[list[float], int, Any]:
+async def _measure(daemon: Daemon, work: Awaitable[Any]) -> tuple[list[float], int, Any]:
     """Tick lateness samples and commands applied while ``work`` runs, and its result."""
     latency = daemon.latency
     latency.tick_late_ms.clear()
@@ -208,7 +211,7 @@ async def _run(quick: bool) -> list[BenchResult]:
     return _results(idle, driving, replayed, browser, window, cycles)
 
 
-async def _browser(daemon: Any, http_url: str, seconds: float) -> tuple[list[float], int, Any]:
+async def _browser(daemon: Daemon, http_url: str, seconds: float) -> tuple[list[float], int, Any]:
     """The real page in headless Chromium; measured from when it starts driving."""
     proc = await asyncio.create_subprocess_exec(
         shutil.which("node") or "node", str(BROWSER_CLIENT), http_url + "/", "hold",

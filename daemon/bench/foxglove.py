@@ -13,7 +13,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import aiohttp
 import numpy as np
@@ -22,7 +22,11 @@ from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly, 
 from daemon.messages.convert import scan_msg
 from daemon.messages.definitions import LASER_SCAN
 from daemon.rosbridge.outbox import SharedMessage
+from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
+
+if TYPE_CHECKING:
+    from daemon.app import Daemon
 
 SUITE = "foxglove"
 RAYS = 720
@@ -136,15 +140,15 @@ async def _load_result(proc: asyncio.subprocess.Process) -> dict[str, Any]:
     return dict(json.loads(out.decode().strip().splitlines()[-1]))
 
 
-async def _publish_scans(daemon: Any, stop: asyncio.Event) -> None:
+async def _publish_scans(daemon: Daemon, stop: asyncio.Event) -> None:
     """A 10 Hz lidar: a fresh 720-ray scan on the bus every 0.1 s."""
     while not stop.is_set():
-        daemon.bus.publish("scan", synthetic_scan())
+        daemon.bus.publish(SCAN, synthetic_scan())
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(stop.wait(), 0.1)
 
 
-async def _lateness(daemon: Any, seconds: float) -> list[float]:
+async def _lateness(daemon: Daemon, seconds: float) -> list[float]:
     """Tick lateness samples (s) over the next ``seconds``."""
     latency = daemon.latency
     latency.tick_late_ms.clear()
@@ -152,7 +156,7 @@ async def _lateness(daemon: Any, seconds: float) -> list[float]:
     return [ms / 1e3 for ms in latency.tick_late_ms]
 
 
-async def _alternate(daemon: Any, recorder: Any, seconds: float,
+async def _alternate(daemon: Daemon, recorder: Any, seconds: float,
                      segment: float) -> tuple[list[float], list[float]]:
     """Recorder off and on in turns of ``segment`` s, so both see the same machine load."""
     off: list[float] = []

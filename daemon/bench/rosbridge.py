@@ -11,13 +11,17 @@ import tempfile
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import aiohttp
 import numpy as np
 from aiohttp import web
 
 from daemon.bench import BenchResult, bench_daemon, free_port, run_quietly, scan_subscribers
+from daemon.telemetry import SCAN
+
+if TYPE_CHECKING:
+    from daemon.app import Daemon
 
 SUITE = "rosbridge"
 SCAN_RAYS = 720
@@ -169,11 +173,11 @@ def _synthetic_scan() -> Any:
                      0.1, 0.1, 12.0, ranges, np.full(SCAN_RAYS, 47, dtype=np.float32))
 
 
-async def _publish_scans(daemon: Any, stop: asyncio.Event) -> None:
+async def _publish_scans(daemon: Daemon, stop: asyncio.Event) -> None:
     while not stop.is_set():
         scan = _synthetic_scan()
         scan.stamp = time.time()
-        daemon.bus.publish("scan", scan)
+        daemon.bus.publish(SCAN, scan)
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(stop.wait(), 0.1)
 

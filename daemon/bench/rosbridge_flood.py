@@ -13,11 +13,15 @@ from collections.abc import Awaitable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from daemon.bench import BenchResult, percentile_ms, run_quietly
 from daemon.bench.rosbridge import _publish_scans, bench_daemon
 from daemon.bench.rosbridge_attacks import run_attack
+from daemon.rosbridge.server import RosbridgeServer
+
+if TYPE_CHECKING:
+    from daemon.app import Daemon
 
 SUITE = "rosbridge-flood"
 TOKEN = "bench-token"
@@ -66,7 +70,7 @@ class Window:
     detail: Any = None
 
 
-async def measure(daemon: Any, load: Awaitable[Any] | None, seconds: float) -> Window:
+async def measure(daemon: Daemon, load: Awaitable[Any] | None, seconds: float) -> Window:
     """Loop stalls and tick lateness while ``load`` runs (or for ``seconds`` when idle)."""
     latency = daemon.latency
     latency.tick_late_ms.clear()
@@ -98,17 +102,17 @@ async def flood(url: str, seconds: float) -> Any:
                    "--fragment-size", "1"))
 
 
-async def clients_gone(daemon: Any, within_s: float = 60.0) -> None:
+async def clients_gone(daemon: Daemon, within_s: float = 60.0) -> None:
     """Wait until the server has let every client go (a flooder's buffered requests are
     worked off at its request rate, or it is closed for it)."""
-    bridge = next(c for c in daemon.components if c.name == "rosbridge")
+    bridge = next(c for c in daemon.components if isinstance(c, RosbridgeServer))
     for _ in range(int(within_s * 10)):
         if not bridge.clients:
             return
         await asyncio.sleep(0.1)
 
 
-async def fuzz_rss(daemon: Any, url: str, minutes: float) -> tuple[float, float, int]:
+async def fuzz_rss(daemon: Daemon, url: str, minutes: float) -> tuple[float, float, int]:
     """RSS after a warm-up fuzz, then after ``minutes`` more; and the inputs sent."""
     await run_attack(url, "fuzz", "--seconds", "20", "--seed", "7")
     start = rss_mb()
