@@ -46,7 +46,7 @@ class SimRuntime(BaseComponent):
         #: section => the running emulator of its device (tests look at its state)
         self.device_emulators: dict[str, Any] = {}
         self.settings = config.get(SimSettings)
-        self.sim = SimConfig.from_section(config["sim"])
+        self.sim = SimConfig.from_settings(config.get(SimSettings))
         self.driver_name: str = self.settings.driver
         self.workdir = Path(tempfile.mkdtemp(prefix="arbiterd-sim-"))
         robot = config.get(RobotSettings)

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from base.config import SectionSettings
@@ -102,6 +102,11 @@ class SimConfig:
                             odom_sigma=values.pop("odom_noise"),
                             wheel_slip=values.pop("wheel_slip"), seed=values["seed"])
         return cls(start_pose=Pose(x, y, theta), noise=noise, **values)
+
+    @classmethod
+    def from_settings(cls, settings: SimSettings) -> SimConfig:
+        """From the typed [sim] settings the daemon read (the same checks as a section)."""
+        return cls.from_section({f.name: getattr(settings, f.name) for f in fields(settings)})
 
     @property
     def physics_dt(self) -> float:

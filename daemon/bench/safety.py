@@ -22,7 +22,7 @@ from daemon.safety.monitor import CollisionMonitor
 from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 from sim.raycast import RayCaster, ray_angles
-from sim.settings import SimConfig
+from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
 from sim.world import generated_world
 
@@ -48,7 +48,7 @@ def _simulate_once(seconds: float, seed: int) -> tuple[float, float, float]:
     wall, cpu = time.perf_counter(), time.process_time()
     asyncio.run(runner.run(seconds))
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    world = SimWorld(SimConfig.from_section(config["sim"]))
+    world = SimWorld(SimConfig.from_settings(config.get(SimSettings)))
     start = time.perf_counter()
     for index in range(round(seconds * world.config.physics_rate)):
         if index % 5 == 0:  # the world's own scans, as the runner casts them

@@ -96,10 +96,10 @@ def confirmed() -> bool:
 def simulated_hardware(config: Config) -> Iterator[MotorPair]:
     """The emulator of ``[sim] driver`` on free-turning wheels (no world: they are off the
     ground), with ``[sim] miswire`` played; the config's driver is pointed at it."""
-    from sim.settings import SimConfig
+    from sim.settings import SimConfig, SimSettings
     from sim.wiring import EMULATORS
 
-    sim = SimConfig.from_section(config["sim"])
+    sim = SimConfig.from_settings(config.get(SimSettings))
     wiring = EMULATORS[sim.driver]
     pair = wiring.motors(max_speed_rad_s=sim.motor_max_speed,
                          time_constant_s=sim.motor_time_constant)

@@ -70,7 +70,7 @@ class Lockstep:
         self.config = config
         self._simulated_lidar(config)
         self.clock = VirtualClock()
-        sim = SimConfig.from_section(config["sim"])
+        sim = SimConfig.from_settings(config.get(SimSettings))
         robot = config.get(RobotSettings)
         self.world = SimWorld(sim, wheel_radius=robot.wheel_radius,
                               wheel_separation=robot.wheel_separation)
