@@ -47,6 +47,45 @@ def test_a_port_the_daemon_holds_is_named_with_the_daemon_and_what_to_do(
         assert daemon.get("/api/health")[0] == 200, "probing must not disturb the daemon"
 
 
+def test_a_process_run_from_a_clone_named_arbiterd_is_not_called_the_daemon(
+        tmp_path: Path) -> None:
+    """The default `git clone …/arbiterd`: pytest, a script or a venv tool started from it
+    has "arbiterd" in its command line, but only `arbiterd run` is the daemon."""
+    clone = tmp_path / "arbiterd"
+    clone.mkdir()
+    script = clone / "hold.py"
+    script.write_text("import sys\nheld = open(sys.argv[1], 'rb')\nprint('holding', flush=True)"
+                      "\nsys.stdin.read()\n")
+    device = tmp_path / "ttyUSB0"
+    device.touch()
+    with subprocess.Popen([sys.executable, str(script), str(device)], cwd=clone, text=True,
+                          stdin=subprocess.PIPE, stdout=subprocess.PIPE) as holder:
+        assert holder.stdout is not None and holder.stdin is not None
+        assert holder.stdout.readline() == "holding\n"
+        comm = Path(f"/proc/{holder.pid}/comm").read_text().strip()
+        text = ports.busy_message(device)
+        holder.stdin.close()
+    assert text == f"{comm} (pid {holder.pid}) is using {device} — close it first"
+
+
+@pytest.mark.parametrize(("argv", "command"), [
+    (["/opt/arbiterd/current/venv/bin/python3", "/opt/arbiterd/current/venv/bin/arbiterd",
+      "run", "--config", "/etc/arbiterd/arbiterd.toml"], "run"),
+    (["/home/me/arbiterd/.venv/bin/python", "-m", "daemon.cli", "run", "--sim"], "run"),
+    (["python3", "-u", "-X", "dev", "-Bm", "daemon.cli", "run"], "run"),
+    (["/usr/local/bin/arbiterd", "run"], "run"),
+    (["/home/me/arbiterd/.venv/bin/python", "-m", "pytest", "/home/me/arbiterd/tests"], None),
+    (["/home/me/arbiterd/.venv/bin/python", "/home/me/arbiterd/.venv/bin/pytest", "-x"], None),
+    (["python3", "-c", "print('arbiterd run')"], None),
+    (["/home/me/arbiterd/tools/flash", "run"], None),
+    (["python3", "/home/me/arbiterd/.venv/bin/arbiterd", "lidar", "info"], "lidar"),
+])
+def test_the_daemon_is_recognised_by_its_command_line_not_by_a_path(
+        argv: list[str], command: str | None) -> None:
+    assert ports.arbiterd_command(argv) == command
+    assert ports.is_daemon(argv) == (command == "run")
+
+
 async def test_a_missing_port_lists_the_devices_present_and_the_dialout_hint(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     (tmp_path / "ttyACM0").touch()
