@@ -17,6 +17,7 @@ from daemon.control.loop import ControlLoop
 from daemon.http_api import HttpServer
 from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
+from daemon.listen import EXIT_PORT_IN_USE, PortInUse, taken
 from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
 from daemon.safety.component import scan_points
@@ -41,7 +42,8 @@ def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
 
 
 class StartupError(Exception):
-    """A core component could not start (exit code 69: hardware unavailable)."""
+    """A core component could not start (exit code 69: hardware unavailable; 75 when the
+    cause is a taken port)."""
 
 
 class Daemon:
@@ -125,11 +127,17 @@ class Daemon:
         self._install_signal_handlers()
         for warning in self.config.warnings:
             log.warning("%s", warning)
+        in_use = taken(listener for spec in COMPONENTS
+                       for listener in spec.listeners(self.config))
+        if in_use is not None:  # before any device is opened: a second one touches nothing
+            log.error("cannot start: %s", in_use)
+            return EXIT_PORT_IN_USE
         try:
             await self._start()
         except StartupError as exc:
             log.error("startup failed: %s", exc)
-            self.exit_code = EXIT_HARDWARE
+            self.exit_code = (EXIT_PORT_IN_USE if isinstance(exc.__cause__, PortInUse)
+                              else EXIT_HARDWARE)
             await self.shutdown(f"startup failed: {exc}")
             return self.exit_code
         except ConfigError as exc:

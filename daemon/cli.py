@@ -95,9 +95,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         setup_logging()
         return _report_config_error(exc, args)
+    if args.http_port is not None:
+        config.update("http", {"port": args.http_port})
+    if args.ws_port is not None:
+        config.update("rosbridge", {"port": args.ws_port})
     logging_settings = config.get(LoggingSettings)
     setup_logging(logging_settings.level, logging_settings.timestamps)
     return asyncio.run(Daemon(config).run())
+
+
+def tcp_port(text: str) -> int:
+    """An ``--http-port``/``--ws-port`` value: a TCP port number, 1 to 65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port: give a number from 1 "
+                                         "to 65535")
+    return port
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -306,6 +322,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", help="config file (default /etc/arbiterd/arbiterd.toml "
                      "if present, else built-in defaults on the simulated robot)")
     run.add_argument("--sim", action="store_true", help="force the simulated hardware")
+    run.add_argument("--http-port", type=tcp_port, metavar="PORT",
+                     help="serve HTTP (API and console) on PORT instead of [http] port; with "
+                     "--ws-port, a second daemon runs beside another")
+    run.add_argument("--ws-port", type=tcp_port, metavar="PORT",
+                     help="serve rosbridge on PORT instead of [rosbridge] port")
     run.set_defaults(func=cmd_run)
     check = sub.add_parser("check", help="validate the config and probe the hardware; the "
                            "verdict comes first")

@@ -10,9 +10,11 @@ from typing import Any
 from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
 
+from base.config import Config
 from daemon.component import ComponentSpec, DaemonContext, Route
 from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
 from daemon.http_settings import HttpSettings
+from daemon.listen import Listener, as_port_error
 from daemon.messages.convert import to_json
 from daemon.security import Security
 from daemon.topics import ACCESS_LEVELS, Access, Topic
@@ -266,7 +268,10 @@ class HttpServer:
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
-        await site.start()
+        try:
+            await site.start()
+        except OSError as exc:
+            raise as_port_error(Listener("http", self.host, self.port), exc) from exc
         server = getattr(site, "_server", None)
         sockets = getattr(server, "sockets", None) or []
         self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
@@ -299,4 +304,9 @@ def create(ctx: DaemonContext) -> HttpServer | None:
     return ctx.http if ctx.settings(HttpSettings).enabled else None
 
 
-COMPONENT = ComponentSpec("http", create, HttpSettings)
+def listens(config: Config) -> list[Listener]:
+    http = config.get(HttpSettings)
+    return [Listener("http", http.host, http.port)] if http.enabled else []
+
+
+COMPONENT = ComponentSpec("http", create, HttpSettings, listens=listens)
