@@ -305,7 +305,7 @@ def cmd_lidar(args: argparse.Namespace) -> int:
 
 def cmd_record(args: argparse.Namespace) -> int:
     directory = Path(args.dir) if getattr(args, "dir", None) else None
-    if directory is None and args.record_command == "list":
+    if directory is None and record_cli.needs_directory(args):
         try:
             config = _load(args)
         except ConfigError as exc:
