@@ -32,6 +32,9 @@ from sim.settings import SimSettings
 log = logging.getLogger("arbiterd")
 
 EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
+#: after the start, components still connecting (the lidar's first revolution) are not yet a
+#: problem: a state other than ready is logged as INFO until then, and as a WARNING if it lasts
+STARTUP_GRACE_S = 5.0
 
 
 def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
@@ -39,6 +42,19 @@ def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
     components = health.get("components", {})
     return (health.get("status"), health.get("state"),
             *((name, c.get("status"), problem(c)) for name, c in sorted(components.items())))
+
+
+def not_ok(health: dict[str, dict[str, Any]], said: str = "") -> str:
+    """``lidar degraded: connecting; ...``: the components that are not ok, and why (unless
+    ``said`` already says it)."""
+    parts = []
+    for name, component in health.items():
+        status = component.get("status", "error")
+        if status != "ok":
+            why = problem(component) or component.get("state")
+            why = "" if why and str(why) in said else why
+            parts.append(f"{name} {status}" + (f": {why}" if why else ""))
+    return "; ".join(parts)
 
 
 class StartupError(Exception):
@@ -63,6 +79,7 @@ class Daemon:
         self.components: list[Component] = []
         self._plugs: list[Plugs] = []
         self._health_digest: tuple[Any, ...] | None = None
+        self._state_unwarned = False  # a state other than ready logged at INFO in the grace
         self.exit_code = EXIT_OK
         self.shutdown_reason = ""
         self._shutdown_requested: asyncio.Event | None = None
@@ -243,12 +260,22 @@ class Daemon:
     def _update_state(self) -> None:
         if self.state in ("shutdown",):
             return
-        status = self.overall_status(self.component_health())
+        health = self.component_health()
+        status = self.overall_status(health)
         state = {"ok": "ready", "degraded": "degraded", "error": "error"}[status]
-        if state != self.state:
-            self.state = state
-            log.warning("state: %s", self.status_line()) if state != "ready" else log.info(
-                "state: %s", self.status_line())
+        starting = time.monotonic() - self.started_mono < STARTUP_GRACE_S
+        previous, self.state = self.state, state
+        line = self.status_line()
+        if state == "ready":
+            if previous != state:
+                log.info("state: %s", line)
+            self._state_unwarned = False
+        elif previous != state and starting:
+            log.info("state: %s (starting: %s)", line, not_ok(health, line))
+            self._state_unwarned = True
+        elif previous != state or (self._state_unwarned and not starting):
+            log.warning("state: %s (%s)", line, not_ok(health, line))
+            self._state_unwarned = False
         self.notifier.status(self.status_line())
 
     def status_line(self) -> str:

@@ -11,6 +11,7 @@ import os
 import sys
 import urllib.error
 import urllib.request
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -34,11 +35,14 @@ SYSLOG_PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, loggin
 
 
 class JournalFormatter(logging.Formatter):
-    """``<6>arbiterd.control: message`` under systemd, ``INFO arbiterd: message`` on a tty."""
+    """``<6>arbiterd.control: message`` to the journal (it has its own time stamps),
+    ``2026-11-26 14:02:03.125 INFO arbiterd: message`` elsewhere (without the time when
+    ``timestamps`` is off)."""
 
     def __init__(self, journald: bool, timestamps: bool) -> None:
-        fmt = "%(asctime)s " if timestamps else ""
-        super().__init__(fmt + "%(name)s: %(message)s")
+        fmt = "%(asctime)s.%(msecs)03d %(levelname)s " if timestamps and not journald else (
+            "" if journald else "%(levelname)s ")
+        super().__init__(fmt + "%(name)s: %(message)s", datefmt="%Y-%m-%d %H:%M:%S")
         self.journald = journald
 
     def format(self, record: logging.LogRecord) -> str:
@@ -46,12 +50,28 @@ class JournalFormatter(logging.Formatter):
         if self.journald:
             prefix = f"<{SYSLOG_PRIORITY.get(record.levelno, 6)}>"
             return "\n".join(prefix + line for line in text.splitlines())
-        return f"{record.levelname} {text}"
+        return text
 
 
-def setup_logging(level: str = "info", timestamps: bool = False) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JournalFormatter("JOURNAL_STREAM" in os.environ, timestamps))
+def writes_to_journal(stream: Any, env: Mapping[str, str]) -> bool:
+    """``stream`` is systemd's journal: ``$JOURNAL_STREAM`` names its device and inode. The
+    variable alone does not count: a terminal of a desktop session inherits it too."""
+    try:
+        device, inode = (int(part) for part in env.get("JOURNAL_STREAM", "").split(":"))
+        found = os.fstat(stream.fileno())
+    except (ValueError, OSError, AttributeError):  # io.UnsupportedOperation is an OSError
+        return False
+    return (found.st_dev, found.st_ino) == (device, inode)
+
+
+def setup_logging(level: str = "info", timestamps: bool = False, stream: Any = None,
+                  env: Mapping[str, str] | None = None) -> None:
+    """Log lines to ``stream`` (stderr): for journald when it is the journal, else with the
+    level and, with ``timestamps``, the time."""
+    stream = sys.stderr if stream is None else stream
+    handler = logging.StreamHandler(stream)
+    journald = writes_to_journal(stream, os.environ if env is None else env)
+    handler.setFormatter(JournalFormatter(journald, timestamps))
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(LEVELS[level])

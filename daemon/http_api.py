@@ -22,6 +22,8 @@ from daemon.topics import ACCESS_LEVELS, Access, Topic
 log = logging.getLogger("arbiterd.http")
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+#: a valid request the robot refuses in its present state (e-stop latched, driver fault)
+REFUSED = 409
 MAX_JSON_DEPTH = 32
 MAX_INT_DIGITS = 64
 READ_CHUNK = 65536
@@ -61,7 +63,11 @@ async def _errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     try:
         return await handler(request)
     except ApiError as exc:
-        _log_bad_request(request, exc.status, exc.message)
+        if exc.status == REFUSED:  # a valid request the robot says no to now: not a bad one
+            log.debug("refused %s %s from %s: %s", request.method, request.path[:100],
+                      request.remote, exc.message)
+        else:
+            _log_bad_request(request, exc.status, exc.message)
         return error_response(exc.status, exc.message, exc.detail, exc.headers)
     except web.HTTPException as exc:
         if exc.status < 400:
