@@ -7,9 +7,11 @@ import contextlib
 import io
 import json
 import logging
+import math
 import os
 import sys
 import urllib.error
+import urllib.parse
 import urllib.request
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,6 +21,7 @@ from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.http_settings import HttpSettings
+from daemon.messages.convert import problem as problem_text
 from daemon.recorder import cli as record_cli
 from daemon.recorder.paths import listing_directory
 from daemon.recorder.settings import RecordSettings
@@ -79,6 +82,7 @@ def setup_logging(level: str = "info", timestamps: bool = False, stream: Any = N
 
 
 DEFAULT_URL = "http://127.0.0.1:8085"
+STATUS_TIMEOUT_S = 5.0
 
 
 def _load(args: argparse.Namespace) -> Config:
@@ -214,21 +218,56 @@ def cmd_status(args: argparse.Namespace) -> int:
         base, token = _status_url(args)
     except ConfigError as exc:
         return _report_config_error(exc, args)
+    except ValueError as exc:
+        print(f"arbiterd status: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         health = _get_json(f"{base}/api/health", token)
         latency = _get_json(f"{base}/api/latency", token)
     except (urllib.error.URLError, OSError, ValueError) as exc:
-        print(f"arbiterd status: cannot reach {base}: {exc}", file=sys.stderr)
+        print(f"arbiterd status: {unreachable(base, exc)}", file=sys.stderr)
         return EXIT_HARDWARE
-    print(format_status(health, latency))
+    print(format_status(health, latency, base))
     return EXIT_OK if health.get("status") != "error" else 1
+
+
+def unreachable(base: str, exc: BaseException) -> str:
+    """Why nothing answered at ``base``, and what to do."""
+    reason = getattr(exc, "reason", exc)
+    if isinstance(reason, ConnectionRefusedError):
+        return (f"no daemon answers at {base} (connection refused): arbiterd is not running "
+                "there. Start it: `arbiterd run --sim` (the simulated robot) or `sudo "
+                "systemctl start robot.target` (the service); if it runs elsewhere, pass "
+                "--url HOST:PORT or --config FILE")
+    if isinstance(reason, TimeoutError):
+        return f"no answer from {base} within {STATUS_TIMEOUT_S:g} s: is it the daemon's address?"
+    return f"cannot reach {base}: {reason}"
+
+
+def status_base_url(text: str) -> str:
+    """``--url``: ``http://host:port``, ``host:port``, ``host`` or a port, as a base URL."""
+    url = text.strip()
+    if url.isdigit():
+        url = f"127.0.0.1:{url}"
+    if "://" not in url:
+        url = f"http://{url}"
+    url = url.rstrip("/")
+    parsed = urllib.parse.urlsplit(url)
+    try:
+        parsed.port  # noqa: B018 (a port that is no number raises)
+    except ValueError:
+        parsed = parsed._replace(netloc="")
+    if parsed.scheme not in ("http", "https") or not parsed.hostname:
+        raise ValueError(f"--url {text}: not the daemon's address; give HOST:PORT or "
+                         "http://HOST:PORT, e.g. --url 127.0.0.1:8085")
+    return url
 
 
 def _status_url(args: argparse.Namespace) -> tuple[str, str]:
     """--url, else the [http] address of --config or the default config (env overrides too);
     and the config's token, for a daemon whose reads need it."""
     if args.url:
-        return str(args.url).rstrip("/"), ""
+        return status_base_url(args.url), ""
     try:
         config = _load(args)
     except ConfigUnreadable as exc:
@@ -251,26 +290,70 @@ def _get_json(url: str, token: str = "") -> dict[str, Any]:
     if token:
         request.add_header("Authorization", f"Bearer {token}")
     try:
-        with urllib.request.urlopen(request, timeout=5) as response:
+        with urllib.request.urlopen(request, timeout=STATUS_TIMEOUT_S) as response:
             data: dict[str, Any] = json.load(response)
     except urllib.error.HTTPError as exc:  # 503 still carries the health body
         data = json.load(exc)
     return data
 
 
-def format_status(health: dict[str, Any], latency: dict[str, Any]) -> str:
-    lines = [f"arbiterd {health.get('version')}: {health.get('status')} "
+def format_status(health: dict[str, Any], latency: dict[str, Any], base: str = "") -> str:
+    """The health summary: one line for the daemon, one aligned row per component (with why,
+    when it is not ok), then the latency figures."""
+    at = f" at {base}" if base else ""
+    lines = [f"arbiterd {health.get('version')}{at}: {health.get('status')} "
              f"({health.get('state')}), {health.get('mode')} mode, driver "
-             f"{health.get('driver')}, up {health.get('uptime_s', 0):.0f} s"]
-    for name, comp in health.get("components", {}).items():
-        detail = comp.get("fault") or comp.get("error") or ""
-        lines.append(f"  {name:<10} {comp.get('status')}" + (f"  {detail}" if detail else ""))
+             f"{health.get('driver')}, up {_duration(health.get('uptime_s') or 0)}"]
+    rows = [(name, str(comp.get("status")), _why(comp))
+            for name, comp in health.get("components", {}).items()]
     execs = latency.get("receipt_to_exec_ms", {})
-    tick = latency.get("tick", {}).get("lateness_ms", {})
-    lines.append(f"  commands {latency.get('commands', 0)}; receipt->exec ms p50 "
-                 f"{execs.get('p50', '-')} p99 {execs.get('p99', '-')}; tick lateness ms p99 "
-                 f"{tick.get('p99', '-')}")
+    tick = latency.get("tick", {})
+    lateness = tick.get("lateness_ms", {})
+    rows += [("commands", str(latency.get("commands", 0)), ""),
+             ("receipt->exec", _percentiles(execs), ""),
+             ("tick lateness", _percentiles(lateness),
+              f"{tick.get('late', 0)} late, {tick.get('missed', 0)} missed of "
+              f"{tick.get('count', 0)} ticks" if tick else "")]
+    width = max(len(row[0]) for row in rows)
+    status_width = max(len(row[1]) for row in rows[:-3]) if len(rows) > 3 else 0
+    for i, (name, value, detail) in enumerate(rows):
+        column = status_width if i < len(rows) - 3 else 0
+        text = f"  {name:<{width}}  {value:<{column}}" + (f"  {detail}" if detail else "")
+        lines.append(text.rstrip())
     return "\n".join(lines)
+
+
+def _why(component: dict[str, Any]) -> str:
+    """Why a component is not ok (its problem text, else its state), or what it says when it
+    is ok and has a problem text."""
+    text = problem_text(component)
+    if not text and component.get("status") != "ok":
+        text = str(component.get("last_error") or component.get("reason")
+                   or component.get("state") or "")
+    return text
+
+
+def _percentiles(figures: dict[str, Any]) -> str:
+    if not figures.get("count"):
+        return "-"
+    return f"p50 {_ms(figures.get('p50'))}  p99 {_ms(figures.get('p99'))}"
+
+
+def _ms(value: Any) -> str:
+    """A duration in ms to about three significant digits (16.4, 3.17, 0.012, 322)."""
+    if not isinstance(value, int | float):
+        return "-"
+    digits = 2 - math.floor(math.log10(abs(value))) if value else 0
+    return f"{value:.{min(max(digits, 0), 3)}f} ms"
+
+
+def _duration(seconds: float) -> str:
+    whole = int(seconds)
+    hours, rest = divmod(whole, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours} h {minutes:02d} min"
+    return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
 
 
 def cmd_safe_stop(args: argparse.Namespace) -> int:
@@ -357,8 +440,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="also print the effective configuration")
     check.set_defaults(func=cmd_check, sim=False)
     status = sub.add_parser("status", help="summary of a running daemon")
-    status.add_argument("--url", help="the daemon's base URL (default: the [http] address of "
-                        f"the config, else {DEFAULT_URL})")
+    status.add_argument("--url", help="the daemon's address: HOST:PORT or http://HOST:PORT "
+                        f"(default: the [http] address of the config, else {DEFAULT_URL})")
     status.add_argument("--config", help="config file to read the [http] address from "
                         "(default /etc/arbiterd/arbiterd.toml)")
     status.set_defaults(func=cmd_status, sim=False)
