@@ -19,6 +19,7 @@ from typing import Any
 
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
+from daemon.bench import SUITES, suites_help
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.http_settings import HttpSettings
 from daemon.messages.convert import problem as problem_text
@@ -459,10 +460,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the wheels are off the ground: do not ask")
     motors.add_argument("--json", action="store_true", help="print one JSON object")
     motors.set_defaults(func=cmd_test_motors)
-    bench = sub.add_parser("bench", help="run the benchmark suite")
+    bench = sub.add_parser("bench", help="run the benchmark suites",
+                           description="Run the benchmark suites on this machine and print "
+                           "each figure with its target,\nthen what missed its target.",
+                           epilog=suites_help(),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
     bench.add_argument("--json", action="store_true", help="one JSON object per figure")
-    bench.add_argument("--quick", action="store_true", help="shorter runs")
-    bench.add_argument("--only", action="append", help="run only this suite (repeatable)")
+    bench.add_argument("--quick", action="store_true", help="shorter runs (rougher figures)")
+    bench.add_argument("--only", action="append", metavar="SUITE", choices=list(SUITES),
+                       help="run only this suite (repeatable; the suites are listed below)")
     bench.set_defaults(func=cmd_bench)
     _add_simulate(sub)
     _add_lidar(sub)

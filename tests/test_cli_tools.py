@@ -3,8 +3,10 @@
 # ARBITERD_* override.
 from __future__ import annotations
 
+import argparse
 import grp
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -16,7 +18,9 @@ from pathlib import Path
 import pytest
 
 from daemon import __version__
-from daemon.cli import format_status
+from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE
+from daemon.cli import build_parser, format_status
+from daemon.listen import EXIT_PORT_IN_USE
 from sim.rplidar_emulator import RplidarEmulator
 from tests.conftest import DaemonProcess, free_port, wait_for
 from tests.daemon_proc import REPO, http
@@ -293,3 +297,29 @@ def test_safe_stop_in_sim_mode_touches_no_hardware(tmp_path: Path) -> None:
     assert result.stdout == "arbiterd safe-stop: simulated robot (--sim): no hardware to zero\n"
     real = run_cli("safe-stop", "--config", str(config))
     assert real.returncode == 69 and "could not zero the motors" in real.stderr
+
+
+def test_every_command_is_in_the_readme_table_with_its_options() -> None:
+    table = [line for line in (REPO / "README.md").read_text().splitlines()
+             if line.startswith("| `arbiterd ")]
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sub in commands.choices.items():
+        rows = [row for row in table if row.startswith(f"| `arbiterd {name} ")
+                or row.startswith(f"| `arbiterd {name}`")]
+        assert rows, f"`arbiterd {name}` is not in README.md's command table"
+        options = {option for action in sub._actions for option in action.option_strings
+                   if option.startswith("--") and option != "--help"
+                   and action.help != argparse.SUPPRESS and not isinstance(
+                       action, argparse._SubParsersAction)}
+        if name in ("lidar", "record"):  # their sub-commands carry the options
+            continue
+        missing = [option for option in options if option not in rows[0].split("|")[1]]
+        assert not missing, f"README.md's row of `arbiterd {name}` lacks {missing}"
+
+
+def test_the_documented_exit_codes_are_the_ones_used() -> None:
+    readme = (REPO / "README.md").read_text()
+    codes = readme.split("Exit codes:")[1].split("\n\n")[0]
+    for code in (EXIT_OK, 1, EXIT_USAGE, EXIT_HARDWARE, EXIT_PORT_IN_USE, EXIT_CONFIG):
+        assert re.search(rf"(^|[\s;]){code} ", codes), code
