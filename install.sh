@@ -207,7 +207,7 @@ cmd_sim() {
 warn_if_service_runs() {
     command -v systemctl >/dev/null 2>&1 || return 0
     systemctl is-active --quiet arbiterd.service 2>/dev/null || return 0
-    warn "the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; stop it first (sudo systemctl stop robot.target) or pass --config FILE with other ports"
+    warn "the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; stop it first (sudo systemctl stop robot.target) or give this one other ports: ./install.sh sim --http-port PORT --ws-port PORT"
 }
 
 # run_gate NAME CMD...: a check that must pass before the tests run; stops at a finding.

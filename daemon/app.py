@@ -17,6 +17,7 @@ from daemon.control.loop import ControlLoop
 from daemon.http_api import HttpServer
 from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
+from daemon.listen import EXIT_PORT_IN_USE, PortInUse, taken
 from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
 from daemon.safety.component import scan_points
@@ -31,6 +32,9 @@ from sim.settings import SimSettings
 log = logging.getLogger("arbiterd")
 
 EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
+#: after the start, components still connecting (the lidar's first revolution) are not yet a
+#: problem: a state other than ready is logged as INFO until then, and as a WARNING if it lasts
+STARTUP_GRACE_S = 5.0
 
 
 def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
@@ -40,8 +44,22 @@ def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
             *((name, c.get("status"), problem(c)) for name, c in sorted(components.items())))
 
 
+def not_ok(health: dict[str, dict[str, Any]], said: str = "") -> str:
+    """``lidar degraded: connecting; ...``: the components that are not ok, and why (unless
+    ``said`` already says it)."""
+    parts = []
+    for name, component in health.items():
+        status = component.get("status", "error")
+        if status != "ok":
+            why = problem(component) or component.get("state")
+            why = "" if why and str(why) in said else why
+            parts.append(f"{name} {status}" + (f": {why}" if why else ""))
+    return "; ".join(parts)
+
+
 class StartupError(Exception):
-    """A core component could not start (exit code 69: hardware unavailable)."""
+    """A core component could not start (exit code 69: hardware unavailable; 75 when the
+    cause is a taken port)."""
 
 
 class Daemon:
@@ -61,6 +79,7 @@ class Daemon:
         self.components: list[Component] = []
         self._plugs: list[Plugs] = []
         self._health_digest: tuple[Any, ...] | None = None
+        self._state_unwarned = False  # a state other than ready logged at INFO in the grace
         self.exit_code = EXIT_OK
         self.shutdown_reason = ""
         self._shutdown_requested: asyncio.Event | None = None
@@ -125,11 +144,17 @@ class Daemon:
         self._install_signal_handlers()
         for warning in self.config.warnings:
             log.warning("%s", warning)
+        in_use = taken(listener for spec in COMPONENTS
+                       for listener in spec.listeners(self.config))
+        if in_use is not None:  # before any device is opened: a second one touches nothing
+            log.error("cannot start: %s", in_use)
+            return EXIT_PORT_IN_USE
         try:
             await self._start()
         except StartupError as exc:
             log.error("startup failed: %s", exc)
-            self.exit_code = EXIT_HARDWARE
+            self.exit_code = (EXIT_PORT_IN_USE if isinstance(exc.__cause__, PortInUse)
+                              else EXIT_HARDWARE)
             await self.shutdown(f"startup failed: {exc}")
             return self.exit_code
         except ConfigError as exc:
@@ -235,12 +260,22 @@ class Daemon:
     def _update_state(self) -> None:
         if self.state in ("shutdown",):
             return
-        status = self.overall_status(self.component_health())
+        health = self.component_health()
+        status = self.overall_status(health)
         state = {"ok": "ready", "degraded": "degraded", "error": "error"}[status]
-        if state != self.state:
-            self.state = state
-            log.warning("state: %s", self.status_line()) if state != "ready" else log.info(
-                "state: %s", self.status_line())
+        starting = time.monotonic() - self.started_mono < STARTUP_GRACE_S
+        previous, self.state = self.state, state
+        line = self.status_line()
+        if state == "ready":
+            if previous != state:
+                log.info("state: %s", line)
+            self._state_unwarned = False
+        elif previous != state and starting:
+            log.info("state: %s (starting: %s)", line, not_ok(health, line))
+            self._state_unwarned = True
+        elif previous != state or (self._state_unwarned and not starting):
+            log.warning("state: %s (%s)", line, not_ok(health, line))
+            self._state_unwarned = False
         self.notifier.status(self.status_line())
 
     def status_line(self) -> str:

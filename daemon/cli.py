@@ -7,17 +7,22 @@ import contextlib
 import io
 import json
 import logging
+import math
 import os
 import sys
 import urllib.error
+import urllib.parse
 import urllib.request
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
+from daemon.bench import SUITES, suites_help
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.http_settings import HttpSettings
+from daemon.messages.convert import problem as problem_text
 from daemon.recorder import cli as record_cli
 from daemon.recorder.paths import listing_directory
 from daemon.recorder.settings import RecordSettings
@@ -34,11 +39,14 @@ SYSLOG_PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, loggin
 
 
 class JournalFormatter(logging.Formatter):
-    """``<6>arbiterd.control: message`` under systemd, ``INFO arbiterd: message`` on a tty."""
+    """``<6>arbiterd.control: message`` to the journal (it has its own time stamps),
+    ``2026-11-26 14:02:03.125 INFO arbiterd: message`` elsewhere (without the time when
+    ``timestamps`` is off)."""
 
     def __init__(self, journald: bool, timestamps: bool) -> None:
-        fmt = "%(asctime)s " if timestamps else ""
-        super().__init__(fmt + "%(name)s: %(message)s")
+        fmt = "%(asctime)s.%(msecs)03d %(levelname)s " if timestamps and not journald else (
+            "" if journald else "%(levelname)s ")
+        super().__init__(fmt + "%(name)s: %(message)s", datefmt="%Y-%m-%d %H:%M:%S")
         self.journald = journald
 
     def format(self, record: logging.LogRecord) -> str:
@@ -46,12 +54,28 @@ class JournalFormatter(logging.Formatter):
         if self.journald:
             prefix = f"<{SYSLOG_PRIORITY.get(record.levelno, 6)}>"
             return "\n".join(prefix + line for line in text.splitlines())
-        return f"{record.levelname} {text}"
+        return text
 
 
-def setup_logging(level: str = "info", timestamps: bool = False) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JournalFormatter("JOURNAL_STREAM" in os.environ, timestamps))
+def writes_to_journal(stream: Any, env: Mapping[str, str]) -> bool:
+    """``stream`` is systemd's journal: ``$JOURNAL_STREAM`` names its device and inode. The
+    variable alone does not count: a terminal of a desktop session inherits it too."""
+    try:
+        device, inode = (int(part) for part in env.get("JOURNAL_STREAM", "").split(":"))
+        found = os.fstat(stream.fileno())
+    except (ValueError, OSError, AttributeError):  # io.UnsupportedOperation is an OSError
+        return False
+    return (found.st_dev, found.st_ino) == (device, inode)
+
+
+def setup_logging(level: str = "info", timestamps: bool = False, stream: Any = None,
+                  env: Mapping[str, str] | None = None) -> None:
+    """Log lines to ``stream`` (stderr): for journald when it is the journal, else with the
+    level and, with ``timestamps``, the time."""
+    stream = sys.stderr if stream is None else stream
+    handler = logging.StreamHandler(stream)
+    journald = writes_to_journal(stream, os.environ if env is None else env)
+    handler.setFormatter(JournalFormatter(journald, timestamps))
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(LEVELS[level])
@@ -59,6 +83,7 @@ def setup_logging(level: str = "info", timestamps: bool = False) -> None:
 
 
 DEFAULT_URL = "http://127.0.0.1:8085"
+STATUS_TIMEOUT_S = 5.0
 
 
 def _load(args: argparse.Namespace) -> Config:
@@ -95,9 +120,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         setup_logging()
         return _report_config_error(exc, args)
+    if args.http_port is not None:
+        config.update("http", {"port": args.http_port})
+    if args.ws_port is not None:
+        config.update("rosbridge", {"port": args.ws_port})
     logging_settings = config.get(LoggingSettings)
     setup_logging(logging_settings.level, logging_settings.timestamps)
     return asyncio.run(Daemon(config).run())
+
+
+def tcp_port(text: str) -> int:
+    """An ``--http-port``/``--ws-port`` value: a TCP port number, 1 to 65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port: give a number from 1 "
+                                         "to 65535")
+    return port
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -178,21 +219,56 @@ def cmd_status(args: argparse.Namespace) -> int:
         base, token = _status_url(args)
     except ConfigError as exc:
         return _report_config_error(exc, args)
+    except ValueError as exc:
+        print(f"arbiterd status: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         health = _get_json(f"{base}/api/health", token)
         latency = _get_json(f"{base}/api/latency", token)
     except (urllib.error.URLError, OSError, ValueError) as exc:
-        print(f"arbiterd status: cannot reach {base}: {exc}", file=sys.stderr)
+        print(f"arbiterd status: {unreachable(base, exc)}", file=sys.stderr)
         return EXIT_HARDWARE
-    print(format_status(health, latency))
+    print(format_status(health, latency, base))
     return EXIT_OK if health.get("status") != "error" else 1
+
+
+def unreachable(base: str, exc: BaseException) -> str:
+    """Why nothing answered at ``base``, and what to do."""
+    reason = getattr(exc, "reason", exc)
+    if isinstance(reason, ConnectionRefusedError):
+        return (f"no daemon answers at {base} (connection refused): arbiterd is not running "
+                "there. Start it: `arbiterd run --sim` (the simulated robot) or `sudo "
+                "systemctl start robot.target` (the service); if it runs elsewhere, pass "
+                "--url HOST:PORT or --config FILE")
+    if isinstance(reason, TimeoutError):
+        return f"no answer from {base} within {STATUS_TIMEOUT_S:g} s: is it the daemon's address?"
+    return f"cannot reach {base}: {reason}"
+
+
+def status_base_url(text: str) -> str:
+    """``--url``: ``http://host:port``, ``host:port``, ``host`` or a port, as a base URL."""
+    url = text.strip()
+    if url.isdigit():
+        url = f"127.0.0.1:{url}"
+    if "://" not in url:
+        url = f"http://{url}"
+    url = url.rstrip("/")
+    parsed = urllib.parse.urlsplit(url)
+    try:
+        parsed.port  # noqa: B018 (a port that is no number raises)
+    except ValueError:
+        parsed = parsed._replace(netloc="")
+    if parsed.scheme not in ("http", "https") or not parsed.hostname:
+        raise ValueError(f"--url {text}: not the daemon's address; give HOST:PORT or "
+                         "http://HOST:PORT, e.g. --url 127.0.0.1:8085")
+    return url
 
 
 def _status_url(args: argparse.Namespace) -> tuple[str, str]:
     """--url, else the [http] address of --config or the default config (env overrides too);
     and the config's token, for a daemon whose reads need it."""
     if args.url:
-        return str(args.url).rstrip("/"), ""
+        return status_base_url(args.url), ""
     try:
         config = _load(args)
     except ConfigUnreadable as exc:
@@ -215,26 +291,70 @@ def _get_json(url: str, token: str = "") -> dict[str, Any]:
     if token:
         request.add_header("Authorization", f"Bearer {token}")
     try:
-        with urllib.request.urlopen(request, timeout=5) as response:
+        with urllib.request.urlopen(request, timeout=STATUS_TIMEOUT_S) as response:
             data: dict[str, Any] = json.load(response)
     except urllib.error.HTTPError as exc:  # 503 still carries the health body
         data = json.load(exc)
     return data
 
 
-def format_status(health: dict[str, Any], latency: dict[str, Any]) -> str:
-    lines = [f"arbiterd {health.get('version')}: {health.get('status')} "
+def format_status(health: dict[str, Any], latency: dict[str, Any], base: str = "") -> str:
+    """The health summary: one line for the daemon, one aligned row per component (with why,
+    when it is not ok), then the latency figures."""
+    at = f" at {base}" if base else ""
+    lines = [f"arbiterd {health.get('version')}{at}: {health.get('status')} "
              f"({health.get('state')}), {health.get('mode')} mode, driver "
-             f"{health.get('driver')}, up {health.get('uptime_s', 0):.0f} s"]
-    for name, comp in health.get("components", {}).items():
-        detail = comp.get("fault") or comp.get("error") or ""
-        lines.append(f"  {name:<10} {comp.get('status')}" + (f"  {detail}" if detail else ""))
+             f"{health.get('driver')}, up {_duration(health.get('uptime_s') or 0)}"]
+    rows = [(name, str(comp.get("status")), _why(comp))
+            for name, comp in health.get("components", {}).items()]
     execs = latency.get("receipt_to_exec_ms", {})
-    tick = latency.get("tick", {}).get("lateness_ms", {})
-    lines.append(f"  commands {latency.get('commands', 0)}; receipt->exec ms p50 "
-                 f"{execs.get('p50', '-')} p99 {execs.get('p99', '-')}; tick lateness ms p99 "
-                 f"{tick.get('p99', '-')}")
+    tick = latency.get("tick", {})
+    lateness = tick.get("lateness_ms", {})
+    rows += [("commands", str(latency.get("commands", 0)), ""),
+             ("receipt->exec", _percentiles(execs), ""),
+             ("tick lateness", _percentiles(lateness),
+              f"{tick.get('late', 0)} late, {tick.get('missed', 0)} missed of "
+              f"{tick.get('count', 0)} ticks" if tick else "")]
+    width = max(len(row[0]) for row in rows)
+    status_width = max(len(row[1]) for row in rows[:-3]) if len(rows) > 3 else 0
+    for i, (name, value, detail) in enumerate(rows):
+        column = status_width if i < len(rows) - 3 else 0
+        text = f"  {name:<{width}}  {value:<{column}}" + (f"  {detail}" if detail else "")
+        lines.append(text.rstrip())
     return "\n".join(lines)
+
+
+def _why(component: dict[str, Any]) -> str:
+    """Why a component is not ok (its problem text, else its state), or what it says when it
+    is ok and has a problem text."""
+    text = problem_text(component)
+    if not text and component.get("status") != "ok":
+        text = str(component.get("last_error") or component.get("reason")
+                   or component.get("state") or "")
+    return text
+
+
+def _percentiles(figures: dict[str, Any]) -> str:
+    if not figures.get("count"):
+        return "-"
+    return f"p50 {_ms(figures.get('p50'))}  p99 {_ms(figures.get('p99'))}"
+
+
+def _ms(value: Any) -> str:
+    """A duration in ms to about three significant digits (16.4, 3.17, 0.012, 322)."""
+    if not isinstance(value, int | float):
+        return "-"
+    digits = 2 - math.floor(math.log10(abs(value))) if value else 0
+    return f"{value:.{min(max(digits, 0), 3)}f} ms"
+
+
+def _duration(seconds: float) -> str:
+    whole = int(seconds)
+    hours, rest = divmod(whole, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours} h {minutes:02d} min"
+    return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
 
 
 def cmd_safe_stop(args: argparse.Namespace) -> int:
@@ -289,7 +409,7 @@ def cmd_lidar(args: argparse.Namespace) -> int:
 
 def cmd_record(args: argparse.Namespace) -> int:
     directory = Path(args.dir) if getattr(args, "dir", None) else None
-    if directory is None and args.record_command == "list":
+    if directory is None and record_cli.needs_directory(args):
         try:
             config = _load(args)
         except ConfigError as exc:
@@ -306,6 +426,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", help="config file (default /etc/arbiterd/arbiterd.toml "
                      "if present, else built-in defaults on the simulated robot)")
     run.add_argument("--sim", action="store_true", help="force the simulated hardware")
+    run.add_argument("--http-port", type=tcp_port, metavar="PORT",
+                     help="serve HTTP (API and console) on PORT instead of [http] port; with "
+                     "--ws-port, a second daemon runs beside another")
+    run.add_argument("--ws-port", type=tcp_port, metavar="PORT",
+                     help="serve rosbridge on PORT instead of [rosbridge] port")
     run.set_defaults(func=cmd_run)
     check = sub.add_parser("check", help="validate the config and probe the hardware; the "
                            "verdict comes first")
@@ -316,8 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="also print the effective configuration")
     check.set_defaults(func=cmd_check, sim=False)
     status = sub.add_parser("status", help="summary of a running daemon")
-    status.add_argument("--url", help="the daemon's base URL (default: the [http] address of "
-                        f"the config, else {DEFAULT_URL})")
+    status.add_argument("--url", help="the daemon's address: HOST:PORT or http://HOST:PORT "
+                        f"(default: the [http] address of the config, else {DEFAULT_URL})")
     status.add_argument("--config", help="config file to read the [http] address from "
                         "(default /etc/arbiterd/arbiterd.toml)")
     status.set_defaults(func=cmd_status, sim=False)
@@ -335,10 +460,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the wheels are off the ground: do not ask")
     motors.add_argument("--json", action="store_true", help="print one JSON object")
     motors.set_defaults(func=cmd_test_motors)
-    bench = sub.add_parser("bench", help="run the benchmark suite")
+    bench = sub.add_parser("bench", help="run the benchmark suites",
+                           description="Run the benchmark suites on this machine and print "
+                           "each figure with its target,\nthen what missed its target.",
+                           epilog=suites_help(),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
     bench.add_argument("--json", action="store_true", help="one JSON object per figure")
-    bench.add_argument("--quick", action="store_true", help="shorter runs")
-    bench.add_argument("--only", action="append", help="run only this suite (repeatable)")
+    bench.add_argument("--quick", action="store_true", help="shorter runs (rougher figures)")
+    bench.add_argument("--only", action="append", metavar="SUITE", choices=list(SUITES),
+                       help="run only this suite (repeatable; the suites are listed below)")
     bench.set_defaults(func=cmd_bench)
     _add_simulate(sub)
     _add_lidar(sub)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 from base.config import Config, SectionSettings
 from daemon.bus import Bus, BusKey
 from daemon.hooks import HookMap, Remove
+from daemon.listen import Listener
 from daemon.topics import Access, Topic, TopicTable
 
 if TYPE_CHECKING:
@@ -198,13 +199,17 @@ class DeviceUse:
 class ComponentSpec:
     """One row of the component table: a name, the typed settings of the config section it
     owns (None: it reads only the core sections), the factory that builds it from the
-    context (None when its section disables it), and the devices the configuration makes it
-    use."""
+    context (None when its section disables it), the devices the configuration makes it
+    use, and the TCP ports it listens on (the daemon checks them before anything starts)."""
 
     name: str
     create: Callable[[DaemonContext], Component | None]
     settings: type[SectionSettings] | None = None
     devices: Callable[[Config], Sequence[DeviceUse]] | None = None
+    listens: Callable[[Config], Sequence[Listener]] | None = None
 
     def devices_used(self, config: Config) -> list[DeviceUse]:
         return list(self.devices(config)) if self.devices is not None else []
+
+    def listeners(self, config: Config) -> list[Listener]:
+        return list(self.listens(config)) if self.listens is not None else []

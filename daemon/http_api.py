@@ -10,9 +10,11 @@ from typing import Any
 from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
 
+from base.config import Config
 from daemon.component import ComponentSpec, DaemonContext, Route
 from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
 from daemon.http_settings import HttpSettings
+from daemon.listen import Listener, as_port_error
 from daemon.messages.convert import to_json
 from daemon.security import Security
 from daemon.topics import ACCESS_LEVELS, Access, Topic
@@ -20,6 +22,8 @@ from daemon.topics import ACCESS_LEVELS, Access, Topic
 log = logging.getLogger("arbiterd.http")
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+#: a valid request the robot refuses in its present state (e-stop latched, driver fault)
+REFUSED = 409
 MAX_JSON_DEPTH = 32
 MAX_INT_DIGITS = 64
 READ_CHUNK = 65536
@@ -59,7 +63,11 @@ async def _errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     try:
         return await handler(request)
     except ApiError as exc:
-        _log_bad_request(request, exc.status, exc.message)
+        if exc.status == REFUSED:  # a valid request the robot says no to now: not a bad one
+            log.debug("refused %s %s from %s: %s", request.method, request.path[:100],
+                      request.remote, exc.message)
+        else:
+            _log_bad_request(request, exc.status, exc.message)
         return error_response(exc.status, exc.message, exc.detail, exc.headers)
     except web.HTTPException as exc:
         if exc.status < 400:
@@ -266,7 +274,10 @@ class HttpServer:
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
-        await site.start()
+        try:
+            await site.start()
+        except OSError as exc:
+            raise as_port_error(Listener("http", self.host, self.port), exc) from exc
         server = getattr(site, "_server", None)
         sockets = getattr(server, "sockets", None) or []
         self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
@@ -299,4 +310,9 @@ def create(ctx: DaemonContext) -> HttpServer | None:
     return ctx.http if ctx.settings(HttpSettings).enabled else None
 
 
-COMPONENT = ComponentSpec("http", create, HttpSettings)
+def listens(config: Config) -> list[Listener]:
+    http = config.get(HttpSettings)
+    return [Listener("http", http.host, http.port)] if http.enabled else []
+
+
+COMPONENT = ComponentSpec("http", create, HttpSettings, listens=listens)

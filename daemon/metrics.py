@@ -24,19 +24,28 @@ def _health_text(health: dict[str, Any], latency: dict[str, Any]) -> str:
         "# HELP arbiterd_status Overall health: 0 ok, 1 degraded, 2 error.",
         "# TYPE arbiterd_status gauge",
         f"arbiterd_status {STATUS_VALUE.get(health['status'], 2)}",
+        "# HELP arbiterd_uptime_seconds Seconds since the daemon started.",
         "# TYPE arbiterd_uptime_seconds gauge",
         f"arbiterd_uptime_seconds {health['uptime_s']}",
+        "# HELP arbiterd_ticks_total Control ticks run.",
         "# TYPE arbiterd_ticks_total counter",
         f"arbiterd_ticks_total {latency['tick']['count']}",
+        "# HELP arbiterd_late_ticks_total Control ticks that started late ([control] "
+        "late_tick_ms).",
         "# TYPE arbiterd_late_ticks_total counter",
         f"arbiterd_late_ticks_total {latency['tick']['late']}",
+        "# HELP arbiterd_component_status Each component's health: 0 ok, 1 degraded, 2 error.",
+        "# TYPE arbiterd_component_status gauge",
     ]
+    values = ["# HELP arbiterd_component_value Each number of each component's health "
+              "(nested keys joined by _).",
+              "# TYPE arbiterd_component_value gauge"]
     for name, component in health["components"].items():
         lines.append(f'arbiterd_component_status{{component="{name}"}} '
                      f'{STATUS_VALUE.get(component.get("status", "error"), 2)}')
         for key, value in _numbers(component):
-            lines.append(f'arbiterd_component_value{{component="{name}",key="{key}"}} {value}')
-    return "\n".join(lines) + "\n"
+            values.append(f'arbiterd_component_value{{component="{name}",key="{key}"}} {value}')
+    return "\n".join(lines + values) + "\n"
 
 
 def _numbers(data: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, float]]:

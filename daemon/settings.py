@@ -104,7 +104,8 @@ SECURITY_OPTIONS: Options = {
 
 LOGGING_OPTIONS: Options = {
     "level": Option(str, "info", "log level", choices=("debug", "info", "warning", "error")),
-    "timestamps": Option(bool, False, "prefix log lines with a timestamp (journald adds its own)"),
+    "timestamps": Option(bool, True, "start log lines with the date and time (never in the "
+                         "journal under systemd: it has its own)"),
 }
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import errno
+import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -10,7 +12,12 @@ from pathlib import Path
 import pytest
 
 from base import ports
+from base.options import defaults
 from daemon.config import ConfigError, load_config
+from daemon.http_api import HttpServer
+from daemon.http_settings import HTTP_OPTIONS, HttpSettings
+from daemon.listen import PortInUse
+from daemon.security import Security
 from drivers import DriverFault, create_driver
 from drivers.arduino_serial import SerialBridgeDriver
 from sim.arduino_emulator import ArduinoEmulator
@@ -46,6 +53,109 @@ def test_a_port_the_daemon_holds_is_named_with_the_daemon_and_what_to_do(
         assert f"[lidar] {lidar_link}: cannot open {lidar_link}: arbiterd (pid {pid})" \
             in check.stdout
         assert daemon.get("/api/health")[0] == 200, "probing must not disturb the daemon"
+
+
+def test_a_process_run_from_a_clone_named_arbiterd_is_not_called_the_daemon(
+        tmp_path: Path) -> None:
+    """The default `git clone …/arbiterd`: pytest, a script or a venv tool started from it
+    has "arbiterd" in its command line, but only `arbiterd run` is the daemon."""
+    clone = tmp_path / "arbiterd"
+    clone.mkdir()
+    script = clone / "hold.py"
+    script.write_text("import sys\nheld = open(sys.argv[1], 'rb')\nprint('holding', flush=True)"
+                      "\nsys.stdin.read()\n")
+    device = tmp_path / "ttyUSB0"
+    device.touch()
+    with subprocess.Popen([sys.executable, str(script), str(device)], cwd=clone, text=True,
+                          stdin=subprocess.PIPE, stdout=subprocess.PIPE) as holder:
+        assert holder.stdout is not None and holder.stdin is not None
+        assert holder.stdout.readline() == "holding\n"
+        comm = Path(f"/proc/{holder.pid}/comm").read_text().strip()
+        text = ports.busy_message(device)
+        holder.stdin.close()
+    assert text == f"{comm} (pid {holder.pid}) is using {device} — close it first"
+
+
+@pytest.mark.parametrize(("argv", "command"), [
+    (["/opt/arbiterd/current/venv/bin/python3", "/opt/arbiterd/current/venv/bin/arbiterd",
+      "run", "--config", "/etc/arbiterd/arbiterd.toml"], "run"),
+    (["/home/me/arbiterd/.venv/bin/python", "-m", "daemon.cli", "run", "--sim"], "run"),
+    (["python3", "-u", "-X", "dev", "-Bm", "daemon.cli", "run"], "run"),
+    (["/usr/local/bin/arbiterd", "run"], "run"),
+    (["/home/me/arbiterd/.venv/bin/python", "-m", "pytest", "/home/me/arbiterd/tests"], None),
+    (["/home/me/arbiterd/.venv/bin/python", "/home/me/arbiterd/.venv/bin/pytest", "-x"], None),
+    (["python3", "-c", "print('arbiterd run')"], None),
+    (["/home/me/arbiterd/tools/flash", "run"], None),
+    (["python3", "/home/me/arbiterd/.venv/bin/arbiterd", "lidar", "info"], "lidar"),
+])
+def test_the_daemon_is_recognised_by_its_command_line_not_by_a_path(
+        argv: list[str], command: str | None) -> None:
+    assert ports.arbiterd_command(argv) == command
+    assert ports.is_daemon(argv) == (command == "run")
+
+
+def test_a_second_daemon_names_the_first_and_how_to_choose_other_ports(tmp_path: Path) -> None:
+    with DaemonSubprocess(tmp_path) as first:
+        assert first.proc is not None
+        pid = first.proc.pid
+        again = cli("run", "--config", str(first.config_path))
+        assert again.returncode == 75, again.stderr
+        assert (f"port {first.ws_port} ([rosbridge] port) is in use by arbiterd (pid {pid}); "
+                f"port {first.http_port} ([http] port) is in use by arbiterd (pid {pid}): "
+                "another arbiterd is running (`arbiterd status` shows it; the service stops "
+                "with sudo systemctl stop robot.target), or run this one on other ports: "
+                "arbiterd run --http-port PORT --ws-port PORT (or [http] port and [rosbridge] "
+                "port in its config)") in again.stderr
+        assert "Errno" not in again.stderr and "Traceback" not in again.stderr
+        (tmp_path / "second").mkdir()
+        second = DaemonSubprocess(tmp_path / "second")
+        second.config_path.write_text(first.config_path.read_text())  # the same ports...
+        second.args = ("--http-port", str(second.http_port), "--ws-port", str(second.ws_port))
+        with second:  # ...and the options choose others
+            code, health = second.get("/api/health")
+            assert code == 200, health
+            assert health["components"]["http"]["port"] == second.http_port
+            with socket.create_connection(("127.0.0.1", second.ws_port), timeout=5):
+                pass
+            assert second.stop() == 0
+        assert first.get("/api/health")[0] == 200
+
+
+def test_a_port_another_program_holds_is_named_and_nothing_starts(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        toml = tmp_path / "a.toml"
+        toml.write_text(f'[http]\nhost = "127.0.0.1"\nport = {port}\n[rosbridge]\nenabled = '
+                        f'false\n[driver.mock]\nlog_file = "{tmp_path / "wheels.log"}"\n')
+        done = cli("run", "--config", str(toml))
+    me = Path("/proc/self/comm").read_text().strip()
+    assert done.returncode == 75
+    assert (f"cannot start: port {port} ([http] port) is in use by {me} (pid {os.getpid()}): "
+            "stop it, or run this one on other ports: arbiterd run --http-port PORT") \
+        in done.stderr
+    assert not (tmp_path / "wheels.log").exists(), "the driver was opened"
+
+
+async def test_a_port_taken_between_the_check_and_the_bind_is_explained() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        server = HttpServer(HttpSettings.from_values(
+            defaults(HTTP_OPTIONS) | {"host": "127.0.0.1", "port": port}), Security(""))
+        with pytest.raises(PortInUse) as caught:
+            await server.start()
+        await server.stop()
+    assert str(caught.value).startswith(f"port {port} ([http] port) is in use by ")
+
+
+def test_a_port_option_that_is_no_port_is_a_usage_error() -> None:
+    done = cli("run", "--http-port", "80800")
+    assert done.returncode == 2
+    assert "argument --http-port: '80800' is not a TCP port: give a number from 1 to 65535" \
+        in done.stderr
 
 
 async def test_a_missing_port_lists_the_devices_present_and_the_dialout_hint(

@@ -3,8 +3,10 @@
 # ARBITERD_* override.
 from __future__ import annotations
 
+import argparse
 import grp
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -15,6 +17,10 @@ from pathlib import Path
 
 import pytest
 
+from daemon import __version__
+from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE
+from daemon.cli import build_parser, format_status
+from daemon.listen import EXIT_PORT_IN_USE
 from sim.rplidar_emulator import RplidarEmulator
 from tests.support.daemon_subprocess import StartDaemonSubprocess
 from tests.support.net import free_port, http
@@ -198,8 +204,9 @@ def test_status_reads_the_address_from_the_config(
     result = run_cli("status", "--config", str(daemon.config_path))
     assert result.returncode == 0, result.stderr
     first = result.stdout.splitlines()[0]
-    assert first.startswith("arbiterd ") and ": ok (ready), hardware mode, driver mock" in first
-    assert "control" in result.stdout and "commands 1;" in result.stdout
+    assert first.startswith(f"arbiterd {__version__} at {daemon.base_url}: ok (ready), "
+                            "hardware mode, driver mock, up ")
+    assert "\n  control " in result.stdout and "\n  commands       1\n" in result.stdout
     by_env = run_cli("status", "--config", os.devnull,
                      env={"ARBITERD_HTTP_PORT": str(daemon.http_port)})
     assert by_env.returncode == 0, by_env.stderr
@@ -207,6 +214,10 @@ def test_status_reads_the_address_from_the_config(
     by_url = run_cli("status", "--url", daemon.base_url)
     assert by_url.returncode == 0
     assert by_url.stdout.split(", up ")[0] == first.split(", up ")[0]
+    for without_scheme in (f"127.0.0.1:{daemon.http_port}", str(daemon.http_port)):
+        short = run_cli("status", "--url", without_scheme)
+        assert short.returncode == 0, short.stderr
+        assert short.stdout.split(", up ")[0] == first.split(", up ")[0]
 
 
 def test_status_sends_the_config_token_when_reads_need_it(
@@ -218,7 +229,7 @@ def test_status_sends_the_config_token_when_reads_need_it(
     result = run_cli("status", "--config", str(daemon.config_path))
     assert result.returncode == 0, result.stderr
     assert ": ok (ready), hardware mode, driver mock" in result.stdout.splitlines()[0]
-    assert "commands 1;" in result.stdout  # /api/latency answered: the token was sent
+    assert "\n  commands       1\n" in result.stdout  # /api/latency answered: the token was sent
 
 
 def test_status_into_a_closed_pipe_is_quiet(
@@ -236,9 +247,48 @@ def test_status_into_a_closed_pipe_is_quiet(
     assert result.stderr == ""
 
 
-def test_status_of_nothing_says_so(tmp_path: Path) -> None:
-    result = run_cli("status", "--url", "http://127.0.0.1:9")
-    assert result.returncode == 69 and "cannot reach http://127.0.0.1:9" in result.stderr
+def test_status_of_nothing_says_the_daemon_is_not_running_and_how_to_start_it() -> None:
+    port = free_port()  # nothing listens there
+    result = run_cli("status", "--url", f"127.0.0.1:{port}")
+    assert result.returncode == 69
+    assert result.stderr == (
+        f"arbiterd status: no daemon answers at http://127.0.0.1:{port} (connection refused): "
+        "arbiterd is not running there. Start it: `arbiterd run --sim` (the simulated robot) "
+        "or `sudo systemctl start robot.target` (the service); if it runs elsewhere, pass "
+        "--url HOST:PORT or --config FILE\n")
+
+
+@pytest.mark.parametrize("url", ["ftp://robot:8085", "robot:http", "http://"])
+def test_status_of_an_address_that_is_none_says_what_to_give(url: str) -> None:
+    result = run_cli("status", "--url", url)
+    assert result.returncode == 2
+    assert result.stderr == (f"arbiterd status: --url {url}: not the daemon's address; give "
+                             "HOST:PORT or http://HOST:PORT, e.g. --url 127.0.0.1:8085\n")
+
+
+def test_status_lines_up_rounds_and_says_why_a_component_is_not_ok() -> None:
+    health = {"version": "0.1.0", "status": "degraded", "state": "degraded", "mode": "sim",
+              "driver": "mock", "uptime_s": 3725.4, "components": {
+                  "control": {"status": "ok", "fault": None},
+                  "lidar": {"status": "degraded", "state": "disconnected",
+                            "last_error": "cannot open /dev/rplidar: it does not exist"},
+                  "collision_monitor": {"status": "degraded", "reason": "no scan yet"},
+                  "recorder": {"status": "degraded", "error": "cannot write /x: disk full"},
+                  "http": {"status": "ok"}}}
+    latency = {"commands": 12, "receipt_to_exec_ms": {"count": 12, "p50": 0.01234,
+                                                      "p99": 16.4199},
+               "tick": {"count": 5000, "late": 3, "missed": 0,
+                        "lateness_ms": {"count": 5000, "p50": 3.1658, "p99": 322.2964}}}
+    assert format_status(health, latency, "http://robot:8085") == """\
+arbiterd 0.1.0 at http://robot:8085: degraded (degraded), sim mode, driver mock, up 1 h 02 min
+  control            ok
+  lidar              degraded  cannot open /dev/rplidar: it does not exist
+  collision_monitor  degraded  no scan yet
+  recorder           degraded  cannot write /x: disk full
+  http               ok
+  commands           12
+  receipt->exec      p50 0.012 ms  p99 16.4 ms
+  tick lateness      p50 3.17 ms  p99 322 ms  3 late, 0 missed of 5000 ticks"""
 
 
 def test_safe_stop_in_sim_mode_touches_no_hardware(tmp_path: Path) -> None:
@@ -249,3 +299,29 @@ def test_safe_stop_in_sim_mode_touches_no_hardware(tmp_path: Path) -> None:
     assert result.stdout == "arbiterd safe-stop: simulated robot (--sim): no hardware to zero\n"
     real = run_cli("safe-stop", "--config", str(config))
     assert real.returncode == 69 and "could not zero the motors" in real.stderr
+
+
+def test_every_command_is_in_the_readme_table_with_its_options() -> None:
+    table = [line for line in (REPO / "README.md").read_text().splitlines()
+             if line.startswith("| `arbiterd ")]
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sub in commands.choices.items():
+        rows = [row for row in table if row.startswith(f"| `arbiterd {name} ")
+                or row.startswith(f"| `arbiterd {name}`")]
+        assert rows, f"`arbiterd {name}` is not in README.md's command table"
+        options = {option for action in sub._actions for option in action.option_strings
+                   if option.startswith("--") and option != "--help"
+                   and action.help != argparse.SUPPRESS and not isinstance(
+                       action, argparse._SubParsersAction)}
+        if name in ("lidar", "record"):  # their sub-commands carry the options
+            continue
+        missing = [option for option in options if option not in rows[0].split("|")[1]]
+        assert not missing, f"README.md's row of `arbiterd {name}` lacks {missing}"
+
+
+def test_the_documented_exit_codes_are_the_ones_used() -> None:
+    readme = (REPO / "README.md").read_text()
+    codes = readme.split("Exit codes:")[1].split("\n\n")[0]
+    for code in (EXIT_OK, 1, EXIT_USAGE, EXIT_HARDWARE, EXIT_PORT_IN_USE, EXIT_CONFIG):
+        assert re.search(rf"(^|[\s;]){code} ", codes), code

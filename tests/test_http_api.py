@@ -1,11 +1,13 @@
 # HTTP API of a running daemon: deadman stop, strict command validation, e-stop, token.
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 
 import pytest
 
 from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 TIMEOUT_S = 0.3
@@ -185,3 +187,25 @@ def test_token_guards_motion_but_not_health(
     assert status == 200 and body["accepted"]
     assert daemon.get("/api/health")[0] == 200
     assert daemon.get("/api/status")[0] == 200
+
+
+def test_the_documented_metrics_are_the_ones_served(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    """docs/http-api.md's /metrics table, name for name and type for type, against a simulated
+    robot whose collision monitor runs."""
+    text = (REPO / "docs" / "http-api.md").read_text().split("## `/metrics`")[1]
+    documented = dict(re.findall(r"^\| `(arbiterd_\w+)` \| (\w+) \|", text, re.MULTILINE))
+    daemon = daemon_subprocess('[sim]\ndriver = "mock"\n', args=("--sim",))
+    assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.0}})[0] == 200
+    status, served = daemon.get("/metrics")
+    assert status == 200
+    types = dict(re.findall(r"^# TYPE (\w+) (\w+)$", served, re.MULTILINE))
+    helps = set(re.findall(r"^# HELP (\w+) ", served, re.MULTILINE))
+    families = {name: kind for name, kind in types.items() if not name.endswith("_created")}
+    for sample in re.findall(r"^(\w+)[{ ]", served, re.MULTILINE):
+        base = re.sub(r"_(bucket|sum|count|created)$", "", sample)
+        assert sample in families or families.get(base) == "histogram" or (
+            sample.endswith("_created") and (base in families or f"{base}_total" in families)
+        ), f"{sample}: served without a # TYPE"
+    assert families == documented
+    assert set(families) <= helps

@@ -1,6 +1,7 @@
 # HTTP as a hostile client or a flaky network sees it: Host/Origin, bodies, parser errors, sockets.
 from __future__ import annotations
 
+import math
 import socket
 import zlib
 from collections.abc import Iterator
@@ -368,3 +369,16 @@ def test_latency_reports_the_per_source_limits(robot_proc: DaemonSubprocess) -> 
     assert status == 200 and latency["per_source"]["http"] >= 1
     assert latency["per_source_limits"] == {"max_sources": 64, "idle_expiry_s": 600.0,
                                             "dropped": 0}
+
+
+def test_a_refused_command_is_answered_409_and_not_logged_as_a_bad_request(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess()
+    assert proc.post("/api/estop", {"engaged": True, "reason": "test"})[0] == 200
+    for _ in range(3):
+        status, body = proc.post("/api/cmd_vel", {"linear": {"x": 0.1}})
+        assert status == 409 and "e-stop" in body["error"], body
+    # a bad request after them is logged: once its line is there, theirs would be too
+    assert proc.post("/api/cmd_vel", {"linear": {"x": math.inf}})[0] == 400
+    log = wait_for(lambda: "bad HTTP request" in proc.log() and proc.log(), "the 400's line")
+    assert [line for line in log.splitlines() if "409" in line] == []

@@ -532,8 +532,8 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     (tools / "systemctl").chmod(0o755)
     on_robot = install_sh("sim", env=env)
     assert ("the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; "
-            "stop it first (sudo systemctl stop robot.target) or pass --config FILE with other "
-            "ports") in on_robot.stderr
+            "stop it first (sudo systemctl stop robot.target) or give this one other ports: "
+            "./install.sh sim --http-port PORT --ws-port PORT") in on_robot.stderr
 
 
 @pytest.mark.parametrize("failing", ["ruff", "mypy", None])

@@ -5,7 +5,9 @@ import json
 import subprocess
 import sys
 import textwrap
+import tomllib
 from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -213,3 +215,58 @@ def test_the_service_records_and_a_plain_config_does_not(tmp_path: Path) -> None
     assert load_config(REPO / "systemd" / "arbiterd.toml.example", env={})["record"]["enabled"]
     (tmp_path / "plain.toml").write_text("")
     assert not load_config(tmp_path / "plain.toml", env={})["record"]["enabled"]
+
+
+def documented_recipe() -> Any:
+    """The `messages(path)` recipe of docs/foxglove.md, as printed there."""
+    text = (REPO / "docs" / "foxglove.md").read_text()
+    (block,) = [b for b in text.split("```python\n")[1:] if "def messages(path)" in b]
+    namespace: dict[str, Any] = {}
+    exec(block.split("```")[0], namespace)
+    return namespace["messages"]
+
+
+def record_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "daemon.cli", "record", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_a_file_being_recorded_says_so_and_the_documented_recipe_reads_it(
+        recorder: FlightRecorder) -> None:
+    for i in range(40):
+        recorder.enqueue(ODOM, odom(i))
+    path = wait_for(lambda: recorder.current, "the file to open")
+    wait_for(lambda: inspect(path).messages == 80, "the messages to reach the disk")
+    info = inspect(path)
+    assert not info.complete and info.recording
+    messages = documented_recipe()
+    assert [(t, m.child_frame_id) for t, _, m in messages(path) if t == "/odom"] == [
+        ("/odom", "base_link")] * 40
+    directory = recorder.options.directory
+    described = record_cli("info", path.name, "--dir", str(directory))
+    assert described.returncode == 0, described.stderr
+    assert f"{path}: " in described.stdout
+    assert "being recorded: read up to its last whole chunk" in described.stdout
+    assert "(being recorded)" in record_cli("list", "--dir", str(directory)).stdout
+    recorder.wanted = False
+    wait_for(lambda: recorder.current is None, "the file to close")
+    info = inspect(path)
+    assert info.complete and not info.recording
+    assert len(list(messages(path))) == 80
+    assert "complete" in record_cli("info", path.name, "--dir", str(directory)).stdout
+
+
+def test_record_info_of_an_unknown_name_says_where_it_looked(tmp_path: Path) -> None:
+    done = record_cli("info", "arbiterd-nothing.mcap", "--dir", str(tmp_path))
+    assert done.returncode == 2
+    assert done.stderr == (
+        f"arbiterd record info: arbiterd-nothing.mcap: no such file here nor in {tmp_path}; "
+        "`arbiterd record list` prints the recordings' names (--dir DIR or --config FILE looks "
+        "in another directory)\n")
+
+
+def test_the_python_reader_of_the_docs_comes_with_arbiterd_and_is_pure_python() -> None:
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    assert any(dep.startswith("mcap-ros2-support") for dep in project["dependencies"])
+    for name in ("mcap", "mcap-ros2-support"):  # wheels for the Pi's aarch64 too
+        assert "Root-Is-Purelib: true" in (metadata.distribution(name).read_text("WHEEL") or "")

@@ -8,7 +8,7 @@ import socket
 from collections.abc import AsyncIterator, Coroutine
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import aiohttp
 
@@ -103,16 +103,37 @@ async def scan_subscribers(session: aiohttp.ClientSession, stack: contextlib.Asy
     return sockets
 
 
-# suite name => module; each module has `def run(quick: bool) -> list[BenchResult]`
-SUITES: dict[str, str] = {
-    "control": "daemon.bench.control",
-    "lidar": "daemon.bench.lidar",
-    "drivers": "daemon.bench.drivers",
-    "sim": "daemon.bench.sim",
-    "process": "daemon.bench.process",
-    "rosbridge": "daemon.bench.rosbridge",
-    "console": "daemon.bench.console",
-    "rosbridge-flood": "daemon.bench.rosbridge_flood",
-    "safety": "daemon.bench.safety",
-    "foxglove": "daemon.bench.foxglove",
+class Suite(NamedTuple):
+    """A benchmark suite: the module with ``def run(quick: bool) -> list[BenchResult]``, and
+    what it measures (for ``arbiterd bench --help``)."""
+
+    module: str
+    what: str
+
+
+#: suite name => its module and what it measures, in the order `arbiterd bench` runs them
+SUITES: dict[str, Suite] = {
+    "control": Suite("daemon.bench.control", "receipt -> driver write and tick lateness, "
+                     "mock driver"),
+    "lidar": Suite("daemon.bench.lidar", "RPLIDAR decoding against the Python peer decoders"),
+    "drivers": Suite("daemon.bench.drivers", "command -> write latency of each driver against "
+                     "its emulator"),
+    "sim": Suite("daemon.bench.sim", "how much faster than real time the world steps"),
+    "process": Suite("daemon.bench.process", "`arbiterd run`: time to READY, idle CPU and RSS"),
+    "rosbridge": Suite("daemon.bench.rosbridge", "WebSocket round trip vs a bare aiohttp echo, "
+                       "tick lateness under /scan clients"),
+    "console": Suite("daemon.bench.console", "tick lateness with the web console driving"),
+    "rosbridge-flood": Suite("daemon.bench.rosbridge_flood", "loop stalls and tick lateness "
+                             "under hostile clients, RSS while fuzzing"),
+    "safety": Suite("daemon.bench.safety", "`arbiterd simulate` speed, collision-monitor cost "
+                    "and command latency"),
+    "foxglove": Suite("daemon.bench.foxglove", "scan frames (JSON, cbor, cbor-raw); tick "
+                      "lateness with the flight recorder off and on"),
 }
+
+
+def suites_help() -> str:
+    """The suites, one a line, for ``arbiterd bench --help``."""
+    width = max(len(name) for name in SUITES)
+    return "suites (--only SUITE, repeatable; default: all):\n" + "\n".join(
+        f"  {name:<{width}}  {suite.what}" for name, suite in SUITES.items())

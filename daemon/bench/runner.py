@@ -24,14 +24,28 @@ def run_suites(only: list[str] | None, *, quick: bool, as_json: bool) -> int:
     for name in names:
         if not as_json:
             print(f"running {name} ...", file=sys.stderr, flush=True)
-        suite = importlib.import_module(SUITES[name])
+        suite = importlib.import_module(SUITES[name].module)
         for result in suite.run(quick):
             results.append(result)
             if as_json:
                 print(json.dumps(result.as_dict()), flush=True)
     if not as_json:
         print(format_table(results))
+        print(missed_summary(results, quick))
     return 0
+
+
+def missed_summary(results: list[BenchResult], quick: bool = False) -> str:
+    """What missed its target (each with its value and target), or that nothing did."""
+    judged = [r for r in results if r.ok is not None]
+    missed = [r for r in judged if not r.ok]
+    rough = " (--quick: shorter runs, rougher figures)" if quick else ""
+    if not missed:
+        return f"targets: all {len(judged)} met{rough}"
+    lines = [f"targets: {len(missed)} of {len(judged)} missed{rough}:"]
+    lines += [f"  {r.suite}/{r.name}: {_fmt(r.value)} {r.unit}, target {r.target}"
+              for r in missed]
+    return "\n".join(lines)
 
 
 def format_table(results: list[BenchResult]) -> str:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from base.config import Config
+from base.retrylog import RetryLog
 from daemon.bus import Bus
 from daemon.control.arbiter import Arbiter, Decision
 from daemon.control.clock import MONOTONIC, Clock
@@ -96,6 +97,8 @@ class ControlLoop:
         self.fault: str | None = None
         self.faults = 0
         self.reconnects = 0
+        #: the failed reconnect attempts since the last fault, logged once then now and then
+        self.retries = RetryLog(log, "driver reconnect failed")
         self.clamps: dict[str, int] = {}
         self.last_clamped: list[str] = []
         self.wheels = (0.0, 0.0)
@@ -365,6 +368,7 @@ class ControlLoop:
         self.fault = reason
         self.faults += 1
         log.error("driver fault: %s; motors stopped, reconnecting", reason)
+        self.retries.known(reason)
         self.arbiter.invalidate_all()
         self.invalidations += 1
         self.linear.reset()
@@ -392,9 +396,10 @@ class ControlLoop:
             try:
                 await self.driver.open()
             except DriverError as exc:
-                log.warning("driver reconnect failed: %s; retrying in %.1f s", exc, delay)
+                self.retries.failed(str(exc), delay)
                 delay = min(delay * 2, control.reconnect_max_s)
                 continue
+            self.retries.succeeded()
             self.reconnects += 1
             self.odometry.reset_encoder_reference()
             self.arbiter.invalidate_all()
@@ -435,6 +440,7 @@ class ControlLoop:
         stall = self.supervisor.health()
         status = "error" if self.fault or stall["stalled"] or self.wheel_guard.tripped else "ok"
         return {"status": status, "fault": self.fault, "faults": self.faults,
-                "reconnects": self.reconnects, "driver": self.driver.health(),
+                "reconnects": self.reconnects,
+                "reconnect_attempts": self.retries.attempts, "driver": self.driver.health(),
                 "estop": self.arbiter.estop_engaged, "wheel_guard": self.wheel_guard.health(),
                 **stall}

@@ -131,12 +131,9 @@ class RecorderComponent(BaseComponent):
 
     async def get_recordings(self, request: web.Request) -> web.Response:
         infos = await asyncio.to_thread(self.index.list)
-        current = self.recorder.current
         return json_response({
             "directory": str(self.directory),
-            "recordings": [{**i.to_json(topics=False),
-                            "recording": current is not None and current.name == i.name}
-                           for i in infos]})
+            "recordings": [i.to_json(topics=False) for i in infos]})
 
     async def get_recording(self, request: web.Request) -> web.StreamResponse:
         name = request.match_info["name"]

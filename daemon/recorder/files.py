@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import fcntl
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,12 +28,14 @@ class TopicInfo:
 
 @dataclass
 class RecordingInfo:
-    """What a recording holds. ``complete`` is False for a file whose writer was killed: its
-    messages up to the last whole chunk are still there, but it has no summary or index."""
+    """What a recording holds. ``complete`` is False for a file being recorded (``recording``)
+    and for one whose writer was killed: its messages up to the last whole chunk are there,
+    but it has no summary or index (yet)."""
 
     name: str
     size: int
     complete: bool
+    recording: bool = False
     start_ns: int | None = None
     end_ns: int | None = None
     topics: dict[str, TopicInfo] = field(default_factory=dict)
@@ -50,6 +53,7 @@ class RecordingInfo:
     def to_json(self, topics: bool = True) -> dict[str, Any]:
         body: dict[str, Any] = {
             "name": self.name, "size": self.size, "complete": self.complete,
+            "recording": self.recording,
             "start": None if self.start_ns is None else self.start_ns / 1e9,
             "duration_s": round(self.duration_s, 3), "messages": self.messages}
         if topics:
@@ -59,15 +63,31 @@ class RecordingInfo:
 
 
 def inspect(path: Path) -> RecordingInfo:
-    """Read ``path``'s summary, or scan it record by record when it was cut short."""
+    """Read ``path``'s summary, or scan it record by record when it is being recorded or was
+    cut short."""
     with path.open("rb") as stream:
         size = path.stat().st_size
-        if _ends_with_magic(stream, size):
+        recording = being_recorded(stream)
+        if not recording and _ends_with_magic(stream, size):
             info = _from_summary(path.name, size, stream)
             if info is not None:
                 return info
         stream.seek(0)
-        return _salvage(path.name, size, stream)
+        info = _salvage(path.name, size, stream)
+        info.recording = recording
+        return info
+
+
+def being_recorded(stream: IO[bytes]) -> bool:
+    """A writer (in any process) holds the file's exclusive lock: it is being recorded."""
+    try:
+        fcntl.flock(stream.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # a file system without flock: nothing to tell
+        return False
+    fcntl.flock(stream.fileno(), fcntl.LOCK_UN)
+    return False
 
 
 def _ends_with_magic(stream: IO[bytes], size: int) -> bool:
@@ -116,7 +136,7 @@ def _salvage(name: str, size: int, stream: IO[bytes]) -> RecordingInfo:
 
 
 def _live_info(file: OpenFile) -> RecordingInfo:
-    info = RecordingInfo(file.path.name, file.path.stat().st_size, False, file.start_ns,
+    info = RecordingInfo(file.path.name, file.path.stat().st_size, False, True, file.start_ns,
                          file.end_ns if file.start_ns is not None else None)
     counts = dict(file.counts)
     info.topics = {topic: TopicInfo(type_name, counts.get(topic, 0))
@@ -151,5 +171,6 @@ class RecordingIndex:
         if cached is not None and cached[0] == key:
             return cached[1]
         info = inspect(path)
-        self._cache[path] = (key, info)
+        if not info.recording:  # its writer may die without changing size or time
+            self._cache[path] = (key, info)
         return info

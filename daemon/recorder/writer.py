@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import threading
@@ -44,12 +45,15 @@ class WriterOptions:
 
 
 class OpenFile:
-    """One MCAP file being written, with its channels registered."""
+    """One MCAP file being written, with its channels registered. The writer holds an
+    exclusive ``flock`` on it until it closes the file (or its process dies), which is how a
+    reader in any process tells a file being recorded from one cut short."""
 
     def __init__(self, path: Path, compression: str, channels: Iterable[Channel],
                  metadata: dict[str, str]) -> None:
         self.path = path
         self.stream: IO[bytes] = path.open("xb")
+        fcntl.flock(self.stream.fileno(), fcntl.LOCK_EX)  # a lister holds LOCK_SH only briefly
         self.ids: dict[str, int] = {}
         self.started = time.monotonic()
         self.sequence = 0

@@ -10,7 +10,9 @@ from typing import Any
 
 from aiohttp import WSCloseCode, web
 
+from base.config import Config
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
+from daemon.listen import Listener, as_port_error
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
@@ -72,10 +74,10 @@ class RosbridgeServer(BaseComponent):
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:
             await site.start()
-        except OSError:
+        except OSError as exc:
             await self._runner.cleanup()
             self._runner = None
-            raise
+            raise as_port_error(Listener("rosbridge", self.host, self.port), exc) from exc
         server = getattr(site, "_server", None)
         sockets = getattr(server, "sockets", None) or []
         self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
@@ -202,4 +204,9 @@ class RosbridgeServer(BaseComponent):
         return on_message
 
 
-COMPONENT = ComponentSpec("rosbridge", create, RosbridgeSettings)
+def listens(config: Config) -> list[Listener]:
+    bridge = config.get(RosbridgeSettings)
+    return [Listener("rosbridge", bridge.host, bridge.port)] if bridge.enabled else []
+
+
+COMPONENT = ComponentSpec("rosbridge", create, RosbridgeSettings, listens=listens)

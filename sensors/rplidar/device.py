@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from base.retrylog import RetryLog
 from sensors.rplidar import requests as p
 from sensors.rplidar.assembler import Revolution, RevolutionAssembler
 from sensors.rplidar.client import (
@@ -92,6 +93,8 @@ class LidarManager:
         self._thread: threading.Thread | None = None
         self._client: RplidarClient | None = None
         self._lost_once = False
+        #: a missing or failing lidar: the reason once, then a short line now and then
+        self._retries = RetryLog(log, "lidar disconnected")
         self._counted: dict[str, int] = {}  # parser counters already added to the state
         self._standing_error: str | None = None  # what last_error returns to on recovery
 
@@ -128,7 +131,8 @@ class LidarManager:
                 "dropped_capsules": s.dropped_capsules, "dropped_nodes": s.dropped_nodes,
                 "angle_misfits": s.angle_misfits, "short_revolutions": s.short_revolutions,
                 "resyncs": s.resyncs,
-                "reconnects": s.reconnects, "stream_restarts": s.stream_restarts,
+                "reconnects": s.reconnects, "reconnect_attempts": self._retries.attempts,
+                "stream_restarts": s.stream_restarts,
                 "device_resets": s.device_resets, "last_error": s.last_error}
 
     # -- the thread
@@ -139,13 +143,11 @@ class LidarManager:
             try:
                 self._session()
                 backoff = self.config.reconnect_min
-            except PortGone as exc:
-                self._note("disconnected", exc)
-            except LidarError as exc:
-                self._note("disconnected", exc)
+            except (PortGone, LidarError) as exc:
+                self._disconnected(exc, backoff)
             except Exception as exc:  # never let the lidar take the daemon down
                 log.exception("lidar session failed")
-                self._note("disconnected", exc)
+                self._disconnected(exc, backoff)
             finally:
                 self._close()
             if self.state.state == "error":
@@ -154,11 +156,19 @@ class LidarManager:
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2, self.config.reconnect_max)
 
+    def _disconnected(self, exc: BaseException, backoff: float) -> None:
+        self._set_error("disconnected", exc)
+        retry_s = self.config.error_retry if self.state.state == "error" else backoff
+        self._retries.failed(str(self.state.last_error), retry_s)
+
     def _note(self, state: str, exc: BaseException) -> None:
+        self._set_error(state, exc)
+        log.warning("lidar %s: %s", state, self.state.last_error)
+
+    def _set_error(self, state: str, exc: BaseException) -> None:
         if self.state.state != "error":
             self.state.state = state
         self.state.last_error = str(exc) or type(exc).__name__
-        log.warning("lidar %s: %s", state, self.state.last_error)
 
     def _session(self) -> None:
         self.state.state = "connecting"
@@ -230,6 +240,7 @@ class LidarManager:
         client.motor(info, True, self.config.motor_pwm)
         client.start_scan(plan)
         self.state.state = "streaming"
+        self._retries.succeeded()
         assembler = RevolutionAssembler(sample_period=plan.us_per_sample * 1e-6)
         last_progress = time.monotonic()
         while not self._stop.is_set():

@@ -62,7 +62,7 @@ def wheels(work: Path) -> Wheels:
         shutil.copy(wheel, house)
         pip("wheel", "-w", str(house), str(wheel))
         # what a release venv bootstraps with, and what an offline source build needs
-        pip("download", "-d", str(house), "pip", "setuptools>=68", "wheel")
+        pip("download", "-d", str(house), "pip", "setuptools>=77", "wheel")
         broken = build_wheel(broken_source(work), work / "broken")
         _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=house, broken_wheel=broken)
     return _cache["wheels"]
