@@ -211,17 +211,22 @@ class ControlLoop:
         async with self._lock:
             await self._step(self.clock())
 
-    async def engage_estop(self, reason: str) -> None:
+    async def engage_estop(self, reason: str, by: str = "") -> None:
+        """Latch the e-stop; ``by`` names who asked, for the log (``HTTP 10.0.0.7``)."""
         self.arbiter.engage_estop(reason)
         self.invalidations += 1
-        log.warning("e-stop engaged: %s", reason)
+        if by:
+            log.warning("e-stop engaged by %s: %s", by, reason)
+        else:
+            log.warning("e-stop engaged: %s", reason)
         self.bus.publish(COMMAND, CommandEvent(time.time(), reason, "estop"))
         async with self._lock:
             await self._step(self.clock())
 
-    def release_estop(self) -> None:
+    def release_estop(self, by: str = "") -> None:
         if self.arbiter.estop_engaged:
-            log.warning("e-stop released; waiting for a fresh command")
+            log.warning("e-stop released%s; waiting for a fresh command",
+                        f" by {by}" if by else "")
         self.arbiter.release_estop()
         self.invalidations += 1
         self.bus.publish(COMMAND, CommandEvent(time.time(), "", "estop_release"))
