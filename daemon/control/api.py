@@ -14,6 +14,7 @@ from daemon.control.commands import (
     CommandError,
     Twist,
     finite_number,
+    parse_pose,
     parse_stamp,
     parse_twist,
 )
@@ -64,7 +65,8 @@ class ControlComponent(BaseComponent):
     def routes(self) -> Sequence[Route]:
         routes = [Route("GET", "/api/status", self.get_status, "read"),
                   Route("POST", "/api/cmd_vel", self.post_cmd_vel, "drive"),
-                  Route("POST", "/api/estop", self.post_estop, LATCH)]
+                  Route("POST", "/api/estop", self.post_estop, LATCH),
+                  Route("POST", "/api/odom/reset", self.post_odom_reset, "drive")]
         if self.settings.allow_fault_injection:
             routes.append(Route("POST", "/api/debug/stall", self.post_stall, "drive"))
         return routes
@@ -185,6 +187,16 @@ class ControlComponent(BaseComponent):
         if refused:
             raise ApiError(429, refused, None, {"Retry-After": "1"})
         return json_response({"engaged": self.control.arbiter.estop_engaged})
+
+    async def post_odom_reset(self, request: web.Request) -> web.Response:
+        """Odometry reports ``{"x", "y", "theta"}`` (each optional, 0) where the robot is now."""
+        body = await self.read_json(request) if request.can_read_body else {}
+        try:
+            pose = parse_pose(body) or (0.0, 0.0, 0.0)
+        except CommandError as exc:
+            raise ApiError(422, f"invalid pose: {exc}") from None
+        self.control.reset_odometry(*pose, by=f"HTTP {request.remote or '?'}")
+        return json_response({"pose": self.control.status()["pose"]})
 
     async def post_stall(self, request: web.Request) -> web.Response:
         """Block the event loop on purpose (fault injection for watchdog tests)."""
