@@ -1,5 +1,6 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold [--shots DIR] [--token T] [--seconds S]
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault [--shots DIR]
+//        [--token T] [--seconds S]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { chromium } from "playwright-core";
 
@@ -13,7 +14,7 @@ const secret = option("--token");
 const CHROMIUM = process.env.ARBITERD_CHROMIUM || "/usr/bin/chromium";
 const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
   "--disable-component-update", "--no-first-run"];
-const LAPTOP = { width: 1366, height: 768 };
+const LAPTOP = { width: 1280, height: 800 };
 const PHONE = { viewport: { width: 390, height: 844 }, deviceScaleFactor: 2, isMobile: true,
   hasTouch: true };
 
@@ -21,10 +22,12 @@ const report = (step, data = {}) => console.log(JSON.stringify({ step, ...data }
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
 setTimeout(() => { report("fail", { error: "overall timeout" }); process.exit(1); }, 150000).unref();
 
-async function status() {
-  const response = await fetch(new URL("/api/status", url));
+async function getJson(path) {
+  const response = await fetch(new URL(path, url));
   return response.json();
 }
+
+const status = () => getJson("/api/status");
 
 const truth = async () => (await status()).ground_truth;
 
@@ -82,7 +85,11 @@ async function newPage(browser, options) {
   const context = await browser.newContext(options);
   const page = await context.newPage();
   const errors = [];
-  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  // the browser's own line for a 503 is not the page's error: /api/health answers 503 while
+  // a component is in error (a stall stop on a busy machine, a driver fault)
+  page.on("console", (m) => {
+    if (m.type() === "error" && !m.text().includes("status of 503")) errors.push(m.text());
+  });
   page.on("pageerror", (e) => errors.push(`pageerror: ${e.message}`));
   await page.goto(url);
   return { page, context, errors };
@@ -147,16 +154,21 @@ async function driveScenario(browser) {
   await release.click(); // a click is not a deliberate release
   await sleep(300);
   const afterClick = (await status()).estop.engaged;
-  const rb = await release.boundingBox();
-  await page.mouse.move(rb.x + rb.width / 2, rb.y + rb.height / 2);
-  await page.mouse.down();
-  await sleep(1300);
-  await page.mouse.up();
+  await holdRelease(page);
   await page.waitForSelector("#estop-box[data-engaged=false]", { timeout: 5000 });
   report("release", { afterClick, afterHold: (await status()).estop.engaged });
   report("errors", { errors });
   await context.close();
   await phone(browser);
+}
+
+// Presses and holds "Hold to release" past its one second (the page measures the hold).
+async function holdRelease(page) {
+  const rb = await page.locator("#estop-release").boundingBox();
+  await page.mouse.move(rb.x + rb.width / 2, rb.y + rb.height / 2);
+  await page.mouse.down();
+  await sleep(1300);
+  await page.mouse.up();
 }
 
 async function phone(browser) {
@@ -191,6 +203,22 @@ async function tokenScenario(browser) {
   const none = await holdKey(page, "w", 1000);
   report("without", { asked, access: await text(page, "#access"),
     banner: await text(page, "#banner"), command: await text(page, "#command"), moved: none });
+
+  // anyone may stop the robot; releasing needs the token
+  await page.keyboard.press("Space");
+  await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
+  const latched = (await status()).estop.engaged;
+  await holdRelease(page);
+  await page.waitForFunction(() => /needs the token/.test(
+    document.getElementById("estop-state").textContent), null, { timeout: 5000 });
+  report("estopWithout", { latched, afterHold: (await status()).estop.engaged,
+    shown: await text(page, "#estop-state"), banner: await text(page, "#banner"),
+    pageErrors: errors.filter((e) => e.startsWith("pageerror")) });
+  const released = await fetch(new URL("/api/estop", url), { method: "POST",
+    headers: { "Content-Type": "application/json", Authorization: `Bearer ${secret}` },
+    body: JSON.stringify({ engaged: false }) });
+  if (released.status !== 200) throw new Error(`release with the token: ${released.status}`);
+  await page.waitForSelector("#estop-box[data-engaged=false]", { timeout: 5000 });
 
   await page.click("#token-button");
   await page.fill("#token-input", `${secret}-wrong`);
@@ -247,12 +275,50 @@ async function holdScenario(browser) {
   await context.close();
 }
 
+// A robot whose driver is faulted (health 503, commands 409): the page must not look drivable.
+async function faultScenario(browser) {
+  const shown = async (page) => ({
+    conn: await text(page, "#conn"), access: await text(page, "#access"),
+    accessState: await page.$eval("#access", (e) => e.dataset.state),
+    banner: await text(page, "#banner"),
+    bannerKind: await page.$eval("#banner", (e) => (e.hidden ? "hidden" : e.dataset.kind)),
+    health: await text(page, "#health-status"),
+  });
+  const faulted = async (page) => {
+    await page.waitForSelector("#conn[data-state=connected]", { timeout: 15000 });
+    await page.waitForSelector("#access[data-state=fault]", { timeout: 15000 });
+    await page.waitForSelector("#banner[data-kind=fault]:not([hidden])", { timeout: 10000 });
+    await page.waitForSelector("#components tr[data-component=control]", { timeout: 10000 });
+  };
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await faulted(page);
+  await page.keyboard.down("w");
+  await page.waitForFunction(() => /not sent/.test(document.getElementById("command").textContent),
+    null, { timeout: 5000 });
+  const laptop = { ...await shown(page), command: await text(page, "#command"),
+    control: await text(page, "#components tr[data-component=control]") };
+  if (shots) await page.screenshot({ path: `${shots}/console-fault-laptop.png` });
+  await page.keyboard.up("w");
+  // a 503 from /api/health is a console message of the browser's own; page errors are ours
+  report("fault", { ...laptop, pageErrors: errors.filter((e) => e.startsWith("pageerror")) });
+  await context.close();
+
+  const phone = await newPage(browser, PHONE);
+  await faulted(phone.page);
+  const box = await phone.page.locator("#banner").boundingBox();
+  if (shots) await phone.page.screenshot({ path: `${shots}/console-fault-phone.png` });
+  report("faultPhone", { ...await shown(phone.page), bannerTop: box.y,
+    pageErrors: phone.errors.filter((e) => e.startsWith("pageerror")) });
+  await phone.context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
   else if (scenario === "token") await tokenScenario(browser);
   else if (scenario === "hold") await holdScenario(browser);
   else if (scenario === "reconnect") await reconnectScenario(browser);
+  else if (scenario === "fault") await faultScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {
