@@ -1,7 +1,8 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault [--shots DIR]
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls [--shots DIR]
 //        [--token T] [--seconds S]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
+import { readFile } from "node:fs/promises";
 import { chromium } from "playwright-core";
 
 const [url, scenario] = process.argv.slice(2);
@@ -17,6 +18,8 @@ const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking"
 const LAPTOP = { width: 1280, height: 800 };
 const PHONE = { viewport: { width: 390, height: 844 }, deviceScaleFactor: 2, isMobile: true,
   hasTouch: true };
+// a desktop browser's window at phone size: no touch, a mouse, maybe a keyboard
+const NARROW = { viewport: { width: 390, height: 844 } };
 
 const report = (step, data = {}) => console.log(JSON.stringify({ step, ...data }));
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
@@ -117,6 +120,7 @@ async function driveScenario(browser) {
     mode: await text(page, "#mode"), errors: [...errors],
   });
   await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  report("view", { hint: await page.isVisible("#drive-panel .hint"), ...await inView(page) });
 
   report("forward", await holdKey(page, "w", 1000));
   report("left", await holdKey(page, "a", 600));
@@ -189,8 +193,31 @@ async function phone(browser) {
   const stop = await watch(3000, still);
   if (shots) await page.screenshot({ path: `${shots}/console-phone.png` });
   report("touch", { before, atRelease: held[held.length - 1].truth, held: summary(held),
-    stop: summary(stop), errors });
+    stop: summary(stop), errors, hint: await page.isVisible("#drive-panel .hint") });
   await context.close();
+  const narrow = await newPage(browser, NARROW);
+  await narrow.page.waitForSelector("#components tr", { timeout: 15000 });
+  report("narrow", { hint: await narrow.page.isVisible("#drive-panel .hint") });
+  await narrow.context.close();
+}
+
+// The latest scan around the robot (laser frame turned by the odometry heading) against what
+// the view shows: every point must be inside.
+async function inView(page) {
+  await page.waitForFunction(() => document.getElementById("view").dataset.halfHeightM, null,
+    { timeout: 10000 });
+  const [scan, s] = [await getJson("/api/scan"), await status()];
+  let ex = 0;
+  let ey = 0;
+  scan.ranges.forEach((r, i) => {
+    if (r === null || !(r >= scan.range_min && r <= scan.range_max)) return;
+    const a = scan.angle_min + i * scan.angle_increment + s.pose.theta;
+    ex = Math.max(ex, Math.abs(r * Math.cos(a)));
+    ey = Math.max(ey, Math.abs(r * Math.sin(a)));
+  });
+  const shown = await page.$eval("#view", (e) => ({ halfWidth: Number(e.dataset.halfWidthM),
+    halfHeight: Number(e.dataset.halfHeightM) }));
+  return { scanHalfWidth: ex, scanHalfHeight: ey, ...shown, info: await text(page, "#view-info") };
 }
 
 async function tokenScenario(browser) {
@@ -312,6 +339,96 @@ async function faultScenario(browser) {
   await phone.context.close();
 }
 
+// Everything beyond driving: wander, the recorder and its recordings, odometry and simulation
+// reset, the log tail and the health details.
+async function controlsScenario(browser) {
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const until = (what, predicate, ms = 10000) => page.waitForFunction(predicate, null,
+    { timeout: ms }).catch((e) => { throw new Error(`${what}: ${e.message}`); });
+  const autonomyMode = async () => (await getJson("/api/autonomy")).mode;
+  const polled = async (what, fn, ms = 10000) => {
+    const t0 = Date.now();
+    for (;;) {
+      const value = await fn();
+      if (value) return value;
+      if (Date.now() - t0 > ms) throw new Error(`timed out: ${what}`);
+      await sleep(25);
+    }
+  };
+
+  // wander on: the robot's answer is shown (a stall stop on a busy machine may end it soon)
+  await until("the wander state arrived", () =>
+    document.getElementById("wander-state").textContent.startsWith("off"));
+  await page.click("#wander");
+  await until("wander switched on", () =>
+    /^wander on/.test(document.getElementById("robot-message").textContent));
+  const wanderOn = await text(page, "#wander-state");
+
+  await page.click("#record");
+  await until("recording shown with its size", () =>
+    /\.mcap · \d/.test(document.getElementById("record-state").textContent));
+  await until("the recorder's file in Health", () => /recording arbiterd-.*\.mcap · \d/.test(
+    document.querySelector("#components tr[data-component=recorder]")?.textContent || ""));
+  await until("the recorder's log line in the tail", () =>
+    /flight recorder: writing/.test(document.getElementById("log").textContent));
+  await until("the nearest obstacle in Health", () => /nearest obstacle \d+\.\d\d m/.test(
+    document.querySelector("#components tr[data-component=collision_monitor]")?.textContent || ""));
+  const health = await page.$$eval("#components tr", (rows) =>
+    Object.fromEntries(rows.map((r) => [r.dataset.component, r.cells[2].textContent])));
+  const recordState = await text(page, "#record-state");
+  if (shots) await page.screenshot({ path: `${shots}/console-controls-laptop.png`, fullPage: true });
+
+  // off, unless the robot already switched it off itself (a stall stop does on a busy machine)
+  if (await page.$eval("#wander", (e) => e.getAttribute("aria-pressed")) === "true") {
+    await page.click("#wander");
+  }
+  await polled("wander off", async () => (await autonomyMode()) === "off");
+  await page.click("#record");
+  await until("the recording listed, finished", () => {
+    const link = document.querySelector("#recordings a");
+    return link && link.dataset.recording === "false";
+  });
+  const [download] = await Promise.all([page.waitForEvent("download"),
+    page.click("#recordings a")]);
+  const magic = (await readFile(await download.path())).subarray(0, 8).toString("latin1");
+
+  await holdKey(page, "w", 600);
+  const moved = (await status()).pose;
+  await page.click("#odom-reset");
+  const afterOdom = await polled("odometry at the origin", async () => {
+    const p = (await status()).pose;
+    return Math.hypot(p.x, p.y) < 0.05 ? p : null;
+  });
+  await holdKey(page, "w", 600);
+  await page.click("#sim-reset");
+  const afterSim = await polled("odometry on the ground truth", async () => {
+    const s = await status();
+    const t = s.ground_truth;
+    return Math.hypot(s.pose.x - t.x, s.pose.y - t.y) < 0.05 && Math.hypot(t.x, t.y) < 0.05
+      ? s : null;
+  });
+  report("controls", {
+    wanderOn, recordState, health, magic, moved, afterOdom, afterSim: afterSim.pose,
+    truth: afterSim.ground_truth, logLines: await page.$$eval("#log li", (l) => l.length),
+    message: await text(page, "#robot-message"), errors: [...errors],
+  });
+  await context.close();
+
+  const phone = await newPage(browser, PHONE);
+  await waitReady(phone.page);
+  await phone.page.waitForSelector("#recordings a", { timeout: 10000 });
+  await phone.page.tap("#odom-reset"); // a log line: the tail shows what the robot says now
+  await phone.page.waitForSelector("#log li", { timeout: 10000 });
+  await phone.page.$eval("#robot-panel", (e) => e.scrollIntoView({ block: "start" }));
+  await phone.page.waitForFunction(() => window.scrollY > 0, null, { timeout: 5000 });
+  if (shots) await phone.page.screenshot({ path: `${shots}/console-controls-phone.png` });
+  report("controlsPhone", { hint: await phone.page.isVisible("#drive-panel .hint"),
+    errors: phone.errors });
+  await phone.context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
@@ -319,6 +436,7 @@ try {
   else if (scenario === "hold") await holdScenario(browser);
   else if (scenario === "reconnect") await reconnectScenario(browser);
   else if (scenario === "fault") await faultScenario(browser);
+  else if (scenario === "controls") await controlsScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

@@ -1,6 +1,6 @@
 # The web console end to end: Debian's Chromium (playwright-core on Node) against
 # `arbiterd run --sim`, driving with keys, joystick and touch; e-stop; token; a faulted driver;
-# screenshots.
+# wander, recorder, resets, log and health details; screenshots.
 from __future__ import annotations
 
 import json
@@ -97,6 +97,11 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
     assert {"control", "lidar", "rosbridge", "http", "sim"} <= set(loaded["components"])
     assert loaded["health"] == "ok" and loaded["mode"] == "simulated robot"
     assert int(loaded["scan"].split("scan ")[1].split()[0]) > 50
+    view = steps["view"]  # the default view fits the scan: the arena's walls are in it
+    assert view["scanHalfWidth"] <= view["halfWidth"] and \
+        view["scanHalfHeight"] <= view["halfHeight"], view
+    assert view["scanHalfHeight"] > 4.0 and "(fit)" in view["info"], view  # wider than 8 m
+    assert view["hint"] is True  # a laptop has keys
 
     forward = steps["forward"]
     assert ahead(forward, "atRelease") >= 0.2
@@ -122,6 +127,7 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
     touch = steps["touch"]
     assert ahead(touch, "atRelease") >= 0.2 and stopped_by_zero_command(touch["stop"])
     assert touch["errors"] == [], log
+    assert touch["hint"] is False and steps["narrow"]["hint"] is False  # no keys on a phone
     _keep_shots(shots, "console-laptop.png", "console-phone.png")
 
 
@@ -215,3 +221,34 @@ def test_console_shows_a_faulted_robot(tmp_path: Path) -> None:
     assert "/stamped_cmd_vel" not in log  # nothing was sent to be refused
     _keep_shots(shots, "console-fault-laptop.png", "console-fault-phone.png")
 
+
+def test_console_controls_beyond_driving(tmp_path: Path) -> None:
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    toml = SIM + f'[record]\ndirectory = "{tmp_path / "recordings"}"\nflush_interval_s = 0.2\n'
+    with DaemonProcess(tmp_path, toml, args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "controls", "--shots", str(shots))
+        recordings = daemon.get("/api/recordings")[1]["recordings"]
+        assert daemon.stop() == 0
+        log = daemon.log()
+    controls = steps["controls"]
+    assert controls["errors"] == [], log
+    assert controls["wanderOn"].startswith("wander · "), controls
+    assert ".mcap · " in controls["recordState"], controls
+    health = controls["health"]
+    assert "nearest obstacle" in health["collision_monitor"], health
+    assert health["recorder"].startswith("recording arbiterd-"), health
+    assert health["autonomy"].startswith("mode "), health
+    assert controls["magic"] == "\x89MCAP0\r\n" and len(recordings) == 1, recordings
+    assert math.hypot(controls["moved"]["x"], controls["moved"]["y"]) > 0.1
+    assert math.hypot(controls["afterOdom"]["x"], controls["afterOdom"]["y"]) < 0.05
+    truth, pose = controls["truth"], controls["afterSim"]
+    assert math.hypot(truth["x"], truth["y"]) < 0.05  # back at the start...
+    assert math.hypot(pose["x"] - truth["x"], pose["y"] - truth["y"]) < 0.05  # ...odometry too
+    assert controls["logLines"] > 0 and "simulation reset" in controls["message"]
+    assert "odometry reset to" in log and "flight recorder: writing" in log
+    assert "autonomy wander (requested over HTTP)" in log
+    phone = steps["controlsPhone"]
+    assert phone["hint"] is False and phone["errors"] == [], phone
+    _keep_shots(shots, "console-controls-laptop.png", "console-controls-phone.png")

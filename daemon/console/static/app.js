@@ -6,6 +6,8 @@ import { Drive, isDriveKey } from "./drive.js";
 import { renderHealth, renderMotion } from "./health.js";
 import { Hud } from "./hud.js";
 import { Joystick } from "./joystick.js";
+import { LogTail } from "./log.js";
+import { RobotPanel } from "./robot.js";
 import { TokenBox } from "./token.js";
 import { View, poseOf } from "./view.js";
 
@@ -41,6 +43,12 @@ const hud = new Hud({ p50: $("lat-p50"), p99: $("lat-p99"), rtt: $("lat-rtt"),
 const clientTag = Math.random().toString(36).slice(2, 6);
 let commandSeq = 0;
 const drive = new Drive(sendCommand);
+const logTail = new LogTail($("log"));
+const robot = new RobotPanel({
+  wander: $("wander"), wanderState: $("wander-state"), record: $("record"),
+  recordState: $("record-state"), odomReset: $("odom-reset"), simReset: $("sim-reset"),
+  message: $("robot-message"), recordings: $("recordings"), refresh: $("recordings-refresh"),
+}, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });
 
 // -- connection, access and the banner ------------------------------------------------------
 
@@ -177,6 +185,8 @@ bridge.subscribe("/odom", "nav_msgs/msg/Odometry", (m) => view.setOdom(poseOf(m)
 bridge.subscribe("/scan", "sensor_msgs/msg/LaserScan", (m) => view.setScan(m));
 bridge.subscribe("/latency_reports", STRING, (m) => hud.report(m.data));
 bridge.subscribe("/robot_info", STRING, (m) => robotInfo(JSON.parse(m.data)));
+bridge.subscribe("/autonomy/state", STRING, (m) => robot.setAutonomy(JSON.parse(m.data)));
+bridge.subscribe("/rosout", "rcl_interfaces/msg/Log", (m) => logTail.add(m));
 
 function robotInfo(info) {
   $("robot-name").textContent = info.name || "arbiterd";
@@ -214,10 +224,13 @@ function healthArrived(health) {
         (m) => view.setTruth(poseOf(m)), { throttle_rate: 100 });
       document.querySelector(".key.truth").hidden = false;
     }
+    $("sim-reset").hidden = health.mode !== "sim";
   }
+  robot.setRecorder(health.components.recorder);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
   if (firstTime && state.wsPort) bridge.connect();
+  if (firstTime) robot.refreshRecordings();
 }
 
 // Repeats `fn` every `periodMs`, never two at once.
@@ -406,6 +419,8 @@ $("estop").addEventListener("click", engageEstop);
 $("zoom-in").addEventListener("click", () => view.zoom(-1));
 $("zoom-out").addEventListener("click", () => view.zoom(1));
 $("clear-trail").addEventListener("click", () => view.clearTrail());
+$("fit").addEventListener("click", () => view.setFit(!view.fit));
+view.onFitChange = (on) => $("fit").setAttribute("aria-pressed", String(on));
 $("heading-up").addEventListener("click", (event) => {
   view.headingUp = !view.headingUp;
   event.currentTarget.setAttribute("aria-pressed", String(view.headingUp));
