@@ -95,8 +95,10 @@ def _log_bad_request(request: web.Request, status: int, message: str) -> None:
 
 class Guard:
     """The one place that decides who may call a route: the Host allow-list for every
-    request, then the route's declared access (open, read, drive) and, for drive routes, the
-    browser Origin."""
+    request, then the route's declared access (open, stop, read, drive): for stop and drive
+    routes the browser Origin, for drive routes (and read routes with
+    ``read_requires_token``) the token. A handler whose body decides the access (the e-stop)
+    asks :meth:`authorize` again once it has read it."""
 
     def __init__(self, security: Security) -> None:
         self.security = security
@@ -116,17 +118,23 @@ class Guard:
     def check(self, access: Access, request: web.Request, host: str | None) -> None:
         if access == "open":
             return
-        if access == "drive":
+        if access in ("stop", "drive"):
             origin = request.headers.get("Origin")
             if not self.security.origin_ok(origin, host):
-                raise ApiError(403, f"Origin {origin!r} may not drive this robot",
+                raise ApiError(403, f"Origin {origin!r} may not "
+                               f"{'stop' if access == 'stop' else 'drive'} this robot",
                                "a web page from another site sent this request; add the "
                                "origin to [security] allowed_origins if it is yours")
-        if (access == "drive" or self.security.read_requires_token) and not (
-                self.security.token_ok(request.headers, request.query)):
+        needs_token = access == "drive" or (access == "read" and
+                                            self.security.read_requires_token)
+        if needs_token and not self.security.token_ok(request.headers, request.query):
             raise ApiError(401, "a valid bearer token is required",
                            "send 'Authorization: Bearer <token>'",
                            {"WWW-Authenticate": 'Bearer realm="arbiterd"'})
+
+    def authorize(self, access: Access, request: web.Request) -> None:
+        """:meth:`check` from inside a handler (the Host was checked on the way in)."""
+        self.check(access, request, request.headers.get("Host"))
 
 
 # -- request bodies ------------------------------------------------------------------------
@@ -244,9 +252,9 @@ class HttpServer:
     def add_route(self, method: str, path: str, handler: Handler, *,
                   access: Access = "drive") -> None:
         """Serve ``method path``; ``access`` says who may call it: ``open`` (anyone who passes
-        the Host check), ``read`` (the token too when ``read_requires_token``) or ``drive``
-        (the token when one is configured, and a browser Origin of this host). A GET route
-        answers HEAD too."""
+        the Host check), ``stop`` (a browser Origin of this host, never a token), ``read`` (the
+        token too when ``read_requires_token``) or ``drive`` (the token when one is configured,
+        and a browser Origin of this host). A GET route answers HEAD too."""
         if access not in ACCESS_LEVELS:
             raise ValueError(f"{method} {path}: access must be one of {ACCESS_LEVELS}, "
                              f"got {access!r}")

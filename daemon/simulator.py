@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import shutil
 import tempfile
 import time
@@ -15,6 +14,8 @@ from aiohttp import web
 
 from base.config import Config
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
+from daemon.control.commands import CommandError, parse_pose
+from daemon.control.loop import ControlLoop
 from daemon.http_api import ApiError, json_response, read_json_object
 from daemon.messages.convert import odometry_msg
 from daemon.messages.definitions import ODOMETRY
@@ -54,6 +55,8 @@ class SimRuntime(BaseComponent):
         self.world = SimWorld(self.sim, wheel_radius=robot.wheel_radius,
                               wheel_separation=robot.wheel_separation, motors=self.motors)
         self.bus: Any = None
+        #: the control loop, once the daemon built it (a reset puts odometry on the new pose)
+        self.control: ControlLoop | None = None
         self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
         self.driver_options: dict[str, Any] = {}
@@ -160,29 +163,23 @@ class SimRuntime(BaseComponent):
             await asyncio.sleep(period)
 
     async def _post_reset(self, request: web.Request) -> web.Response:
+        """Teleport, and let odometry report the new pose, so the two start together again."""
         body = await read_json_object(request, 4096) if request.can_read_body else {}
-        pose = _parse_pose(body)
-        truth = self.world.reset(pose)
+        try:
+            values = parse_pose(body)
+        except CommandError as exc:
+            raise ApiError(422, f"invalid pose: {exc}") from None
+        try:
+            truth = self.world.reset(Pose(*values) if values else None)
+        except ValueError as exc:  # not finite, or the footprint on an obstacle
+            raise ApiError(400, f"cannot place the robot there: {exc}") from None
+        if self.control is not None:
+            self.control.reset_odometry(truth.x, truth.y, truth.theta,
+                                        by=f"HTTP {request.remote or '?'} (sim reset)")
         return json_response({"ground_truth": truth.to_json()})
 
     async def _get_metrics(self, request: web.Request) -> web.Response:
         return json_response(self.world.metrics_summary())
-
-
-def _parse_pose(body: dict[str, Any]) -> Pose | None:
-    unknown = sorted(set(body) - {"x", "y", "theta"})
-    if unknown:
-        raise ApiError(422, f"invalid pose: {unknown[0]}: unknown field")
-    if not body:
-        return None
-    values = []
-    for key in ("x", "y", "theta"):
-        value = body.get(key, 0.0)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
-                value):
-            raise ApiError(422, f"invalid pose: {key}: expected a finite number")
-        values.append(float(value))
-    return Pose(*values)
 
 
 def create(ctx: DaemonContext) -> SimRuntime | None:
@@ -191,6 +188,7 @@ def create(ctx: DaemonContext) -> SimRuntime | None:
     if runtime is None:
         return None
     runtime.bus = ctx.bus
+    runtime.control = ctx.control
     ctx.plugs.add_status("ground_truth", lambda: runtime.world.ground_truth().to_json())
     return runtime
 

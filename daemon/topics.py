@@ -9,9 +9,11 @@ from daemon.bus import BusKey
 
 T = TypeVar("T")
 
-#: who may call a route or publish to a topic: anyone, a reader, or a driver (the token)
-Access = Literal["open", "read", "drive"]
-ACCESS_LEVELS: tuple[Access, ...] = ("open", "read", "drive")
+#: who may call a route or publish to a topic: anyone; anyone who may stop the robot (a
+#: browser's Origin checked, never a token: latching the e-stop); a reader; or a driver (the
+#: token, when one is configured)
+Access = Literal["open", "stop", "read", "drive"]
+ACCESS_LEVELS: tuple[Access, ...] = ("open", "stop", "read", "drive")
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,8 @@ class Inbound:
     sender: str
     #: monotonic receipt time (latency starts here)
     t_recv: float
+    #: the sender's network address (limits per peer)
+    peer: str
 
 
 InboundHandler = Callable[[Inbound], Awaitable[Refusal | None]]
@@ -70,7 +74,10 @@ class TopicIn:
     to it, and the handler that applies a message or returns a :class:`Refusal`.
 
     ``moves``: a command source: when the publisher goes away (unadvertises, disconnects), the
-    robot brakes if that source was in charge.
+    robot brakes if that source was in charge. ``access_for``: when what a message may do
+    depends on the message (the e-stop: latching is ``stop``, releasing ``drive``), the access
+    one message needs, checked once its type is; ``access`` is then what advertising and
+    publishing need before that, the least of them.
     """
 
     name: str
@@ -79,6 +86,7 @@ class TopicIn:
     access: Access = "drive"
     accepts: tuple[str, ...] = ()
     moves: bool = False
+    access_for: Callable[[dict[str, Any]], Access] | None = None
 
     def accepted_types(self) -> tuple[str, ...]:
         return self.accepts or (self.type,)

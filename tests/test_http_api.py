@@ -180,7 +180,7 @@ def test_token_guards_motion_but_not_health(
     daemon = daemon_subprocess("[security]\ntoken = \"s3cret\"\n")
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
     assert status == 401 and "token" in body["error"]
-    assert daemon.post("/api/estop", {"engaged": True})[0] == 401
+    assert daemon.post("/api/estop", {"engaged": False})[0] == 401  # latching needs none
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="wrong")[0] == 401
     assert stopped(daemon)
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret")

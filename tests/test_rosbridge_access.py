@@ -58,6 +58,17 @@ def drive_rules(robot: InProcessDaemon) -> list[tuple[str, str]]:
     return table + topics
 
 
+# Incoming topics whose messages need more than the topic declares: one that needs drive each.
+NEEDS_DRIVE = {"/estop": {"data": False}}
+
+
+def per_message_rules(robot: InProcessDaemon) -> list[tuple[str, dict[str, Any]]]:
+    """The incoming topics declaring a per-message access, with a message that needs drive."""
+    found = [topic.name for topic in robot.ctx.topics.incoming() if topic.access_for]
+    assert set(found) == set(NEEDS_DRIVE), found
+    return [(name, NEEDS_DRIVE[name]) for name in found]
+
+
 def test_the_table_covers_every_op_the_session_handles() -> None:
     assert {op for op, _ in TABLE} == set(OPS)
     assert all((op, ANY) in TABLE for op in OPS)
@@ -65,6 +76,8 @@ def test_the_table_covers_every_op_the_session_handles() -> None:
     for name in ("/cmd_vel", "/stamped_cmd_vel", "/estop"):
         assert access.required("publish", name) == "drive"
         assert access.required("advertise", name) == "drive"
+    # the robot's own /estop declares less: latching is "stop", releasing "drive"
+    assert access.Authority(may_read=True, may_drive=False).allows("stop")
 
 
 async def refused_for_access(client: Client, rid: str) -> bool:
@@ -81,16 +94,25 @@ async def no_access_refusals(client: Client) -> list[dict[str, Any]]:
 async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> None:
     async with in_process_daemon(tmp_path, f'[security]\ntoken = "{TOKEN}"\n') as robot:
         rules = drive_rules(robot)
-        assert len(rules) >= 13
+        assert len(rules) >= 11
+        messages = per_message_rules(robot)
         async with connect(robot.ws_url) as anonymous:
             for i, (op, target) in enumerate(rules):
                 rid = f"walk-{i}"
                 await anonymous.send(**sample_frame(op, sample_target(op, target), rid))
                 assert await refused_for_access(anonymous, rid), (op, target)
+            for i, (name, msg) in enumerate(messages):
+                await anonymous.send(op="advertise", topic=name, type=TYPES[name])
+                await anonymous.send(op="publish", topic=name, msg=msg, id=f"msg-{i}")
+                assert await refused_for_access(anonymous, f"msg-{i}"), (name, msg)
+                await anonymous.send(op="unadvertise", topic=name)
+            await anonymous.call("/rosapi/get_time", rid="barrier")  # ops are taken in order
             assert_nothing_happened(robot)
         async with connect(robot.ws_url, headers={"Authorization": f"Bearer {TOKEN}"}) as owner:
             for i, (op, target) in enumerate(rules):
                 await owner.send(**sample_frame(op, sample_target(op, target), f"own-{i}"))
+            for name, msg in messages:
+                await owner.send(op="publish", topic=name, msg=msg)
             assert await no_access_refusals(owner) == []
 
 

@@ -77,7 +77,12 @@ def test_missing_fields_take_defaults_and_quaternion_w_is_one() -> None:
      "expected exactly 36 items"),
     ("std_msgs/msg/UInt8MultiArray", {"data": [1, 256]}, "msg.data[1]: 256 is out of range"),
     ("std_msgs/msg/UInt8MultiArray", {"data": "***"}, "not valid base64"),
-    ("std_msgs/msg/Header", {"stamp": {"sec": 1, "nsecs": 2}}, "expected {sec, nanosec}"),
+    ("std_msgs/msg/Header", {"stamp": {"sec": 1, "usec": 2}},
+     "msg.stamp: expected {sec, nanosec}, {secs, nsecs} or {sec, nsec}, got fields"),
+    ("std_msgs/msg/Header", {"stamp": {"sec": 1, "nsec": 2, "nanosec": 2}},
+     "msg.stamp: nanosec and nsec are the same field; give one"),
+    ("std_msgs/msg/Header", {"stamp": {"sec": 1, "nsec": -1}}, "msg.stamp.nsec: -1 is out of"),
+    ("std_msgs/msg/Header", {"stamp": 5}, "msg.stamp: expected {sec, nanosec}"),
     ("std_msgs/msg/String", "hello", "msg: expected an object"),
 ])
 def test_bad_messages_name_the_field(type_name: str, msg: object, fragment: str) -> None:
@@ -92,6 +97,19 @@ def test_ros1_time_and_now_are_accepted_and_ros2_time_comes_out() -> None:
     now = check_message("std_msgs/msg/Header", {"stamp": "now"})["stamp"]
     assert now["sec"] > 1_600_000_000 and 0 <= now["nanosec"] < 10**9
     assert check_message("std_msgs/msg/Header", {})["stamp"]["sec"] > 1_600_000_000
+
+
+@pytest.mark.parametrize("stamp", [
+    {"sec": 5, "nanosec": 7}, {"secs": 5, "nsecs": 7}, {"sec": 5, "nsec": 7},  # ROS 2, 1, Foxglove
+    {"secs": 5, "nanosec": 7}, {"sec": 5, "nsecs": 7}, {"secs": 5, "nsec": 7},  # rosbridge mixes
+])
+def test_every_time_spelling_rosbridge_suite_and_foxglove_write_is_accepted(
+        stamp: dict[str, int]) -> None:
+    header = check_message("std_msgs/msg/Header", {"stamp": stamp, "frame_id": "base_link"})
+    assert header["stamp"] == {"sec": 5, "nanosec": 7}
+    duration = check_message("builtin_interfaces/msg/Duration", stamp)
+    assert duration == {"sec": 5, "nanosec": 7}
+    assert check_message("builtin_interfaces/msg/Time", {"sec": 5}) == {"sec": 5, "nanosec": 0}
 
 
 def test_uint8_arrays_are_base64_both_ways() -> None:

@@ -18,7 +18,7 @@ RSS_GROWTH_MB = 30.0  # after the warm-up; the daemon in this test process holds
 def nothing_moved(robot: InProcessDaemon) -> None:
     wheels = [(c.left_rad_s, c.right_rad_s) for c in robot.driver.commands]
     assert all(left == 0.0 and right == 0.0 for left, right in wheels), "a wheel turned"
-    assert not robot.ctx.control.arbiter.estop_engaged
+    # the fuzzers may have latched the e-stop (anyone may stop the robot), never released it
     graph = bridge(robot).graph
     assert not graph.services and not graph.pending
     assert not any(topic.publishers for topic in graph.topics.values())
@@ -53,6 +53,7 @@ async def test_tokenless_fuzz_moves_nothing_and_leaks_nothing(
 async def still_drives_with_the_token(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url, headers=OWNER) as owner:
         assert (await owner.call("/rosapi/get_time"))["result"] is True
+        await owner.send(op="publish", topic="/estop", msg={"data": False})
         await owner.send(op="publish", topic="/cmd_vel", msg=TWIST)
         await eventually(robot.moving, "the token holder to drive after the fuzz")
 

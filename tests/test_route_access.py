@@ -14,6 +14,8 @@ TOKEN = "s3cret-Token"
 DOC = Path(__file__).resolve().parent.parent / "docs" / "http-api.md"
 # The web console's routes (page and files), open in every configuration.
 CONSOLE = {("GET", "/"), ("HEAD", "/"), ("GET", "/console/{name}"), ("HEAD", "/console/{name}")}
+# Latching the e-stop needs no token (releasing it does: the handler asks once it read the body).
+STOP = {("POST", "/api/estop")}
 LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
           '[control]\nallow_fault_injection = true\n')
 
@@ -75,13 +77,16 @@ async def test_every_route_is_in_the_access_table(locked: InProcessDaemon) -> No
 
 
 async def test_without_the_token_every_route_answers_401(locked: InProcessDaemon) -> None:
-    """All but the web console's page and files, which must load to ask for the token."""
+    """All but the web console's page and files, which must load to ask for the token, and
+    the e-stop, which anyone may latch."""
     opened = {(m, p) for m, p, a in routes(locked) if a == "open"}
     assert opened == CONSOLE
+    assert {(m, p) for m, p, a in routes(locked) if a == "stop"} == STOP
     refused = {(m, p): await status_of(locked, m, p) for m, p, a in routes(locked)
-               if a != "open"}
+               if a not in ("open", "stop")}
     assert refused and all(status == 401 for status in refused.values()), refused
     assert await status_of(locked, "GET", "/") == 200
+    assert await status_of(locked, "POST", "/api/estop") == 415  # on to the body: no 401
     assert not locked.moving()
 
 
@@ -109,7 +114,7 @@ async def test_open_health_is_the_documented_exception(tmp_path: Path) -> None:
         opened = {(m, p) for m, p, a in routes(robot) if a == "open"}
         assert opened == {("GET", "/api/health"), ("HEAD", "/api/health"), *CONSOLE}
         for method, path, access in routes(robot):
-            expected = 401 if access != "open" else 404 if "{" in path else 200
+            expected = {"open": 404 if "{" in path else 200, "stop": 415}.get(access, 401)
             assert await status_of(robot, method, path) == expected, (method, path)
 
 
@@ -129,7 +134,8 @@ def documented_access() -> set[tuple[str, str, str]]:
     """The rows of the access table in docs/http-api.md: | `METHOD /path` | access | ..."""
     rows = set()
     for line in DOC.read_text().splitlines():
-        match = re.match(r"\|\s*`(GET|POST|PUT|DELETE) (/\S*)`\s*\|\s*(open|read|drive)\b", line)
+        match = re.match(r"\|\s*`(GET|POST|PUT|DELETE) (/\S*)`\s*\|\s*(open|stop|read|drive)\b",
+                         line)
         if match:
             rows.add((match.group(1), match.group(2), match.group(3)))
     return rows

@@ -31,6 +31,7 @@ STRING = "std_msgs/msg/String"
 # What the page does (daemon/console/static/app.js): rosbridge subscriptions, a stamped command
 # every 50 ms while driving, a link ping every 2 s, and HTTP polls (path -> period in s).
 SUBSCRIPTIONS = [("/odom", {}), ("/scan", {}), ("/latency_reports", {}), ("/robot_info", {}),
+                 ("/autonomy/state", {}), ("/rosout", {}),
                  ("/odom_ground_truth", {"throttle_rate": 100})]
 POLLS = {"/api/health": 1.0, "/api/status": 0.25, "/api/latency": 2.0}
 COMMAND_PERIOD_S = 0.05

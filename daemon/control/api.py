@@ -14,9 +14,11 @@ from daemon.control.commands import (
     CommandError,
     Twist,
     finite_number,
+    parse_pose,
     parse_stamp,
     parse_twist,
 )
+from daemon.control.estop import LATCH, LatchLimit, estop_access
 from daemon.control.loop import ControlLoop
 from daemon.http_api import ApiError, HttpServer, json_object, json_response
 from daemon.messages.convert import command_msg, latency_msg, odometry_msg, tf_msg
@@ -48,6 +50,8 @@ class ControlComponent(BaseComponent):
         self.settings = settings
         self.read_json = http.read_json
         self.read_json_body = http.read_json_body
+        self.authorize = http.guard.authorize
+        self.latches = LatchLimit()
 
     async def start(self) -> None:
         await self.control.start()
@@ -61,7 +65,8 @@ class ControlComponent(BaseComponent):
     def routes(self) -> Sequence[Route]:
         routes = [Route("GET", "/api/status", self.get_status, "read"),
                   Route("POST", "/api/cmd_vel", self.post_cmd_vel, "drive"),
-                  Route("POST", "/api/estop", self.post_estop, "drive")]
+                  Route("POST", "/api/estop", self.post_estop, LATCH),
+                  Route("POST", "/api/odom/reset", self.post_odom_reset, "drive")]
         if self.settings.allow_fault_injection:
             routes.append(Route("POST", "/api/debug/stall", self.post_stall, "drive"))
         return routes
@@ -71,7 +76,8 @@ class ControlComponent(BaseComponent):
             TopicIn("/cmd_vel", TWIST, self.on_cmd_vel, "drive", (TWIST, TWIST_STAMPED),
                     moves=True),
             TopicIn("/stamped_cmd_vel", STRING, self.on_stamped_cmd_vel, "drive", moves=True),
-            TopicIn("/estop", BOOL, self.on_estop, "drive", moves=True),
+            TopicIn("/estop", BOOL, self.on_estop, LATCH, moves=True,
+                    access_for=lambda msg: estop_access(msg["data"])),
             TopicOut("/odom", ODOMETRY, ODOM, odometry_msg, "20 Hz"),
             TopicOut("/latency_reports", STRING, LATENCY_REPORT, latency_msg, "per command",
                      state=False),
@@ -120,11 +126,23 @@ class ControlComponent(BaseComponent):
                        repeats=True)
 
     async def on_estop(self, message: Inbound) -> Refusal | None:
-        """``/estop``: std_msgs/Bool, true latches, false releases."""
-        if message.msg["data"]:
-            await self.control.engage_estop(message.sender)
-        else:
-            self.control.release_estop()
+        """``/estop``: std_msgs/Bool, true latches, false releases (rosbridge checked the
+        access :func:`estop_access` asks for)."""
+        refused = await self._set_estop(message.msg["data"], "rosbridge /estop",
+                                        message.sender, message.peer)
+        return Refusal(refused, repeats=True) if refused else None
+
+    async def _set_estop(self, engaged: bool, reason: str, by: str, peer: str) -> str | None:
+        """Latch or release for ``by`` (whose access was checked); the reason a latch was not
+        taken: over its peer's rate while the e-stop is already engaged (a latch that stops
+        the robot is never refused)."""
+        if not engaged:
+            self.control.release_estop(by)
+            return None
+        if not self.latches.allow(peer) and self.control.arbiter.estop_engaged:
+            return (f"e-stop already engaged; {peer} latched it more than "
+                    f"{self.latches.burst} times in {self.latches.window_s:g} s")
+        await self.control.engage_estop(reason, by)
         return None
 
     # -- HTTP --------------------------------------------------------------------------------
@@ -163,11 +181,22 @@ class ControlComponent(BaseComponent):
         reason = body.get("reason", "http")
         if not isinstance(reason, str):
             raise ApiError(422, "invalid e-stop request: reason: expected a string")
-        if engaged:
-            await self.control.engage_estop(reason)
-        else:
-            self.control.release_estop()
+        self.authorize(estop_access(engaged), request)  # releasing needs the token
+        peer = request.remote or "?"
+        refused = await self._set_estop(engaged, reason, f"HTTP {peer}", peer)
+        if refused:
+            raise ApiError(429, refused, None, {"Retry-After": "1"})
         return json_response({"engaged": self.control.arbiter.estop_engaged})
+
+    async def post_odom_reset(self, request: web.Request) -> web.Response:
+        """Odometry reports ``{"x", "y", "theta"}`` (each optional, 0) where the robot is now."""
+        body = await self.read_json(request) if request.can_read_body else {}
+        try:
+            pose = parse_pose(body) or (0.0, 0.0, 0.0)
+        except CommandError as exc:
+            raise ApiError(422, f"invalid pose: {exc}") from None
+        self.control.reset_odometry(*pose, by=f"HTTP {request.remote or '?'}")
+        return json_response({"pose": self.control.status()["pose"]})
 
     async def post_stall(self, request: web.Request) -> web.Response:
         """Block the event loop on purpose (fault injection for watchdog tests)."""

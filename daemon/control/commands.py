@@ -80,6 +80,21 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
     return Twist(lx, az)
 
 
+POSE_FIELDS = ("x", "y", "theta")
+
+
+def parse_pose(body: Mapping[str, Any]) -> tuple[float, float, float] | None:
+    """``{"x", "y", "theta"}`` (m, m, rad; each 0 when absent) or None for ``{}``; a field of
+    another name or that is not a finite number is :class:`CommandError` naming it."""
+    unknown = sorted(set(body) - set(POSE_FIELDS))
+    if unknown:
+        raise CommandError(f"{unknown[0]}: unknown field")
+    if not body:
+        return None
+    x, y, theta = (finite_number(body.get(key, 0.0), key) for key in POSE_FIELDS)
+    return x, y, theta
+
+
 STAMP_FIELDS = ("id", "t_sent")
 
 

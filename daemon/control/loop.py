@@ -19,7 +19,7 @@ from daemon.control.guard import MotionGuard
 from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.metronome import Metronome
-from daemon.control.odometry import Odometry
+from daemon.control.odometry import Odometry, Pose2D
 from daemon.control.supervisor import StallSupervisor
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
 from daemon.hooks import HookList, HookMap, Remove
@@ -214,17 +214,22 @@ class ControlLoop:
         async with self._lock:
             await self._step(self.clock())
 
-    async def engage_estop(self, reason: str) -> None:
+    async def engage_estop(self, reason: str, by: str = "") -> None:
+        """Latch the e-stop; ``by`` names who asked, for the log (``HTTP 10.0.0.7``)."""
         self.arbiter.engage_estop(reason)
         self.invalidations += 1
-        log.warning("e-stop engaged: %s", reason)
+        if by:
+            log.warning("e-stop engaged by %s: %s", by, reason)
+        else:
+            log.warning("e-stop engaged: %s", reason)
         self.bus.publish(COMMAND, CommandEvent(time.time(), reason, "estop"))
         async with self._lock:
             await self._step(self.clock())
 
-    def release_estop(self) -> None:
+    def release_estop(self, by: str = "") -> None:
         if self.arbiter.estop_engaged:
-            log.warning("e-stop released; waiting for a fresh command")
+            log.warning("e-stop released%s; waiting for a fresh command",
+                        f" by {by}" if by else "")
         self.arbiter.release_estop()
         self.invalidations += 1
         self.bus.publish(COMMAND, CommandEvent(time.time(), "", "estop_release"))
@@ -410,18 +415,28 @@ class ControlLoop:
 
     # -- reports ---------------------------------------------------------------------------
 
+    def reset_odometry(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0,
+                       by: str = "") -> None:
+        """Report (x, y, theta) for where the robot stands now, on /odom at once. Only the
+        reported frame moves (see :class:`Odometry`): nothing inside the daemon sees a jump."""
+        self.odometry.reset(Pose2D(x, y, theta))
+        log.info("odometry reset to (%.3f m, %.3f m, %.3f rad)%s", x, y, theta,
+                 f" by {by}" if by else "")
+        self.bus.publish(ODOM, self.odom_sample())
+
     def odom_sample(self) -> OdomSample:
         odo, robot, control = self.odometry, self.robot, self.settings
-        return OdomSample(time.time(), robot.odom_frame_id, robot.base_frame_id, odo.x,
-                          odo.y, odo.theta, odo.linear, odo.angular,
+        pose = odo.reported
+        return OdomSample(time.time(), robot.odom_frame_id, robot.base_frame_id, pose.x,
+                          pose.y, pose.theta, odo.linear, odo.angular,
                           control.pose_covariance_diagonal,
                           control.twist_covariance_diagonal)
 
     def status(self) -> dict[str, Any]:
-        odo = self.odometry
+        pose = self.odometry.reported
         return {
-            "pose": {"x": odo.x, "y": odo.y, "theta": odo.theta,
-                     "theta_deg": math.degrees(odo.theta)},
+            "pose": {"x": pose.x, "y": pose.y, "theta": pose.theta,
+                     "theta_deg": math.degrees(pose.theta)},
             "twist": {"linear_x": self.linear.velocity, "angular_z": self.angular.velocity},
             "target": {"linear_x": self.decision.twist.linear_x,
                        "angular_z": self.decision.twist.angular_z},

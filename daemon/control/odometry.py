@@ -15,7 +15,13 @@ class Pose2D:
 
 
 class Odometry:
-    """Dead reckoning with second-order (midpoint) integration."""
+    """Dead reckoning with second-order (midpoint) integration.
+
+    ``x``, ``y``, ``theta`` integrate without a break from the start: what holds an odometry
+    pose inside the daemon (the collision monitor's placed scan, wander's heading) never sees
+    a jump. :meth:`reset` moves only the frame the pose is reported in (``/odom``, ``/tf``,
+    ``/api/status``): :attr:`reported` is the pose in it.
+    """
 
     def __init__(self, geometry: DiffDrive) -> None:
         self.geometry = geometry
@@ -23,10 +29,30 @@ class Odometry:
         self.linear = self.angular = 0.0
         self._last_wheels: tuple[float, float] | None = None
         self._last_t: float | None = None
+        #: the integrated pose at the last reset, and the pose reported for it
+        self._origin: tuple[Pose2D, Pose2D] | None = None
 
     @property
     def pose(self) -> Pose2D:
         return Pose2D(self.x, self.y, self.theta)
+
+    @property
+    def reported(self) -> Pose2D:
+        """The pose in the reported frame: the integrated one, moved by the last reset."""
+        if self._origin is None:
+            return self.pose
+        at, to = self._origin
+        c, s = math.cos(at.theta), math.sin(at.theta)
+        dx, dy = self.x - at.x, self.y - at.y
+        ahead, left = c * dx + s * dy, -s * dx + c * dy  # travel since, in the robot's frame then
+        c, s = math.cos(to.theta), math.sin(to.theta)
+        theta = to.theta + self.theta - at.theta
+        return Pose2D(to.x + c * ahead - s * left, to.y + s * ahead + c * left,
+                      math.atan2(math.sin(theta), math.cos(theta)))
+
+    def reset(self, pose: Pose2D = Pose2D()) -> None:
+        """Report ``pose`` for where the robot stands now (the origin by default)."""
+        self._origin = (self.pose, pose)
 
     def update_from_encoders(self, left_rad: float, right_rad: float, t: float) -> None:
         if self._last_wheels is None or self._last_t is None:

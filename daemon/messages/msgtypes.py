@@ -256,22 +256,33 @@ def _check_float(base: str, value: Any, path: str) -> float:
     return number
 
 
+# The spellings of a time's two fields, each accepted alone or with either of the other:
+# ROS 2 (sec, nanosec), ROS 1 (secs, nsecs) as rosbridge_suite reads them, and Foxglove's own
+# Time (sec, nsec), which its app writes when it publishes. Output is always {sec, nanosec}.
+TIME_SECONDS = ("sec", "secs")
+TIME_NANOSECONDS = ("nanosec", "nsecs", "nsec")
+TIME_SPELLINGS = "{sec, nanosec}, {secs, nsecs} or {sec, nsec}"
+
+
 def _check_time(name: str, value: Any, path: str) -> dict[str, int]:
     if value == "now" and name.endswith("/Time"):
         return _now_stamp()
     if not isinstance(value, dict):
-        raise MessageError(f"{path}: expected {{sec, nanosec}} ({name}), got {_kind(value)}")
-    keys = set(value)
-    if keys <= {"sec", "nanosec"}:
-        sec_key, ns_key = "sec", "nanosec"
-    elif keys <= {"secs", "nsecs"}:
-        sec_key, ns_key = "secs", "nsecs"
-    else:
-        raise MessageError(f"{path}: expected {{sec, nanosec}} or {{secs, nsecs}}, got fields "
-                           f"{sorted(keys)}")
-    sec = _check_int("int32", value.get(sec_key, 0), f"{path}.{sec_key}")
-    nanosec = _check_int("uint32", value.get(ns_key, 0), f"{path}.{ns_key}")
+        raise MessageError(f"{path}: expected {TIME_SPELLINGS} ({name}), got {_kind(value)}")
+    unknown = sorted(set(value) - {*TIME_SECONDS, *TIME_NANOSECONDS})
+    if unknown:
+        raise MessageError(f"{path}: expected {TIME_SPELLINGS}, got fields {sorted(value)}")
+    sec = _time_part(value, TIME_SECONDS, "int32", path)
+    nanosec = _time_part(value, TIME_NANOSECONDS, "uint32", path)
     return {"sec": sec, "nanosec": nanosec}
+
+
+def _time_part(value: dict[str, Any], spellings: tuple[str, ...], base: str, path: str) -> int:
+    """One field of a time under whichever of its spellings is there (0 when none is)."""
+    given = [key for key in spellings if key in value]
+    if len(given) > 1:
+        raise MessageError(f"{path}: {' and '.join(given)} are the same field; give one")
+    return _check_int(base, value[given[0]], f"{path}.{given[0]}") if given else 0
 
 
 def _now_stamp() -> dict[str, int]:

@@ -142,6 +142,8 @@ class FlightRecorder:
         self.files_started = 0
         self.deleted = 0
         self.error: str | None = None
+        #: bytes of the file being written (its chunks so far), updated by the writer thread
+        self.file_bytes = 0
         self._queue: deque[Item] = deque()
         self._file: OpenFile | None = None
         self._stop = threading.Event()
@@ -219,6 +221,8 @@ class FlightRecorder:
                 self._write_failed(file, exc)
                 return
             self._maybe_rotate(now)
+        if self._file is not None:
+            self.file_bytes = self._file.size()
         if now - self._last_cap >= CAP_CHECK_S:
             self._enforce_cap()
             self._last_cap = now
@@ -355,6 +359,7 @@ class FlightRecorder:
     def snapshot(self) -> dict[str, Any]:
         return {"enabled": self.wanted, "recording": self._file is not None,
                 "file": str(self.current) if self.current else None,
+                "file_bytes": self.file_bytes if self._file is not None else None,
                 "directory": str(self.options.directory), "written": self.written,
                 "dropped": self.dropped, "lost": self.lost, "unencodable": self.bad,
                 "queued": self.queued, "files_started": self.files_started,

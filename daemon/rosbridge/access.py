@@ -9,10 +9,12 @@ from daemon.topics import Access
 
 ANY = "*"  # every topic or service the table does not name
 
-# The same words as the HTTP routes: "open" = any connected client; "read" = a client that
-# may read telemetry ([security] read_requires_token); "drive" = a client with the token,
-# when one is configured. (op, canonical topic or service name) -> access; (op, ANY) is the
-# rule for every other name. Ops without a topic or service are looked up as (op, ANY).
+# The same words as the HTTP routes: "open" = any connected client; "stop" = the same over
+# rosbridge (Host and Origin were checked at the upgrade; only the e-stop's latch declares it);
+# "read" = a client that may read telemetry ([security] read_requires_token); "drive" = a
+# client with the token, when one is configured. (op, canonical topic or service name) ->
+# access; (op, ANY) is the rule for every other name. Ops without a topic or service are
+# looked up as (op, ANY).
 TABLE: dict[tuple[str, str], Access] = {
     # with a token configured, a tokenless client is read-only: it may not publish on any
     # topic (others use them), advertise topics or services, take a service over, answer
@@ -48,7 +50,7 @@ class Authority:
             return self.may_drive
         if access == "read":
             return self.may_read
-        return True
+        return True  # open, and stop: every connection passed Host and Origin at the upgrade
 
 
 def required(op: str, target: str = ANY) -> Access:

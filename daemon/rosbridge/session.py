@@ -297,6 +297,8 @@ class ClientSession:
         except MessageError as exc:
             raise ProtocolError(f"publish {name}: {exc}") from None
         if isinstance(topic.robot, TopicIn):
+            if topic.robot.access_for is not None:  # this message may need more (a release)
+                access.check(req.op, name, self.authority, topic.robot.access_for(msg))
             await self._deliver_inbound(req, topic.robot, type_name, msg)
         self.graph.publish(topic, SharedMessage(name, msg), latch=name in self.latching)
 
@@ -341,7 +343,7 @@ class ClientSession:
         repeats at command rate is said once a while)."""
         refusal = await topic.handler(Inbound(
             req.target, type_name, msg, self.source, f"rosbridge client {self.id} ({self.peer})",
-            req.t_recv))
+            req.t_recv, self.peer))
         if refusal is None:
             return
         message = f"publish {req.target}: {refusal.reason}"

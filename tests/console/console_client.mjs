@@ -1,6 +1,8 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold [--shots DIR] [--token T] [--seconds S]
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls [--shots DIR]
+//        [--token T] [--seconds S]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
+import { readFile } from "node:fs/promises";
 import { chromium } from "playwright-core";
 
 const [url, scenario] = process.argv.slice(2);
@@ -13,18 +15,22 @@ const secret = option("--token");
 const CHROMIUM = process.env.ARBITERD_CHROMIUM || "/usr/bin/chromium";
 const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
   "--disable-component-update", "--no-first-run"];
-const LAPTOP = { width: 1366, height: 768 };
+const LAPTOP = { width: 1280, height: 800 };
 const PHONE = { viewport: { width: 390, height: 844 }, deviceScaleFactor: 2, isMobile: true,
   hasTouch: true };
+// a desktop browser's window at phone size: no touch, a mouse, maybe a keyboard
+const NARROW = { viewport: { width: 390, height: 844 } };
 
 const report = (step, data = {}) => console.log(JSON.stringify({ step, ...data }));
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
 setTimeout(() => { report("fail", { error: "overall timeout" }); process.exit(1); }, 150000).unref();
 
-async function status() {
-  const response = await fetch(new URL("/api/status", url));
+async function getJson(path) {
+  const response = await fetch(new URL(path, url));
   return response.json();
 }
+
+const status = () => getJson("/api/status");
 
 const truth = async () => (await status()).ground_truth;
 
@@ -82,7 +88,11 @@ async function newPage(browser, options) {
   const context = await browser.newContext(options);
   const page = await context.newPage();
   const errors = [];
-  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  // the browser's own line for a 503 is not the page's error: /api/health answers 503 while
+  // a component is in error (a stall stop on a busy machine, a driver fault)
+  page.on("console", (m) => {
+    if (m.type() === "error" && !m.text().includes("status of 503")) errors.push(m.text());
+  });
   page.on("pageerror", (e) => errors.push(`pageerror: ${e.message}`));
   await page.goto(url);
   return { page, context, errors };
@@ -110,6 +120,7 @@ async function driveScenario(browser) {
     mode: await text(page, "#mode"), errors: [...errors],
   });
   await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  report("view", { hint: await page.isVisible("#drive-panel .hint"), ...await inView(page) });
 
   report("forward", await holdKey(page, "w", 1000));
   report("left", await holdKey(page, "a", 600));
@@ -147,16 +158,21 @@ async function driveScenario(browser) {
   await release.click(); // a click is not a deliberate release
   await sleep(300);
   const afterClick = (await status()).estop.engaged;
-  const rb = await release.boundingBox();
-  await page.mouse.move(rb.x + rb.width / 2, rb.y + rb.height / 2);
-  await page.mouse.down();
-  await sleep(1300);
-  await page.mouse.up();
+  await holdRelease(page);
   await page.waitForSelector("#estop-box[data-engaged=false]", { timeout: 5000 });
   report("release", { afterClick, afterHold: (await status()).estop.engaged });
   report("errors", { errors });
   await context.close();
   await phone(browser);
+}
+
+// Presses and holds "Hold to release" past its one second (the page measures the hold).
+async function holdRelease(page) {
+  const rb = await page.locator("#estop-release").boundingBox();
+  await page.mouse.move(rb.x + rb.width / 2, rb.y + rb.height / 2);
+  await page.mouse.down();
+  await sleep(1300);
+  await page.mouse.up();
 }
 
 async function phone(browser) {
@@ -177,8 +193,31 @@ async function phone(browser) {
   const stop = await watch(3000, still);
   if (shots) await page.screenshot({ path: `${shots}/console-phone.png` });
   report("touch", { before, atRelease: held[held.length - 1].truth, held: summary(held),
-    stop: summary(stop), errors });
+    stop: summary(stop), errors, hint: await page.isVisible("#drive-panel .hint") });
   await context.close();
+  const narrow = await newPage(browser, NARROW);
+  await narrow.page.waitForSelector("#components tr", { timeout: 15000 });
+  report("narrow", { hint: await narrow.page.isVisible("#drive-panel .hint") });
+  await narrow.context.close();
+}
+
+// The latest scan around the robot (laser frame turned by the odometry heading) against what
+// the view shows: every point must be inside.
+async function inView(page) {
+  await page.waitForFunction(() => document.getElementById("view").dataset.halfHeightM, null,
+    { timeout: 10000 });
+  const [scan, s] = [await getJson("/api/scan"), await status()];
+  let ex = 0;
+  let ey = 0;
+  scan.ranges.forEach((r, i) => {
+    if (r === null || !(r >= scan.range_min && r <= scan.range_max)) return;
+    const a = scan.angle_min + i * scan.angle_increment + s.pose.theta;
+    ex = Math.max(ex, Math.abs(r * Math.cos(a)));
+    ey = Math.max(ey, Math.abs(r * Math.sin(a)));
+  });
+  const shown = await page.$eval("#view", (e) => ({ halfWidth: Number(e.dataset.halfWidthM),
+    halfHeight: Number(e.dataset.halfHeightM) }));
+  return { scanHalfWidth: ex, scanHalfHeight: ey, ...shown, info: await text(page, "#view-info") };
 }
 
 async function tokenScenario(browser) {
@@ -191,6 +230,22 @@ async function tokenScenario(browser) {
   const none = await holdKey(page, "w", 1000);
   report("without", { asked, access: await text(page, "#access"),
     banner: await text(page, "#banner"), command: await text(page, "#command"), moved: none });
+
+  // anyone may stop the robot; releasing needs the token
+  await page.keyboard.press("Space");
+  await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
+  const latched = (await status()).estop.engaged;
+  await holdRelease(page);
+  await page.waitForFunction(() => /needs the token/.test(
+    document.getElementById("estop-state").textContent), null, { timeout: 5000 });
+  report("estopWithout", { latched, afterHold: (await status()).estop.engaged,
+    shown: await text(page, "#estop-state"), banner: await text(page, "#banner"),
+    pageErrors: errors.filter((e) => e.startsWith("pageerror")) });
+  const released = await fetch(new URL("/api/estop", url), { method: "POST",
+    headers: { "Content-Type": "application/json", Authorization: `Bearer ${secret}` },
+    body: JSON.stringify({ engaged: false }) });
+  if (released.status !== 200) throw new Error(`release with the token: ${released.status}`);
+  await page.waitForSelector("#estop-box[data-engaged=false]", { timeout: 5000 });
 
   await page.click("#token-button");
   await page.fill("#token-input", `${secret}-wrong`);
@@ -247,12 +302,141 @@ async function holdScenario(browser) {
   await context.close();
 }
 
+// A robot whose driver is faulted (health 503, commands 409): the page must not look drivable.
+async function faultScenario(browser) {
+  const shown = async (page) => ({
+    conn: await text(page, "#conn"), access: await text(page, "#access"),
+    accessState: await page.$eval("#access", (e) => e.dataset.state),
+    banner: await text(page, "#banner"),
+    bannerKind: await page.$eval("#banner", (e) => (e.hidden ? "hidden" : e.dataset.kind)),
+    health: await text(page, "#health-status"),
+  });
+  const faulted = async (page) => {
+    await page.waitForSelector("#conn[data-state=connected]", { timeout: 15000 });
+    await page.waitForSelector("#access[data-state=fault]", { timeout: 15000 });
+    await page.waitForSelector("#banner[data-kind=fault]:not([hidden])", { timeout: 10000 });
+    await page.waitForSelector("#components tr[data-component=control]", { timeout: 10000 });
+  };
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await faulted(page);
+  await page.keyboard.down("w");
+  await page.waitForFunction(() => /not sent/.test(document.getElementById("command").textContent),
+    null, { timeout: 5000 });
+  const laptop = { ...await shown(page), command: await text(page, "#command"),
+    control: await text(page, "#components tr[data-component=control]") };
+  if (shots) await page.screenshot({ path: `${shots}/console-fault-laptop.png` });
+  await page.keyboard.up("w");
+  // a 503 from /api/health is a console message of the browser's own; page errors are ours
+  report("fault", { ...laptop, pageErrors: errors.filter((e) => e.startsWith("pageerror")) });
+  await context.close();
+
+  const phone = await newPage(browser, PHONE);
+  await faulted(phone.page);
+  const box = await phone.page.locator("#banner").boundingBox();
+  if (shots) await phone.page.screenshot({ path: `${shots}/console-fault-phone.png` });
+  report("faultPhone", { ...await shown(phone.page), bannerTop: box.y,
+    pageErrors: phone.errors.filter((e) => e.startsWith("pageerror")) });
+  await phone.context.close();
+}
+
+// Everything beyond driving: wander, the recorder and its recordings, odometry and simulation
+// reset, the log tail and the health details.
+async function controlsScenario(browser) {
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const until = (what, predicate, ms = 10000) => page.waitForFunction(predicate, null,
+    { timeout: ms }).catch((e) => { throw new Error(`${what}: ${e.message}`); });
+  const autonomyMode = async () => (await getJson("/api/autonomy")).mode;
+  const polled = async (what, fn, ms = 10000) => {
+    const t0 = Date.now();
+    for (;;) {
+      const value = await fn();
+      if (value) return value;
+      if (Date.now() - t0 > ms) throw new Error(`timed out: ${what}`);
+      await sleep(25);
+    }
+  };
+
+  // wander on: the robot's answer is shown (a stall stop on a busy machine may end it soon)
+  await until("the wander state arrived", () =>
+    document.getElementById("wander-state").textContent.startsWith("off"));
+  await page.click("#wander");
+  await until("wander switched on", () =>
+    /^wander on/.test(document.getElementById("robot-message").textContent));
+  const wanderOn = await text(page, "#wander-state");
+
+  await page.click("#record");
+  await until("recording shown with its size", () =>
+    /\.mcap · \d/.test(document.getElementById("record-state").textContent));
+  await until("the recorder's file in Health", () => /recording arbiterd-.*\.mcap · \d/.test(
+    document.querySelector("#components tr[data-component=recorder]")?.textContent || ""));
+  await until("the recorder's log line in the tail", () =>
+    /flight recorder: writing/.test(document.getElementById("log").textContent));
+  await until("the nearest obstacle in Health", () => /nearest obstacle \d+\.\d\d m/.test(
+    document.querySelector("#components tr[data-component=collision_monitor]")?.textContent || ""));
+  const health = await page.$$eval("#components tr", (rows) =>
+    Object.fromEntries(rows.map((r) => [r.dataset.component, r.cells[2].textContent])));
+  const recordState = await text(page, "#record-state");
+  if (shots) await page.screenshot({ path: `${shots}/console-controls-laptop.png`, fullPage: true });
+
+  // off, unless the robot already switched it off itself (a stall stop does on a busy machine)
+  if (await page.$eval("#wander", (e) => e.getAttribute("aria-pressed")) === "true") {
+    await page.click("#wander");
+  }
+  await polled("wander off", async () => (await autonomyMode()) === "off");
+  await page.click("#record");
+  await until("the recording listed, finished", () => {
+    const link = document.querySelector("#recordings a");
+    return link && link.dataset.recording === "false";
+  });
+  const [download] = await Promise.all([page.waitForEvent("download"),
+    page.click("#recordings a")]);
+  const magic = (await readFile(await download.path())).subarray(0, 8).toString("latin1");
+
+  await holdKey(page, "w", 600);
+  const moved = (await status()).pose;
+  await page.click("#odom-reset");
+  const afterOdom = await polled("odometry at the origin", async () => {
+    const p = (await status()).pose;
+    return Math.hypot(p.x, p.y) < 0.05 ? p : null;
+  });
+  await holdKey(page, "w", 600);
+  await page.click("#sim-reset");
+  const afterSim = await polled("odometry on the ground truth", async () => {
+    const s = await status();
+    const t = s.ground_truth;
+    return Math.hypot(s.pose.x - t.x, s.pose.y - t.y) < 0.05 && Math.hypot(t.x, t.y) < 0.05
+      ? s : null;
+  });
+  report("controls", {
+    wanderOn, recordState, health, magic, moved, afterOdom, afterSim: afterSim.pose,
+    truth: afterSim.ground_truth, logLines: await page.$$eval("#log li", (l) => l.length),
+    message: await text(page, "#robot-message"), errors: [...errors],
+  });
+  await context.close();
+
+  const phone = await newPage(browser, PHONE);
+  await waitReady(phone.page);
+  await phone.page.waitForSelector("#recordings a", { timeout: 10000 });
+  await phone.page.tap("#odom-reset"); // a log line: the tail shows what the robot says now
+  await phone.page.waitForSelector("#log li", { timeout: 10000 });
+  await phone.page.$eval("#robot-panel", (e) => e.scrollIntoView({ block: "start" }));
+  await phone.page.waitForFunction(() => window.scrollY > 0, null, { timeout: 5000 });
+  if (shots) await phone.page.screenshot({ path: `${shots}/console-controls-phone.png` });
+  report("controlsPhone", { hint: await phone.page.isVisible("#drive-panel .hint"),
+    errors: phone.errors });
+  await phone.context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
   else if (scenario === "token") await tokenScenario(browser);
   else if (scenario === "hold") await holdScenario(browser);
   else if (scenario === "reconnect") await reconnectScenario(browser);
+  else if (scenario === "fault") await faultScenario(browser);
+  else if (scenario === "controls") await controlsScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

@@ -1,5 +1,6 @@
 # The web console end to end: Debian's Chromium (playwright-core on Node) against
-# `arbiterd run --sim`, driving with keys, joystick and touch; e-stop; token; screenshots.
+# `arbiterd run --sim`, driving with keys, joystick and touch; e-stop; token; a faulted driver;
+# wander, recorder, resets, log and health details; screenshots.
 from __future__ import annotations
 
 import json
@@ -43,8 +44,16 @@ def _wait_healthy(daemon: DaemonSubprocess) -> None:
              "the simulated robot healthy (lidar streaming)", within_s=20)
 
 
-def _run_console(daemon: DaemonSubprocess, *args: str) -> Steps:
-    _wait_healthy(daemon)
+def _keep_shots(shots: Path, *names: str) -> None:
+    for name in names:
+        assert (shots / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        if SHOTS_TO:
+            shutil.copy(shots / name, Path(SHOTS_TO) / name)
+
+
+def _run_console(daemon: DaemonSubprocess, *args: str, healthy: bool = True) -> Steps:
+    if healthy:
+        _wait_healthy(daemon)
     assert NODE is not None
     result = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
                              *args], cwd=HERE, capture_output=True, text=True, timeout=170)
@@ -89,6 +98,11 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
     assert {"control", "lidar", "rosbridge", "http", "sim"} <= set(loaded["components"])
     assert loaded["health"] == "ok" and loaded["mode"] == "simulated robot"
     assert int(loaded["scan"].split("scan ")[1].split()[0]) > 50
+    view = steps["view"]  # the default view fits the scan: the arena's walls are in it
+    assert view["scanHalfWidth"] <= view["halfWidth"] and \
+        view["scanHalfHeight"] <= view["halfHeight"], view
+    assert view["scanHalfHeight"] > 4.0 and "(fit)" in view["info"], view  # wider than 8 m
+    assert view["hint"] is True  # a laptop has keys
 
     forward = steps["forward"]
     assert ahead(forward, "atRelease") >= 0.2
@@ -114,10 +128,8 @@ def test_console_drives_the_simulated_robot(tmp_path: Path) -> None:
     touch = steps["touch"]
     assert ahead(touch, "atRelease") >= 0.2 and stopped_by_zero_command(touch["stop"])
     assert touch["errors"] == [], log
-    for name in ("console-laptop.png", "console-phone.png"):
-        assert (shots / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-        if SHOTS_TO:
-            shutil.copy(shots / name, Path(SHOTS_TO) / name)
+    assert touch["hint"] is False and steps["narrow"]["hint"] is False  # no keys on a phone
+    _keep_shots(shots, "console-laptop.png", "console-phone.png")
 
 
 def test_console_with_a_token(tmp_path: Path) -> None:
@@ -132,6 +144,10 @@ def test_console_with_a_token(tmp_path: Path) -> None:
     assert "needs a token to drive" in without["banner"]
     assert "not sent: this robot needs a token" in without["command"]
     assert moved(without["moved"]) < 0.01
+    estop = steps["estopWithout"]  # anyone may stop the robot; releasing needs the token
+    assert estop["latched"] is True and estop["afterHold"] is True, estop
+    assert "releasing it needs the token" in estop["shown"] and estop["pageErrors"] == [], estop
+    assert "needs a token to drive" in estop["banner"], estop
     wrong = steps["wrong"]
     assert wrong["access"] == "token refused" and "token was refused" in wrong["banner"]
     assert moved(wrong["moved"]) < 0.01
@@ -176,3 +192,64 @@ def _follow(client: subprocess.Popen[str], daemon: DaemonSubprocess) -> Steps:
             daemon.start()  # ...and comes back on the same ports
             _wait_healthy(daemon)
     return steps
+
+
+def test_console_shows_a_faulted_robot(tmp_path: Path) -> None:
+    """The serial driver's port does not exist: health 503, commands 409. The page must say
+    so at the top and must not look drivable."""
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    port = "/dev/ttyACM-absent"  # short, like a real one, and never there
+    toml = (f'[driver]\ntype = "serial"\n[driver.serial]\nport = "{port}"\n'
+            '[lidar]\nenabled = false\n')
+    with DaemonSubprocess(tmp_path, toml, use_mock_log=False) as daemon:
+        assert daemon.get("/api/health")[0] == 503
+        steps = _run_console(daemon, "fault", "--shots", str(shots), healthy=False)
+        assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.2}})[0] == 409
+        assert daemon.stop() == 0
+        log = daemon.log()
+    for step in (steps["fault"], steps["faultPhone"]):
+        assert step["conn"] == "connected" and step["health"] == "error", step
+        assert step["access"] == "cannot drive: driver fault" and step["accessState"] == "fault"
+        assert step["bannerKind"] == "fault", step
+        assert step["banner"].startswith("Driver fault: serial driver not available"), step
+        assert port in step["banner"] and step["pageErrors"] == [], step
+    fault = steps["fault"]
+    assert "not sent: driver fault" in fault["command"], fault
+    assert "fault: serial driver not available" in fault["control"]
+    assert steps["faultPhone"]["bannerTop"] < 200  # above the fold, under the top bar
+    assert "/stamped_cmd_vel" not in log  # nothing was sent to be refused
+    _keep_shots(shots, "console-fault-laptop.png", "console-fault-phone.png")
+
+
+def test_console_controls_beyond_driving(tmp_path: Path) -> None:
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    toml = SIM + f'[record]\ndirectory = "{tmp_path / "recordings"}"\nflush_interval_s = 0.2\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "controls", "--shots", str(shots))
+        recordings = daemon.get("/api/recordings")[1]["recordings"]
+        assert daemon.stop() == 0
+        log = daemon.log()
+    controls = steps["controls"]
+    assert controls["errors"] == [], log
+    assert controls["wanderOn"].startswith("wander · "), controls
+    assert ".mcap · " in controls["recordState"], controls
+    health = controls["health"]
+    assert "nearest obstacle" in health["collision_monitor"], health
+    assert health["recorder"].startswith("recording arbiterd-"), health
+    assert health["autonomy"].startswith("mode "), health
+    assert controls["magic"] == "\x89MCAP0\r\n" and len(recordings) == 1, recordings
+    assert math.hypot(controls["moved"]["x"], controls["moved"]["y"]) > 0.1
+    assert math.hypot(controls["afterOdom"]["x"], controls["afterOdom"]["y"]) < 0.05
+    truth, pose = controls["truth"], controls["afterSim"]
+    assert math.hypot(truth["x"], truth["y"]) < 0.05  # back at the start...
+    assert math.hypot(pose["x"] - truth["x"], pose["y"] - truth["y"]) < 0.05  # ...odometry too
+    assert controls["logLines"] > 0 and "simulation reset" in controls["message"]
+    assert "odometry reset to" in log and "flight recorder: writing" in log
+    assert "autonomy wander (requested over HTTP)" in log
+    phone = steps["controlsPhone"]
+    assert phone["hint"] is False and phone["errors"] == [], phone
+    _keep_shots(shots, "console-controls-laptop.png", "console-controls-phone.png")

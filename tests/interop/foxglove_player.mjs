@@ -186,6 +186,29 @@ for (const mode of ["raw", "cbor"]) {
     report("compared", { mode, topic, type: types[topic], matched: m[topic].length, problems });
   }
 }
+// Foxglove's app publishes times as its own {sec, nsec}: relayed to a JSON subscriber, the
+// stamp comes back as ROS 2's {sec, nanosec} with the same nanoseconds
+const FOX_STAMP = { sec: 1700000000, nsec: 123456789 };
+const stampType = "geometry_msgs/msg/TwistStamped";
+const publisher = new FoxRos.Topic({ ros: player, name: "/foxglove_stamped",
+  messageType: stampType });
+let again;
+let relayed;
+try {
+  relayed = await within(5000, "a {sec, nsec} stamp published the way Foxglove does", (ok) => {
+    new Topic2({ ros: json, name: "/foxglove_stamped", messageType: stampType })
+      .subscribe((m) => ok(m.header.stamp));
+    again = setInterval(() => publisher.publish({ header: { stamp: FOX_STAMP,
+      frame_id: "base_link" } }), 100); // until the subscription is there
+  });
+} catch (e) {
+  report("foxglove_stamp", { statuses });
+  fail(e);
+} finally {
+  clearInterval(again);
+}
+report("foxglove_stamp", { sent: FOX_STAMP, relayed });
+
 const now = Date.now() / 1000;
 const clock = receipts["/odom"];
 report("clock", { secs: clock.secs, nsecs: clock.nsecs, skew_s: now - (clock.secs + clock.nsecs / 1e9) });

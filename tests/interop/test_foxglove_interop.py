@@ -58,5 +58,6 @@ def test_foxglove_player_decodes_cbor_raw_as_the_json_path_delivers(
     assert compared[("raw", "/scan")]["type"] == "sensor_msgs/msg/LaserScan"
     clock = by_step["clock"][0]  # secs/nsecs: the server clock at send
     assert abs(clock["skew_s"]) < 30 and clock["secs"] > 0
+    assert by_step["foxglove_stamp"][0]["relayed"] == {"sec": 1700000000, "nanosec": 123456789}
     assert by_step["done"][0]["ok"] is True
     assert time.time() > 0 and daemon.stop() == 0

@@ -5,11 +5,14 @@ export class Api {
     this.getToken = getToken;
   }
 
+  headers() {
+    const token = this.getToken();
+    return token ? { Authorization: `Bearer ${token}` } : {};
+  }
+
   // One request: {status, body}; throws only when the robot does not answer at all.
   async request(method, path, body, timeoutMs = 3000) {
-    const headers = {};
-    const token = this.getToken();
-    if (token) headers.Authorization = `Bearer ${token}`;
+    const headers = this.headers();
     if (body !== undefined) headers["Content-Type"] = "application/json";
     const response = await fetch(path, {
       method, headers, cache: "no-store",
@@ -23,4 +26,11 @@ export class Api {
 
   get(path) { return this.request("GET", path); }
   post(path, body) { return this.request("POST", path, body); }
+
+  // A file (a recording) as a Blob, with the token; throws saying why it is not there.
+  async download(path) {
+    const response = await fetch(path, { headers: this.headers(), cache: "no-store" });
+    if (!response.ok) throw new Error(`HTTP ${response.status}`);
+    return response.blob();
+  }
 }

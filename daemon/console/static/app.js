@@ -6,12 +6,15 @@ import { Drive, isDriveKey } from "./drive.js";
 import { renderHealth, renderMotion } from "./health.js";
 import { Hud } from "./hud.js";
 import { Joystick } from "./joystick.js";
+import { LogTail } from "./log.js";
+import { RobotPanel } from "./robot.js";
 import { TokenBox } from "./token.js";
 import { View, poseOf } from "./view.js";
 
 const $ = (id) => document.getElementById(id);
 const STRING = "std_msgs/msg/String";
 const RELEASE_HOLD_MS = 1000;
+const REFUSAL_SHOWN_MS = 1500; // a command refusal from the robot stays on the command line
 
 const state = {
   httpUp: null, // the last HTTP request was answered (null: not tried yet)
@@ -21,6 +24,9 @@ const state = {
   access: "unknown", // drive | read-only | refused | checking | unknown
   readNeedsToken: false,
   estop: null,
+  estopNote: "", // why a release did not go through
+  fault: null, // the driver fault from /api/status: the robot refuses every command
+  refusal: { text: "", at: -Infinity }, // the robot's last refusal of this page's command
   mode: "",
   limits: { linear: 2, angular: 2 },
 };
@@ -37,6 +43,12 @@ const hud = new Hud({ p50: $("lat-p50"), p99: $("lat-p99"), rtt: $("lat-rtt"),
 const clientTag = Math.random().toString(36).slice(2, 6);
 let commandSeq = 0;
 const drive = new Drive(sendCommand);
+const logTail = new LogTail($("log"));
+const robot = new RobotPanel({
+  wander: $("wander"), wanderState: $("wander-state"), record: $("record"),
+  recordState: $("record-state"), odomReset: $("odom-reset"), simReset: $("sim-reset"),
+  message: $("robot-message"), recordings: $("recordings"), refresh: $("recordings-refresh"),
+}, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });
 
 // -- connection, access and the banner ------------------------------------------------------
 
@@ -50,13 +62,22 @@ function bridgeUrl() {
 
 function setAccess(access) {
   state.access = access;
-  const text = { drive: "can drive", "read-only": "read-only: token needed",
-    refused: "token refused", checking: "", unknown: "" }[access];
-  $("access").textContent = text;
-  $("access").dataset.state = access;
   $("token-button").hidden = !(access === "read-only" || access === "refused" ||
     state.readNeedsToken || token.get());
   render();
+}
+
+// What this tab can do now: the token decides, and a faulted driver refuses everyone.
+function renderAccess() {
+  const pill = $("access");
+  if (state.fault) {
+    pill.textContent = "cannot drive: driver fault";
+    pill.dataset.state = "fault";
+    return;
+  }
+  pill.textContent = { drive: "can drive", "read-only": "read-only: token needed",
+    refused: "token refused", checking: "", unknown: "" }[state.access];
+  pill.dataset.state = state.access;
 }
 
 // The daemon says a token is missing or wrong: 401 on HTTP, a `status` error on rosbridge.
@@ -73,6 +94,7 @@ function tokenProblem(what) {
 
 function tokenChanged() {
   state.readNeedsToken = false;
+  state.estopNote = "";
   setAccess("unknown");
   bridge.reconnect();
   pollHealth();
@@ -87,6 +109,7 @@ function render() {
   else if (state.httpUp && state.retryS) [text, kind] = ["rosbridge lost", "disconnected"];
   conn.textContent = text;
   conn.dataset.state = kind;
+  renderAccess();
   renderBanner();
 }
 
@@ -100,6 +123,10 @@ function renderBanner() {
   } else if (state.readNeedsToken) {
     message = token.get() ? "The token was refused: this robot needs the right token even to read."
       : "This robot needs a token even to read its telemetry: use Token….";
+  } else if (state.fault) {
+    message = `Driver fault: ${state.fault}. The robot refuses every command until its ` +
+      "driver is back; the daemon keeps reconnecting.";
+    kind = "fault";
   } else if (state.wsPort === 0) {
     message = "rosbridge is disabled on this robot ([rosbridge] enabled = false): no live view or driving.";
   } else if (state.httpUp && !state.wsUp && state.retryS) {
@@ -133,7 +160,11 @@ bridge.addEventListener("retry", (event) => {
 });
 bridge.addEventListener("status", (event) => {
   const { msg = "", level } = event.detail;
-  if (level === "error" && msg.includes("token")) tokenProblem("to drive");
+  if (level !== "error") return;
+  if (msg.includes("token")) tokenProblem("to drive");
+  else if (msg.startsWith("publish /stamped_cmd_vel: ")) {
+    state.refusal = { text: msg.slice("publish /stamped_cmd_vel: ".length), at: performance.now() };
+  }
 });
 
 async function ping() {
@@ -154,6 +185,8 @@ bridge.subscribe("/odom", "nav_msgs/msg/Odometry", (m) => view.setOdom(poseOf(m)
 bridge.subscribe("/scan", "sensor_msgs/msg/LaserScan", (m) => view.setScan(m));
 bridge.subscribe("/latency_reports", STRING, (m) => hud.report(m.data));
 bridge.subscribe("/robot_info", STRING, (m) => robotInfo(JSON.parse(m.data)));
+bridge.subscribe("/autonomy/state", STRING, (m) => robot.setAutonomy(JSON.parse(m.data)));
+bridge.subscribe("/rosout", "rcl_interfaces/msg/Log", (m) => logTail.add(m));
 
 function robotInfo(info) {
   $("robot-name").textContent = info.name || "arbiterd";
@@ -191,10 +224,13 @@ function healthArrived(health) {
         (m) => view.setTruth(poseOf(m)), { throttle_rate: 100 });
       document.querySelector(".key.truth").hidden = false;
     }
+    $("sim-reset").hidden = health.mode !== "sim";
   }
+  robot.setRecorder(health.components.recorder);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
   if (firstTime && state.wsPort) bridge.connect();
+  if (firstTime) robot.refreshRecordings();
 }
 
 // Repeats `fn` every `periodMs`, never two at once.
@@ -231,6 +267,11 @@ every(2000, () => (state.wsUp ? ping() : null));
 
 function statusArrived(status) {
   setEstop(status.estop.engaged, status.estop.reason);
+  if ((status.fault || null) !== state.fault) {
+    state.fault = status.fault || null;
+    if (state.fault) drive.stopAll();
+    render();
+  }
   renderMotion($("motion"), status);
 }
 
@@ -238,7 +279,7 @@ function statusArrived(status) {
 
 function sendCommand(linear, angular) {
   if (!bridge.open || state.access === "read-only" || state.access === "refused" ||
-      state.estop) return false;
+      state.estop || state.fault) return false;
   const id = `console-${clientTag}-${++commandSeq}`;
   const body = { linear: { x: linear }, angular: { z: angular }, id, t_sent: Date.now() };
   hud.commandSent(id);
@@ -249,9 +290,12 @@ drive.onCommand = (linear, angular, sent) => {
   let why = "";
   if (!sent) {
     if (state.estop) why = " · not sent: e-stop engaged";
+    else if (state.fault) why = " · not sent: driver fault (see above)";
     else if (state.access === "read-only") why = " · not sent: this robot needs a token to drive";
     else if (state.access === "refused") why = " · not sent: the token was refused";
     else why = " · not sent: not connected";
+  } else if (performance.now() - state.refusal.at < REFUSAL_SHOWN_MS) {
+    why = ` · refused by the robot: ${state.refusal.text}`;
   }
   $("command").textContent = `v ${linear.toFixed(2)} m/s · ω ${angular.toFixed(2)} rad/s${why}`;
 };
@@ -296,9 +340,10 @@ speedChanged();
 
 function setEstop(engaged, reason = "") {
   state.estop = engaged;
+  if (!engaged) state.estopNote = "";
   $("estop-box").dataset.engaged = String(engaged);
-  $("estop-state").textContent = engaged ? `E-STOP ENGAGED${reason ? ` (${reason})` : ""}`
-    : "e-stop released";
+  $("estop-state").textContent = engaged ? `E-STOP ENGAGED${reason ? ` (${reason})` : ""}` +
+    (state.estopNote ? ` · ${state.estopNote}` : "") : "e-stop released";
   $("estop-release").hidden = !engaged;
   $("estop-pill").textContent = engaged ? "E-STOP ENGAGED" : "";
   $("estop-pill").dataset.engaged = String(engaged);
@@ -319,11 +364,16 @@ async function estopRequest(engaged) {
     setEstop(state.estop, "the robot does not answer");
     return;
   }
-  if (answer.status === 401) {
-    tokenProblem(engaged ? "to use the e-stop" : "to release the e-stop");
-    if (engaged) setEstop(false);
+  if (answer.status === 401) { // only releasing needs the token; anyone may stop the robot
+    state.estopNote = "releasing it needs the token";
+    setEstop(true, "");
+    tokenProblem("to release the e-stop");
   } else if (answer.status === 200) {
     setEstop(answer.body.engaged, answer.body.engaged ? "console" : "");
+  } else if (answer.status === 429) { // latched already, and asked too often
+    setEstop(true, "console");
+  } else {
+    setEstop(state.estop, answer.body?.error || `HTTP ${answer.status}`);
   }
 }
 
@@ -369,6 +419,8 @@ $("estop").addEventListener("click", engageEstop);
 $("zoom-in").addEventListener("click", () => view.zoom(-1));
 $("zoom-out").addEventListener("click", () => view.zoom(1));
 $("clear-trail").addEventListener("click", () => view.clearTrail());
+$("fit").addEventListener("click", () => view.setFit(!view.fit));
+view.onFitChange = (on) => $("fit").setAttribute("aria-pressed", String(on));
 $("heading-up").addEventListener("click", (event) => {
   view.headingUp = !view.headingUp;
   event.currentTarget.setAttribute("aria-pressed", String(view.headingUp));

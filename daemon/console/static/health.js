@@ -1,6 +1,24 @@
 // Health panel: component states with their messages, mode, driver, uptime, motion, clamps, faults.
+import { baseName, fileSize } from "./robot.js";
 
 const DETAIL_KEYS = ["state", "model", "mode", "emulator", "scan_rate_hz", "clients", "port"];
+const metres = (v) => (Number.isFinite(v) ? `${v.toFixed(2)} m` : "none in range");
+
+// What matters about each known component when nothing is wrong with it.
+const DETAILS = {
+  control: (c) => [c.estop ? "e-stop engaged" : "e-stop released", `driver ${c.driver?.driver}`,
+    `longest stall ${c.longest_stall_ms} ms`],
+  collision_monitor: (c) => (c.enabled === false ? ["off"]
+    : [`nearest obstacle ${metres(c.nearest_m)}`, `action ${c.action}`, `zone ${c.zone}`]),
+  lidar: (c) => [c.state, c.model, Number.isFinite(c.scan_rate_hz) ? `${c.scan_rate_hz} Hz` : ""],
+  autonomy: (c) => [`mode ${c.mode}`, `state ${c.state}`, c.reason],
+  recorder: (c) => (c.recording ? [`recording ${baseName(c.file)}`, fileSize(c.file_bytes ?? 0),
+    `${c.written} messages`] : ["not recording", c.dropped ? `${c.dropped} dropped` : ""]),
+  rosbridge: (c) => [`${c.clients} clients`, `port ${c.port}`,
+    c.dropped_messages ? `${c.dropped_messages} dropped` : ""],
+  http: (c) => [`port ${c.port}`, `${c.connections} connections`],
+  sim: (c) => [`${c.obstacles} obstacles`, `${c.collisions} collisions`, `emulator ${c.emulator}`],
+};
 
 export function uptime(seconds) {
   const s = Math.floor(seconds);
@@ -12,13 +30,19 @@ export function uptime(seconds) {
 }
 
 // The one line that says what a component is doing, or what is wrong with it.
-export function componentMessage(c) {
+export function componentMessage(c, name = "") {
   for (const key of ["error", "last_error", "fault"]) {
     if (c[key]) return `${key.replace("_", " ")}: ${c[key]}`;
   }
   if (c.driver && typeof c.driver === "object" && c.driver.fault) {
     return `driver fault: ${c.driver.fault}`;
   }
+  return componentDetail(name, c);
+}
+
+export function componentDetail(name, c) {
+  const known = DETAILS[name];
+  if (known) return known(c).filter(Boolean).join(" · ");
   return DETAIL_KEYS.filter((k) => c[k] !== undefined && c[k] !== null && typeof c[k] !== "object")
     .slice(0, 3).map((k) => `${k.replace(/_/g, " ")} ${c[k]}`).join(" · ");
 }
@@ -31,7 +55,7 @@ export function renderHealth(el, health) {
   const rows = Object.entries(health.components).map(([name, c]) => {
     const tr = document.createElement("tr");
     tr.dataset.component = name;
-    const cells = [name, c.status, componentMessage(c)];
+    const cells = [name, c.status, componentMessage(c, name)];
     cells.forEach((text, i) => {
       const td = document.createElement("td");
       td.textContent = text;

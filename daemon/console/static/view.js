@@ -1,8 +1,12 @@
 // Top-down view in the odometry frame, centred on the robot: /scan on a metres grid, the
-// footprint, the odometry trail and, on the simulated robot, the ground truth beside it.
+// footprint, the odometry trail and, on the simulated robot, the ground truth beside it. Until
+// the user zooms, the view fits the latest scan (the walls of a room or of the simulated arena).
 
 const TRAIL_MAX = 2000;
-const SPANS = [2, 4, 8, 16, 32]; // metres across the shorter side of the canvas
+const SPANS = [2, 4, 8, 12, 16, 24, 32, 48]; // zoom steps: metres across the shorter side
+const DEFAULT_SPAN = 8;
+const FIT_MARGIN = 1.08; // the farthest point this far inside the edge
+const FIT_STEP = 2; // a fitted span is a whole number of FIT_STEP metres
 
 export function poseOf(msg) {
   const p = msg.pose.pose.position;
@@ -20,7 +24,9 @@ export class View {
     this.canvas = canvas;
     this.info = info;
     this.ctx = canvas.getContext("2d");
-    this.spanIndex = 2;
+    this.span = DEFAULT_SPAN;
+    this.fit = true; // follow the scan's extent until the user zooms
+    this.onFitChange = () => {};
     this.headingUp = false;
     this.pose = { x: 0, y: 0, theta: 0 };
     this.truth = null;
@@ -37,8 +43,47 @@ export class View {
   }
 
   zoom(step) {
-    this.spanIndex = Math.min(SPANS.length - 1, Math.max(0, this.spanIndex + step));
+    const next = step > 0 ? SPANS.find((s) => s > this.span) ?? SPANS[SPANS.length - 1]
+      : [...SPANS].reverse().find((s) => s < this.span) ?? SPANS[0];
+    this.span = next;
+    this.setFit(false);
     this.request();
+  }
+
+  setFit(on) {
+    this.fit = on;
+    this.onFitChange(on);
+    if (on) this.fitScan();
+    this.request();
+  }
+
+  // The span that shows every point of the latest scan around the robot; it grows at once
+  // and shrinks only by a whole step (no flicker as the robot drives).
+  fitScan() {
+    if (!this.scan || !this.fit) return;
+    const { canvas } = this;
+    const w = canvas.clientWidth;
+    const h = canvas.clientHeight;
+    if (!w || !h) return;
+    const { xy, pose } = this.scan;
+    const c = Math.cos(pose.theta);
+    const s = Math.sin(pose.theta);
+    let ex = 0;
+    let ey = 0;
+    for (let i = 0; i < xy.length; i += 2) {
+      const dx = c * xy[i] - s * xy[i + 1] + pose.x - this.pose.x;
+      const dy = s * xy[i] + c * xy[i + 1] + pose.y - this.pose.y;
+      if (this.headingUp) {
+        ex = ey = Math.max(ex, Math.hypot(dx, dy));
+      } else {
+        ex = Math.max(ex, Math.abs(dx));
+        ey = Math.max(ey, Math.abs(dy));
+      }
+    }
+    if (!ex && !ey) return;
+    const scale = Math.min(w / (2 * ex * FIT_MARGIN), h / (2 * ey * FIT_MARGIN)); // px per m
+    const needed = Math.max(SPANS[0], Math.ceil(Math.min(w, h) / scale / FIT_STEP) * FIT_STEP);
+    if (needed > this.span || needed <= this.span - FIT_STEP) this.span = needed;
   }
 
   clearTrail() { this.trail = []; this.truthTrail = []; this.request(); }
@@ -65,6 +110,7 @@ export class View {
       xy[n++] = r * Math.sin(a);
     });
     this.scan = { xy: xy.subarray(0, n), pose: this.pose, received: performance.now() };
+    this.fitScan();
     this.request();
   }
 
@@ -81,8 +127,10 @@ export class View {
     const h = Math.round(canvas.clientHeight * dpr);
     if (!w || !h) return;
     if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
-    const span = SPANS[this.spanIndex];
+    const { span } = this;
     const scale = Math.min(w, h) / span; // px per metre
+    canvas.dataset.halfWidthM = (w / scale / 2).toFixed(3); // what is in view, for tests
+    canvas.dataset.halfHeightM = (h / scale / 2).toFixed(3);
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.clearRect(0, 0, w, h);
     ctx.translate(w / 2, h / 2);
@@ -97,7 +145,7 @@ export class View {
     this.drawScan(cssColor("--scan"), 3 * dpr * px);
     if (this.truth) this.drawRobot(this.truth, cssColor("--truth"), false, dpr * px);
     this.drawRobot(this.pose, cssColor("--odom"), true, dpr * px);
-    this.info.textContent = `grid 1 m · ${span} m across` +
+    this.info.textContent = `grid 1 m · ${span} m across${this.fit ? " (fit)" : ""}` +
       (this.scan ? ` · scan ${this.scan.xy.length / 2} points` : " · no scan yet");
   }
 
@@ -125,7 +173,7 @@ export class View {
   drawLabels(reach, dpr) {
     if (this.headingUp) return;
     const { ctx, canvas } = this;
-    const step = Math.max(1, SPANS[this.spanIndex] / 4);
+    const step = Math.max(1, Math.round(this.span / 4));
     const m = ctx.getTransform();
     const { x: cx, y: cy } = this.pose;
     ctx.save();
