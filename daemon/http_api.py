@@ -23,6 +23,9 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 MAX_JSON_DEPTH = 32
 MAX_INT_DIGITS = 64
 READ_CHUNK = 65536
+#: on stop, how long a request in progress (a download to a reader that stalls) may go on
+#: before it is cancelled; its connection is closed after as long again at most
+SHUTDOWN_GRACE_S = 1.0
 
 internal_error_log = LogLimiter(log, "internal-error", burst=2, window_s=60.0)
 
@@ -263,7 +266,8 @@ class HttpServer:
         self._accept_errors = AcceptErrorFilter(asyncio.get_running_loop())
         self._accept_errors.install()
         self._runner = CappedRunner(self.app, self.max_connections, access_log=None,
-                                    handle_signals=False, keepalive_timeout=self.idle_timeout_s)
+                                    handle_signals=False, keepalive_timeout=self.idle_timeout_s,
+                                    shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         await site.start()

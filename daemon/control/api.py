@@ -123,8 +123,8 @@ class ControlComponent(BaseComponent):
         """``/estop``: std_msgs/Bool, true latches, false releases."""
         if message.msg["data"]:
             await self.control.engage_estop(message.sender)
-        else:
-            self.control.release_estop()
+        elif refusal := self.control.release_estop():
+            return Refusal(f"e-stop not released: {refusal}")
         return None
 
     # -- HTTP --------------------------------------------------------------------------------
@@ -165,8 +165,8 @@ class ControlComponent(BaseComponent):
             raise ApiError(422, "invalid e-stop request: reason: expected a string")
         if engaged:
             await self.control.engage_estop(reason)
-        else:
-            self.control.release_estop()
+        elif refusal := self.control.release_estop():
+            raise ApiError(409, f"e-stop not released: {refusal}")
         return json_response({"engaged": self.control.arbiter.estop_engaged})
 
     async def post_stall(self, request: web.Request) -> web.Response:

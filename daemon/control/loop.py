@@ -145,6 +145,7 @@ class ControlLoop:
 
     async def stop(self) -> None:
         self._stopping = True
+        self.arbiter.engage_estop("shutdown", final=True)
         self.supervisor.stop()  # the tick stops now: that is no stall
         if self._metronome:
             self._metronome.stop()
@@ -155,8 +156,11 @@ class ControlLoop:
         await self.driver.close()
 
     async def halt(self) -> None:
-        """Zero the wheels now (shutdown path): no ramp, it is what stopping the daemon means."""
-        self.arbiter.engage_estop("shutdown")
+        """Zero the wheels now (shutdown path): no ramp, it is what stopping the daemon means.
+        From here on nothing moves the robot: the e-stop is latched for good (no release) and
+        every command is refused."""
+        self._stopping = True
+        self.arbiter.engage_estop("shutdown", final=True)
         self.linear.reset()
         self.angular.reset()
         async with self._lock:
@@ -219,13 +223,15 @@ class ControlLoop:
         async with self._lock:
             await self._step(self.clock())
 
-    def release_estop(self) -> None:
-        if self.arbiter.estop_engaged:
-            log.warning("e-stop released; waiting for a fresh command")
-        self.arbiter.release_estop()
+    def release_estop(self) -> str | None:
+        """Release the e-stop; the reason when it may not be (the daemon is shutting down)."""
+        if self._stopping or not self.arbiter.release_estop():
+            return "the daemon is shutting down"
+        log.warning("e-stop released; waiting for a fresh command")
         self.invalidations += 1
         self.bus.publish(COMMAND, CommandEvent(time.time(), "", "estop_release"))
         self.wheel_guard.reset()
+        return None
 
     # -- tick path -----------------------------------------------------------------------
 

@@ -21,6 +21,9 @@ from daemon.topics import TopicOut
 
 log = logging.getLogger("arbiterd.rosbridge")
 
+#: on stop: how long the clients get to take their close frames, and a handler to end
+SHUTDOWN_GRACE_S = 1.0
+
 
 def create(ctx: DaemonContext) -> RosbridgeServer | None:
     """Component factory; None when ``[rosbridge] enabled = false``."""
@@ -67,7 +70,8 @@ class RosbridgeServer(BaseComponent):
         self.graph = BridgeGraph(self.ctx.topics.bridged(), latest=self.ctx.bus.latest)
         app = web.Application()
         app.router.add_get("/", self._handle)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False,
+                                     shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:
@@ -94,8 +98,13 @@ class RosbridgeServer(BaseComponent):
         for unsubscribe in self._bus_unsubscribers:
             unsubscribe()
         self._bus_unsubscribers.clear()
-        for client in list(self.clients.values()):
-            await client.ws.close(code=WSCloseCode.GOING_AWAY, message=b"arbiterd stopping")
+        closing = [asyncio.create_task(client.ws.close(code=WSCloseCode.GOING_AWAY,
+                                                       message=b"arbiterd stopping"))
+                   for client in list(self.clients.values())]
+        if closing:  # a client that reads nothing does not hold the others (or the daemon)
+            _, late = await asyncio.wait(closing, timeout=SHUTDOWN_GRACE_S)
+            for task in late:
+                task.cancel()
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
