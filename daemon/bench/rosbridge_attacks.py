@@ -187,6 +187,44 @@ async def scan_subscribers(url: str, clients: int, seconds: float,
     return {"scans": whole}
 
 
+def long_name_frame(n: int, chars: int) -> str:
+    """A subscribe, advertise, publish or call_service naming a topic or service of ``chars``
+    characters that looks valid (``/a/a/a...``)."""
+    name = "/a" * (chars // 2)
+    op = ("subscribe", "advertise", "publish", "call_service")[n % 4]
+    frame: Frame = {"op": op, "id": f"long{n}", "type": "std_msgs/msg/String"}
+    frame["service" if op == "call_service" else "topic"] = name
+    if op == "publish":
+        frame["msg"] = {"data": "x"}
+    return json.dumps(frame)
+
+
+async def long_names(url: str, clients: int, frames: int, chars: int) -> dict[str, Any]:
+    """``clients`` clients each send ``frames`` frames with names of ``chars`` characters,
+    each followed by a barrier (so every frame is handled before the next one goes out); a
+    client that is closed for one connects again."""
+    statuses, closes = Statuses(), Counter[str]()
+
+    async def one(index: int) -> None:
+        async with aiohttp.ClientSession() as session:
+            ws: aiohttp.ClientWebSocketResponse | None = None
+            for n in range(frames):
+                if ws is None or ws.closed:
+                    ws = await session.ws_connect(url, max_msg_size=0)
+                try:
+                    await ws.send_str(long_name_frame(index * frames + n, chars))
+                    await barrier(ws, f"long-{index}-{n}", statuses)
+                except (RuntimeError, ConnectionError, aiohttp.ClientError):
+                    closes[str(ws.close_code)] += 1
+                    await ws.close()
+            if ws is not None:
+                await ws.close()
+
+    await asyncio.gather(*(one(i) for i in range(clients)))
+    return {"frames": clients * frames, "statuses": dict(statuses.counts),
+            "closes": dict(closes)}
+
+
 # -- the fuzzer ------------------------------------------------------------------------------
 
 JUNK_VALUES: list[Any] = [None, True, -1, 0, 2**63, -(2**63), 10**400, 1e308, -0.0, 1.5, "",
@@ -265,6 +303,18 @@ def fuzz_services(rng: random.Random) -> str:
                        "values": junk(rng)})
 
 
+def fuzz_names(rng: random.Random) -> str:
+    """Over-long or odd names in a field that names something (topic, service, type, op,
+    id): just over the 256-character limit, a few KiB, just under and far over the frame
+    limit of a client without the token (16 KiB)."""
+    length = rng.choice([257, 4096, 15_000, 100_000])
+    name = rng.choice(["/a" * (length // 2), "a" * length, "/" + "é" * length])
+    frame: Frame = {"op": rng.choice(OPS), "topic": "/x", "service": "/s",
+                    "type": "std_msgs/String", "id": rng.randint(0, 9)}
+    frame[rng.choice(["topic", "service", "type", "op", "id"])] = name
+    return json.dumps(frame)
+
+
 def fuzz_binary(rng: random.Random) -> bytes:
     return rng.randbytes(rng.randint(0, 2000))
 
@@ -272,6 +322,7 @@ def fuzz_binary(rng: random.Random) -> bytes:
 TEXT_CATEGORIES: dict[str, Callable[[random.Random], str]] = {
     "json": fuzz_json, "fields": fuzz_fields, "commands": fuzz_commands,
     "fragments": fuzz_fragments, "subscriptions": fuzz_subscriptions, "services": fuzz_services,
+    "names": fuzz_names,
 }
 
 
@@ -370,6 +421,7 @@ ATTACK_OPTIONS: dict[str, list[tuple[str, type, float]]] = {
     "subscribe-flood": [("--count", int, 10_000), ("--seconds", float, 0.0)],
     "scan-subscribers": [("--clients", int, 3), ("--seconds", float, 3.0),
                          ("--fragment-size", int, 1)],
+    "long-names": [("--clients", int, 8), ("--frames", int, 4), ("--chars", int, 1_048_000)],
     "fuzz": [("--seconds", float, 10.0), ("--seed", int, 1), ("--workers", int, 4)],
 }
 
@@ -393,6 +445,8 @@ async def attack(args: argparse.Namespace) -> dict[str, Any]:
         return await advertise_many(args.url, args.topics, args.per_client, args.fragment_size)
     if args.attack == "subscribe-flood":
         return await subscribe_flood(args.url, args.count, args.seconds)
+    if args.attack == "long-names":
+        return await long_names(args.url, args.clients, args.frames, args.chars)
     if args.attack == "scan-subscribers":
         return await scan_subscribers(args.url, args.clients, args.seconds, args.fragment_size)
     return await Fuzzer(args.url, args.seed, args.workers, args.only).run(args.seconds)

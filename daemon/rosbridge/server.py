@@ -124,14 +124,16 @@ class RosbridgeServer(BaseComponent):
         refusal = self._refusal(request)
         if refusal is not None:
             return refusal
-        ws = web.WebSocketResponse(max_msg_size=self.limits.max_message_bytes)
+        authority = self._authority(request)
+        # a client that may not publish is held to small frames before any is parsed
+        ws = web.WebSocketResponse(
+            max_msg_size=self.limits.message_bytes(authority.may_drive))
         if not ws.can_prepare(request).ok:
             return web.Response(status=426, text="rosbridge v2: connect with a WebSocket\n")
         await ws.prepare(request)
         self.connections += 1
         client_id = self.connections
         peer = request.remote or "?"
-        authority = self._authority(request)
         client = self.clients[client_id] = ClientSession(
             ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
             limits=self.limits, bad_input=self.bad_input, pacer=self.pacer)

@@ -17,6 +17,11 @@ ROSBRIDGE_OPTIONS: Options = {
     "max_message_bytes": Option(int, 1048576, "largest accepted incoming message (one frame, "
                                 "or one message joined from fragments), bytes",
                                 minval=1024, maxval=64 * 1048576),
+    "max_readonly_message_bytes": Option(int, 16384, "largest incoming message from a client "
+                                         "that may not publish (no valid token while one is "
+                                         "configured): one frame, or one message joined from "
+                                         "fragments, bytes", minval=1024,
+                                         maxval=64 * 1048576),
     "idle_timeout": Option(float, 60.0, "close a connection without the token that has sent "
                            "nothing and set nothing up (no subscription, topic or service) "
                            "for this long, s (0 = never)", minval=0.0, maxval=86400.0),
@@ -64,6 +69,7 @@ class RosbridgeSettings(SectionSettings, section="rosbridge", options=ROSBRIDGE_
     max_clients: int
     reserved_clients: int
     max_message_bytes: int
+    max_readonly_message_bytes: int
     idle_timeout: float
     ops_per_second: float
     ops_burst: int
