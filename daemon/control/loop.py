@@ -183,7 +183,7 @@ class ControlLoop:
         refusal = self._refusal_reason()
         if refusal:
             return Applied(False, self.decision.source, self.wheels, [], None, refusal)
-        self._forget_after_stall()  # older commands are stale, this one is fresh
+        self._forget_after_stall(self.clock())  # older commands are stale, this one is fresh
         self.arbiter.submit(source, twist, self.clock(), priority)
         for callback in self.on_command:
             callback(source)
@@ -277,7 +277,7 @@ class ControlLoop:
 
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
-        self._forget_after_stall()
+        self._forget_after_stall(now)
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
@@ -352,9 +352,10 @@ class ControlLoop:
             return floor
         return configured
 
-    def _forget_after_stall(self) -> None:
+    def _forget_after_stall(self, now: float) -> None:
         """The supervisor zeroed the wheels while this loop stood still: every command and the
-        ramp state are stale, so the robot waits for a fresh command (as after a reconnect)."""
+        ramp state are stale, so the robot waits for a fresh command (as after a reconnect);
+        and the wheel guard starts afresh (a stall stop is no miswiring)."""
         if not self.supervisor.take_stop():
             return
         self.arbiter.invalidate_all()
@@ -362,6 +363,7 @@ class ControlLoop:
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)
+        self.wheel_guard.restart(now)
         log.warning("control tick running again after a stall stop; wheels stay still until "
                     "a fresh command")
 
