@@ -104,10 +104,13 @@ def one_line(text: str, limit: int = 200) -> str:
 class CappedServer(web.Server):
     """The low-level server with :class:`JsonRequestHandler` and at most ``max_connections``
     open: a new connection beyond the cap closes the oldest idle one (or itself if every
-    connection is busy), so idle sockets cannot use up the file descriptors."""
+    connection is busy), so idle sockets cannot use up the file descriptors. Used by both
+    ports: ``label`` and ``setting`` name the server and its key in the log line."""
 
     max_connections = 256
     refused = 0
+    label = "HTTP"
+    setting = "[http] max_connections"
 
     def __call__(self) -> RequestHandler:
         return JsonRequestHandler(self, loop=self._loop, **self._kwargs)
@@ -122,9 +125,10 @@ class CappedServer(web.Server):
         victim = next((h for h in live if h is not handler and getattr(h, "idle", False)),
                       handler)
         self.refused += 1
-        bad_request_log(logging.WARNING, "HTTP connection limit (%d) reached: closing %s "
-                        "connection; [http] max_connections sets it", self.max_connections,
-                        "the oldest idle" if victim is not handler else "the new")
+        bad_request_log(logging.WARNING, "%s connection limit (%d) reached: closing %s "
+                        "connection; %s sets it", self.label, self.max_connections,
+                        "the oldest idle" if victim is not handler else "the new",
+                        self.setting)
         victim.force_close()
 
 
@@ -152,15 +156,18 @@ def json_http_errors(handler: Callable[[BaseRequest], Awaitable[web.StreamRespon
 class CappedRunner(web.AppRunner):
     """An :class:`~aiohttp.web.AppRunner` whose server is a :class:`CappedServer`."""
 
-    def __init__(self, app: web.Application, max_connections: int, **kwargs: Any) -> None:
+    def __init__(self, app: web.Application, max_connections: int, *, label: str = "HTTP",
+                 setting: str = "[http] max_connections", **kwargs: Any) -> None:
         super().__init__(app, **kwargs)
         self.max_connections = max_connections
+        self.label, self.setting = label, setting
 
     async def _make_server(self) -> web.Server:
         server = await super()._make_server()
         server.__class__ = CappedServer  # same state, our handler class and the cap
         assert isinstance(server, CappedServer)
         server.max_connections = self.max_connections
+        server.label, server.setting = self.label, self.setting
         server.request_handler = json_http_errors(server.request_handler)
         return server
 
@@ -189,7 +196,8 @@ class AcceptErrorFilter:
             self.count += 1
             cause = ACCEPT_ERRNOS.get(exc.errno or 0, exc.strerror or str(exc))
             self.limiter(logging.ERROR, "cannot accept connections: %s; raise LimitNOFILE= in "
-                         "the unit or lower [http] max_connections (retrying each second)",
+                         "the unit or lower [http] or [rosbridge] max_connections (retrying "
+                         "each second)",
                          cause)
             return
         if self.previous is not None:

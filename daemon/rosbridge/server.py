@@ -11,6 +11,7 @@ from typing import Any
 from aiohttp import WSCloseCode, web
 
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
+from daemon.http_conn import CappedRunner
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
@@ -48,6 +49,8 @@ class RosbridgeServer(BaseComponent):
         self.host: str = cfg.host
         self.port: int = cfg.port
         self.max_clients: int = cfg.max_clients
+        self.max_connections: int = cfg.max_connections
+        self.handshake_timeout_s: float = cfg.handshake_timeout_s
         self.reserved_clients: int = cfg.reserved_clients
         self.idle_timeout: float = cfg.idle_timeout
         self.limits = Limits.from_settings(cfg)
@@ -60,7 +63,7 @@ class RosbridgeServer(BaseComponent):
         self.bad_input = RateLimitedLog(log, interval_s=10.0)
         self.pacer = Pacer(self.limits.fragments_per_second)
         self._conn_log = RateLimitedLog(log, interval_s=1.0)
-        self._runner: web.AppRunner | None = None
+        self._runner: CappedRunner | None = None
         self._sweeper: asyncio.Task[None] | None = None
         self._bus_unsubscribers: list[Callable[[], None]] = []
 
@@ -70,8 +73,13 @@ class RosbridgeServer(BaseComponent):
         self.graph = BridgeGraph(self.ctx.topics.bridged(), latest=self.ctx.bus.latest)
         app = web.Application()
         app.router.add_get("/", self._handle)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False,
-                                     shutdown_timeout=SHUTDOWN_GRACE_S)
+        # every TCP connection counts, upgraded or not: over the cap the oldest one still
+        # without a complete upgrade request goes, and one that sends none in time too
+        self._runner = CappedRunner(app, self.max_connections, label="rosbridge",
+                                    setting="[rosbridge] max_connections", access_log=None,
+                                    handle_signals=False,
+                                    keepalive_timeout=self.handshake_timeout_s,
+                                    shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:
@@ -110,8 +118,11 @@ class RosbridgeServer(BaseComponent):
             self._runner = None
 
     def health(self) -> dict[str, Any]:
+        server = self._runner.server if self._runner is not None else None
         return {"status": "ok" if self._runner is not None else "error",
                 "port": self.bound_port, "clients": len(self.clients),
+                "open_connections": len(server.connections) if server else 0,
+                "connections_closed_at_cap": getattr(server, "refused", 0),
                 "connections": self.connections, "refused": dict(self.refused),
                 "dropped_messages": sum(c.outbox.dropped for c in self.clients.values()),
                 "throttled_requests": sum(c.over_rate for c in self.clients.values()),

@@ -12,6 +12,14 @@ ROSBRIDGE_OPTIONS: Options = {
     "port": Option(int, 9090, "rosbridge listen port", minval=1, maxval=65535),
     "max_clients": Option(int, 32, "most simultaneous WebSocket clients", minval=1,
                           maxval=1024),
+    "max_connections": Option(int, 256, "most open TCP connections to the port, WebSocket "
+                              "or not yet; one more closes the oldest that has not completed "
+                              "its upgrade request (keep it well under LimitNOFILE)",
+                              minval=4, maxval=65536),
+    "handshake_timeout_s": Option(float, 10.0, "close a connection that has not sent a "
+                                  "complete upgrade request (request line and headers) this "
+                                  "long after it opened, s (slowloris)", above=0.0,
+                                  maxval=3600.0),
     "reserved_clients": Option(int, 4, "of max_clients, slots only clients with the token may "
                                "take (when a token is configured)", minval=0, maxval=1024),
     "max_message_bytes": Option(int, 1048576, "largest accepted incoming message (one frame, "
@@ -67,6 +75,8 @@ class RosbridgeSettings(SectionSettings, section="rosbridge", options=ROSBRIDGE_
     host: str
     port: int
     max_clients: int
+    max_connections: int
+    handshake_timeout_s: float
     reserved_clients: int
     max_message_bytes: int
     max_readonly_message_bytes: int

@@ -1,0 +1,118 @@
+# Socket floods on both ports: idle connections, slow headers, stalled readers. Nobody without
+# the token locks out health, the e-stop or the token holder's WebSocket.
+from __future__ import annotations
+
+import base64
+import os
+import socket
+
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.http_raw import (
+    LOCAL,
+    Answer,
+    child_nofile,
+    closed_by_peer,
+    connect,
+    exchange,
+    quiet_for,
+    request,
+)
+from tests.support.rosbridge import TOKEN, WITH_TOKEN
+from tests.support.wait import wait_for
+
+BEARER = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def upgrade_request(port: int, token: str | None = None) -> bytes:
+    key = base64.b64encode(os.urandom(16)).decode()
+    query = f"?token={token}" if token else ""
+    return (f"GET /{query} HTTP/1.1\r\nHost: {LOCAL}:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+            f"Sec-WebSocket-Version: 13\r\n\r\n").encode()
+
+
+def upgrade_status(port: int, token: str | None = None, within_s: float = 5.0) -> int:
+    """The status line's code of a WebSocket upgrade (101: a WebSocket), or 0 if the
+    connection was refused, closed or silent."""
+    try:
+        with connect(port) as sock:
+            sock.settimeout(within_s)
+            sock.sendall(upgrade_request(port, token))
+            head = sock.recv(4096)
+    except OSError:
+        return 0
+    return int(head.split()[1]) if head.startswith(b"HTTP/1.1 ") else 0
+
+
+def health(proc: DaemonSubprocess, within_s: float = 5.0) -> Answer | None:
+    try:
+        return exchange(proc.http_port, request("GET", "/api/health", 0), within_s)
+    except (OSError, AssertionError):
+        return None
+
+
+def estop(proc: DaemonSubprocess, engaged: bool, within_s: float = 5.0) -> int:
+    body = b'{"engaged": true}' if engaged else b'{"engaged": false}'
+    try:
+        return exchange(proc.http_port, request("POST", "/api/estop", 0, body, headers=BEARER),
+                        within_s).status
+    except (OSError, AssertionError):
+        return 0
+
+
+def open_idle(port: int, count: int) -> list[socket.socket]:
+    """``count`` connections that send nothing (those the kernel refuses are not counted)."""
+    sockets = []
+    for _ in range(count):
+        try:
+            sockets.append(socket.create_connection((LOCAL, port), timeout=0.5))
+        except OSError:
+            continue
+    return sockets
+
+
+# -- the rosbridge port ------------------------------------------------------------------------
+
+def test_idle_sockets_on_the_rosbridge_port_lock_nobody_out(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    """1 100 idle TCP connections to :9090 with 1 024 descriptors: before, they took every
+    descriptor (no cap, no handshake timeout) and HTTP health, the HTTP e-stop and the token
+    holder's WebSocket all failed while they were held."""
+    with child_nofile(1024):  # the usual soft limit without the unit's LimitNOFILE
+        proc = daemon_subprocess(WITH_TOKEN)
+    idle = open_idle(proc.ws_port, 1100)
+    try:
+        answer = health(proc)
+        assert answer is not None and answer.status == 200, answer
+        assert estop(proc, True) == 200 and estop(proc, False) == 200
+        assert upgrade_status(proc.ws_port, TOKEN) == 101
+        rosbridge = health(proc).json()["components"]["rosbridge"]  # type: ignore[union-attr]
+        assert rosbridge["open_connections"] <= 256, rosbridge
+        assert rosbridge["connections_closed_at_cap"] >= len(idle) - 256, rosbridge
+    finally:
+        for sock in idle:
+            sock.close()
+    log = proc.log()
+    assert "Traceback" not in log and "cannot accept" not in log, log[-3000:]
+
+
+def test_slow_upgrade_headers_on_the_rosbridge_port_are_cut_off(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    """A connection that never completes its upgrade request (slowloris) is closed after
+    ``[rosbridge] handshake_timeout_s``; before, 300 of them were still open after 60 s."""
+    proc = daemon_subprocess(env={"ARBITERD_ROSBRIDGE_HANDSHAKE_TIMEOUT_S": "0.5"})
+    with connect(proc.ws_port) as idle:
+        assert closed_by_peer(idle, 10)
+    with connect(proc.ws_port) as slow:
+        slow.sendall(upgrade_request(proc.ws_port)[:30])
+        assert wait_for(lambda: _drip_is_refused(slow), "the slow client to be cut off")
+    assert upgrade_status(proc.ws_port) == 101  # a prompt client still gets in
+
+
+def _drip_is_refused(sock: socket.socket) -> bool:
+    """Send one more header byte; true once the server has closed the connection."""
+    try:
+        sock.sendall(b"X")
+    except OSError:
+        return True
+    return not quiet_for(sock, 0.1) and closed_by_peer(sock, 0.1)
