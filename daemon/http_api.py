@@ -5,7 +5,7 @@ import asyncio
 import json
 import logging
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, BinaryIO
 
 from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
@@ -26,6 +26,13 @@ READ_CHUNK = 65536
 #: on stop, how long a request in progress (a download to a reader that stalls) may go on
 #: before it is cancelled; its connection is closed after as long again at most
 SHUTDOWN_GRACE_S = 1.0
+#: a download goes out in pieces of this size, each within [http] send_timeout_s
+SEND_CHUNK = 65536
+#: what a connection let in beyond the cap (every other one busy) may still ask for
+PRIORITY_ROUTES = frozenset({("POST", "/api/estop"), ("GET", "/api/health"),
+                             ("HEAD", "/api/health")})
+
+slow_reader_log = LogLimiter(log, "slow-reader", burst=5, window_s=10.0)
 
 internal_error_log = LogLimiter(log, "internal-error", burst=2, window_s=60.0)
 
@@ -99,6 +106,13 @@ class Guard:
 
     @web.middleware
     async def middleware(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        if getattr(request.protocol, "priority_only", False) and (
+                request.method, request.path) not in PRIORITY_ROUTES:
+            request.protocol.force_close()
+            raise ApiError(503, "the HTTP server is at its connection limit",
+                           "this connection may only reach POST /api/estop and GET "
+                           "/api/health; [http] max_connections and reserved_connections "
+                           "set the limits")
         host = request.headers.get("Host")
         if not self.security.host_ok(host):
             raise ApiError(403, f"unknown Host {host!r}", "this daemon answers only to its IP "
@@ -229,6 +243,8 @@ class HttpServer:
         self.body_timeout_s = options.body_timeout_s
         self.idle_timeout_s = options.idle_timeout_s
         self.max_connections = options.max_connections
+        self.reserved_connections = options.reserved_connections
+        self.send_timeout_s = options.send_timeout_s
         self.guard = Guard(security)
         self.app = web.Application(middlewares=[_errors, self.guard.middleware],
                                    client_max_size=self.max_body_bytes)
@@ -262,10 +278,39 @@ class HttpServer:
         """The raw JSON body within this server's size and time limits."""
         return await read_json_body(request, self.max_body_bytes, self.body_timeout_s)
 
+    async def send_file(self, request: web.Request, file: BinaryIO, size: int,
+                        headers: Mapping[str, str]) -> web.StreamResponse:
+        """Stream an open file as the answer, ``SEND_CHUNK`` at a time; a client that takes
+        no piece for ``send_timeout_s`` is cut off (it would hold a connection slot, and the
+        daemon's shutdown, for as long as it pleases)."""
+        response = web.StreamResponse(headers=headers)
+        response.content_length = size
+        await response.prepare(request)
+        if request.method == "HEAD":
+            return response
+        sent = 0
+        while chunk := await asyncio.to_thread(file.read, SEND_CHUNK):
+            try:
+                async with asyncio.timeout(self.send_timeout_s):
+                    await response.write(chunk)
+            except TimeoutError:
+                slow_reader_log(logging.WARNING, "HTTP answer to %s closed: it made no progress "
+                                "for %g s (%d of %d bytes sent); [http] send_timeout_s sets the "
+                                "limit", request.remote, self.send_timeout_s, sent, size)
+                if request.transport is not None:
+                    request.transport.abort()  # closed now, with what is still buffered for it
+                request.protocol.force_close()
+                return response  # aiohttp finds the connection gone and lets it be
+            except ConnectionError:
+                return response  # the client went away: nothing to say, nobody to say it to
+            sent += len(chunk)
+        return response
+
     async def start(self) -> None:
         self._accept_errors = AcceptErrorFilter(asyncio.get_running_loop())
         self._accept_errors.install()
-        self._runner = CappedRunner(self.app, self.max_connections, access_log=None,
+        self._runner = CappedRunner(self.app, self.max_connections,
+                                    reserved=self.reserved_connections, access_log=None,
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s,
                                     shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import os
 import socket
+from pathlib import Path
 
 from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
 from tests.support.http_raw import (
@@ -116,3 +117,56 @@ def _drip_is_refused(sock: socket.socket) -> bool:
     except OSError:
         return True
     return not quiet_for(sock, 0.1) and closed_by_peer(sock, 0.1)
+
+
+# -- the HTTP port -----------------------------------------------------------------------------
+
+RECORDING = "arbiterd-big.mcap"
+
+
+def stalled_download(port: int) -> socket.socket:
+    """A client (read access, no token) that asks for a 256 MB recording, reads the first
+    bytes of the answer and then nothing."""
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: a small window
+    sock.settimeout(5)
+    sock.connect((LOCAL, port))
+    sock.sendall(request("GET", f"/api/recordings/{RECORDING}", port))
+    head = sock.recv(1024)
+    assert head.startswith(b"HTTP/1.1 200"), head[:200]
+    return sock
+
+
+def test_stalled_downloads_leave_health_and_the_estop_a_way_in(
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
+    """More stalled downloads than HTTP connection slots (20 with the cap at 16; the finding:
+    260 with 256): before, health and the e-stop got 0 of 5 and every refused connection
+    logged an AssertionError traceback; and the downloads were held with no time limit."""
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    with (recordings / RECORDING).open("wb") as sparse:
+        sparse.truncate(256 * 1024 * 1024)
+    proc = daemon_subprocess(WITH_TOKEN + f'[record]\ndirectory = "{recordings}"\n',
+                             env={"ARBITERD_HTTP_MAX_CONNECTIONS": "16",
+                                  "ARBITERD_HTTP_SEND_TIMEOUT_S": "3"})
+    downloads = []
+    try:
+        for _ in range(20):
+            try:
+                downloads.append(stalled_download(proc.http_port))
+            except (OSError, AssertionError):
+                continue  # over the cap: refused; the point is what health sees now
+        assert len(downloads) >= 16
+        answers = [health(proc, 2.0) for _ in range(5)]
+        assert all(a is not None and a.status == 200 for a in answers), answers
+        assert [estop(proc, engaged, 2.0) for engaged in (True, False) * 2] == [200] * 4
+        # a stalled reader is closed once its answer made no progress for send_timeout_s
+        wait_for(lambda: (h := health(proc, 2.0)) is not None
+                 and h.json()["components"]["http"]["connections"] <= 4,
+                 "the stalled downloads to be closed")
+    finally:
+        for sock in downloads:
+            sock.close()
+    log = proc.log()
+    assert "Traceback" not in log and "AssertionError" not in log, log[-3000:]
+    assert "made no progress for 3 s" in log

@@ -4,10 +4,12 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
 import re
+import stat
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, BinaryIO
 
 from aiohttp import web
 
@@ -140,12 +142,30 @@ class RecorderComponent(BaseComponent):
 
     async def get_recording(self, request: web.Request) -> web.StreamResponse:
         name = request.match_info["name"]
-        path = self.directory / name
-        if _NAME.match(name) is None or not path.is_file():
-            raise ApiError(404, f"no recording named {name!r}", "see GET /api/recordings")
-        return web.FileResponse(path, headers={
-            "Content-Type": "application/octet-stream",
-            "Content-Disposition": f'attachment; filename="{name}"'})
+        if _NAME.match(name) is None:
+            raise ApiError(404, f"no recording named {name[:80]!r}", "see GET /api/recordings")
+        try:
+            file = await asyncio.to_thread(self._open, name)
+        except OSError:
+            raise ApiError(404, f"no recording named {name!r}", "see GET /api/recordings") \
+                from None
+        try:
+            return await self.ctx.http.send_file(request, file, os.fstat(file.fileno()).st_size, {
+                "Content-Type": "application/octet-stream",
+                "Content-Disposition": f'attachment; filename="{name}"'})
+        finally:
+            file.close()
+
+    def _open(self, name: str) -> BinaryIO:
+        """A recording opened for reading: a regular file, never through a symbolic link."""
+        fd = os.open(self.directory / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise OSError(f"{name}: not a regular file")
+            return os.fdopen(fd, "rb")
+        except BaseException:
+            os.close(fd)
+            raise
 
 
 def create(ctx: DaemonContext) -> RecorderComponent:
