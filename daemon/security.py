@@ -3,11 +3,30 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+import re
 import socket
 from collections.abc import Iterable, Mapping
+from typing import Any
 from urllib.parse import urlsplit
 
 LOCAL_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+
+#: an absolute file system path inside a text, of two segments or more (/dev/ttyUSB0,
+#: /var/lib/arbiterd/recordings); not a one-segment topic name (/odom), nor a URL's path
+_PATH = re.compile(r"(?<![\w/.:~-])/(?:[\w.@+~-]+/)+[\w.@+~-]*")
+HIDDEN_PATH = "<path>"
+
+
+def hide_paths(value: Any) -> Any:
+    """``value`` (JSON-like) with every absolute path in its strings replaced by
+    :data:`HIDDEN_PATH`: what a read-only client is shown (docs/security.md)."""
+    if isinstance(value, str):
+        return _PATH.sub(HIDDEN_PATH, value) if "/" in value else value
+    if isinstance(value, dict):
+        return {key: hide_paths(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [hide_paths(item) for item in value]
+    return value
 
 
 def machine_names() -> set[str]:
@@ -85,6 +104,11 @@ class Security:
         return origin_host == request_host and self.host_ok(host_header)
 
     # -- who may drive -------------------------------------------------------------------
+
+    def sees_paths(self, headers: Mapping[str, str], query: Mapping[str, str]) -> bool:
+        """Whether a request is shown this machine's file system paths (device nodes, the
+        recordings directory): always without a token configured, else with the token."""
+        return not self.token_required or self.token_ok(headers, query)
 
     def token_ok(self, headers: Mapping[str, str], query: Mapping[str, str]) -> bool:
         """``Authorization: Bearer T`` or ``?token=T`` (for browsers that cannot set headers)."""

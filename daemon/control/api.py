@@ -29,6 +29,7 @@ from daemon.messages.definitions import (
     TWIST,
     TWIST_STAMPED,
 )
+from daemon.security import Security, hide_paths
 from daemon.settings import ControlSettings
 from daemon.telemetry import COMMAND as COMMAND_KEY
 from daemon.telemetry import LATENCY_REPORT, ODOM
@@ -43,9 +44,11 @@ class ControlComponent(BaseComponent):
     name = "control"
     core = True
 
-    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings) -> None:
+    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings,
+                 security: Security | None = None) -> None:
         self.control = control
         self.settings = settings
+        self.security = security or Security("")
         self.read_json = http.read_json
         self.read_json_body = http.read_json_body
 
@@ -130,7 +133,10 @@ class ControlComponent(BaseComponent):
     # -- HTTP --------------------------------------------------------------------------------
 
     async def get_status(self, request: web.Request) -> web.Response:
-        return json_response(self.control.status())
+        status = self.control.status()
+        if not self.security.sees_paths(request.headers, request.query):
+            status = hide_paths(status)  # a fault naming a device node
+        return json_response(status)
 
     async def post_cmd_vel(self, request: web.Request) -> web.Response:
         raw = await self.read_json_body(request)
@@ -183,7 +189,7 @@ class ControlComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> ControlComponent:
-    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings))
+    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings), ctx.security)
 
 
 COMPONENT = ComponentSpec("control", create, ControlSettings)

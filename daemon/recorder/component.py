@@ -21,6 +21,7 @@ from daemon.recorder.files import RecordingIndex
 from daemon.recorder.paths import record_directory
 from daemon.recorder.settings import RecordSettings
 from daemon.recorder.writer import FlightRecorder, WriterOptions
+from daemon.security import hide_paths
 from daemon.telemetry import ROBOT_INFO
 from daemon.topics import TopicOut
 
@@ -134,8 +135,11 @@ class RecorderComponent(BaseComponent):
     async def get_recordings(self, request: web.Request) -> web.Response:
         infos = await asyncio.to_thread(self.index.list)
         current = self.recorder.current
+        shown = str(self.directory)
+        if not self.ctx.security.sees_paths(request.headers, request.query):
+            shown = hide_paths(shown)
         return json_response({
-            "directory": str(self.directory),
+            "directory": shown,
             "recordings": [{**i.to_json(topics=False),
                             "recording": current is not None and current.name == i.name}
                            for i in infos]})
@@ -146,9 +150,9 @@ class RecorderComponent(BaseComponent):
             raise ApiError(404, f"no recording named {name[:80]!r}", "see GET /api/recordings")
         try:
             file = await asyncio.to_thread(self._open, name)
-        except OSError:
-            raise ApiError(404, f"no recording named {name!r}", "see GET /api/recordings") \
-                from None
+        except OSError:  # missing, a link, not a regular file, a name too long for the disk
+            raise ApiError(404, f"no recording named {name[:80]!r}",
+                           "see GET /api/recordings") from None
         try:
             return await self.ctx.http.send_file(request, file, os.fstat(file.fileno()).st_size, {
                 "Content-Type": "application/octet-stream",
