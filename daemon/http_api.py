@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
+import socket
+import struct
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any, BinaryIO
 
@@ -228,6 +231,18 @@ def _depth(value: Any) -> int:
     return deepest
 
 
+def reset(transport: asyncio.Transport | None) -> None:
+    """Close a connection at once with a reset, dropping what is still queued for it (a plain
+    close would leave the kernel sending it to a client that reads nothing, for minutes)."""
+    if transport is None:
+        return
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    transport.abort()
+
+
 # -- the server ----------------------------------------------------------------------------
 
 class HttpServer:
@@ -297,8 +312,7 @@ class HttpServer:
                 slow_reader_log(logging.WARNING, "HTTP answer to %s closed: it made no progress "
                                 "for %g s (%d of %d bytes sent); [http] send_timeout_s sets the "
                                 "limit", request.remote, self.send_timeout_s, sent, size)
-                if request.transport is not None:
-                    request.transport.abort()  # closed now, with what is still buffered for it
+                reset(request.transport)
                 request.protocol.force_close()
                 return response  # aiohttp finds the connection gone and lets it be
             except ConnectionError:

@@ -7,6 +7,7 @@ import os
 import socket
 from pathlib import Path
 
+from daemon.bench.rosbridge_attacks import run_attack
 from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
 from tests.support.http_raw import (
     LOCAL,
@@ -170,3 +171,27 @@ def test_stalled_downloads_leave_health_and_the_estop_a_way_in(
     log = proc.log()
     assert "Traceback" not in log and "AssertionError" not in log, log[-3000:]
     assert "made no progress for 3 s" in log
+
+
+# -- the attack tool, from its own process -----------------------------------------------------
+
+async def test_the_attack_tool_sees_slow_headers_and_stalled_readers_cut_off(
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    with (recordings / RECORDING).open("wb") as sparse:
+        sparse.truncate(256 * 1024 * 1024)
+    proc = daemon_subprocess(f'[record]\ndirectory = "{recordings}"\n',
+                             env={"ARBITERD_ROSBRIDGE_HANDSHAKE_TIMEOUT_S": "1",
+                                  "ARBITERD_HTTP_IDLE_TIMEOUT_S": "1",
+                                  "ARBITERD_HTTP_SEND_TIMEOUT_S": "1"})
+    ws, http = f"ws://{LOCAL}:{proc.ws_port}/", f"http://{LOCAL}:{proc.http_port}"
+    for url, drip in ((ws, "0"), (ws, "1"), (http, "1")):
+        report = await run_attack(url, "idle-sockets", "--count", "50", "--seconds", "15",
+                                  "--drip", drip)
+        assert report["closed_by_server"] == report["opened"] == 50, (url, drip, report)
+    report = await run_attack(f"{http}/api/recordings/{RECORDING}", "stalled-readers",
+                              "--count", "20", "--seconds", "15")
+    assert report["answers"] == {"200": 20} and report["cut_off_by_server"] == 20, (
+        report, proc.log()[-2000:])
+    assert "Traceback" not in proc.log()
