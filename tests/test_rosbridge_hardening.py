@@ -274,6 +274,25 @@ async def test_a_client_kept_over_its_request_rate_is_closed(
         assert (await polite.call("/rosapi/get_time"))["result"] is True
 
 
+async def test_a_client_flooding_at_the_default_rate_is_closed_too(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """At the default 1 000 requests a second the wait per frame is a millisecond, and a
+    sleep that overran let the next frame through unthrottled: that counted as a break, so
+    "held back for 10 s -> 1008" never fired (8 minutes of a 500 000-frame sender)."""
+    monkeypatch.setattr(session_module, "THROTTLE_CLOSE_S", 1.0)
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as flooder:
+        frame = json.dumps({"op": "set_level", "level": "error"})
+        t0 = time.monotonic()
+        with contextlib.suppress(ConnectionError):
+            while not flooder.ws.closed and time.monotonic() - t0 < 8.0:
+                await flooder.ws.send_str(frame)  # paced by TCP once the reader pauses
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(5.0):
+                while (await flooder.ws.receive()).type == aiohttp.WSMsgType.TEXT:
+                    pass
+        assert flooder.ws.close_code == 1008, f"not closed after {time.monotonic() - t0:.1f} s"
+
+
 async def test_calls_to_a_silent_provider_time_out(tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     set_limits(monkeypatch, call_timeout=0.3, max_pending_calls_per_client=2)

@@ -79,6 +79,11 @@ class TokenBucket:
         self._tokens -= units
         return max(0.0, -self._tokens / self.rate)
 
+    def level(self) -> float:
+        """Units there now (negative: owed)."""
+        self._refill()
+        return self._tokens
+
     def _refill(self) -> None:
         now = self.clock()
         self._tokens = min(self.burst, self._tokens + (now - self._t_last) * self.rate)

@@ -165,7 +165,9 @@ class ClientSession:
         if wait > 0:
             if not await self._throttle(wait, t_recv):
                 return False
-        else:
+        elif self._bucket.level() >= self._bucket.burst / 2:
+            # a break: the client sent less than its rate for a while (one frame let through
+            # because a sleep overran is none, or a steady flood would never be closed)
             self._throttled_since = None
         await self.handle_text(data, t_recv)
         await self.writer.send_inline(self.transport)
