@@ -77,7 +77,8 @@ class CoreApi(BaseComponent):
     async def get_health(self, request: web.Request) -> web.Response:
         body = self.reports.health()
         status = 503 if body["status"] == "error" else 200
-        if not self.security.sees_paths(request.headers, request.query):
+        if not self.security.sees_paths(request.headers, request.query,
+                                        request.remote):
             body = hide_paths(body)
         return json_response(body, status=status)
 

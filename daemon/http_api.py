@@ -134,8 +134,13 @@ class Guard:
                 raise ApiError(403, f"Origin {origin!r} may not drive this robot",
                                "a web page from another site sent this request; add the "
                                "origin to [security] allowed_origins if it is yours")
-        if (access == "drive" or self.security.read_requires_token) and not (
-                self.security.token_ok(request.headers, request.query)):
+        if access != "drive" and not self.security.read_requires_token:
+            return
+        if self.security.guessing(request.headers, request.query, request.remote):
+            raise ApiError(429, "too many wrong tokens from this address",
+                           "tokens from it are refused unchecked for a while; wait a second",
+                           {"Retry-After": "1"})
+        if not self.security.token_ok(request.headers, request.query, request.remote):
             raise ApiError(401, "a valid bearer token is required",
                            "send 'Authorization: Bearer <token>'",
                            {"WWW-Authenticate": 'Bearer realm="arbiterd"'})

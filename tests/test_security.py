@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 
 from daemon.http_api import MAX_INT_DIGITS, MAX_JSON_DEPTH, ApiError, parse_json
 from daemon.http_conn import AcceptErrorFilter, LogLimiter
-from daemon.security import Security, hide_paths, host_name
+from daemon.security import Guesses, Security, hide_paths, host_name
 from tests.support.in_process_daemon import in_process_daemon
-from tests.support.rosbridge import OWNER, WITH_TOKEN, connect
+from tests.support.rosbridge import OWNER, WITH_TOKEN, connect, upgrade_status
 
 OWN = ("robot", "robot.lan", "robot.local")
 
@@ -202,3 +202,33 @@ async def test_a_read_only_client_is_not_shown_paths(tmp_path: Path) -> None:
             line = await reader.expect(lambda m: m.get("op") == "publish"
                                        and "lost" in m["msg"]["msg"])
         assert line["msg"]["msg"] == "lost <path>" and line["msg"]["file"] == "<path>"
+
+
+# -- guessing the token ----------------------------------------------------------------------
+
+def test_wrong_tokens_are_limited_per_peer() -> None:
+    now = [0.0]
+    sec = security(token="right-token-1")
+    sec.guesses = Guesses(rate=1.0, burst=10, clock=lambda: now[0])
+    wrong, right = {"Authorization": "Bearer nope"}, {"Authorization": "Bearer right-token-1"}
+    assert [sec.token_ok(wrong, {}, "10.0.0.9") for _ in range(10)] == [False] * 10
+    assert sec.guessing(wrong, {}, "10.0.0.9") and sec.guessing(right, {}, "10.0.0.9")
+    assert not sec.token_ok(right, {}, "10.0.0.9")  # refused unchecked while over budget
+    assert sec.token_ok(right, {}, "10.0.0.10")  # another address is not held back
+    assert not sec.guessing({}, {}, "10.0.0.9")  # no token offered: no guess
+    now[0] += 1.0
+    assert sec.token_ok(right, {}, "10.0.0.9")  # a second later one more try
+
+
+async def test_token_guessing_is_refused_with_429_on_both_ports(tmp_path: Path) -> None:
+    """Wrong tokens were unlimited (8 555 guesses a second over HTTP)."""
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http:
+        statuses = []
+        for n in range(30):
+            async with http.post(robot.http_url + "/api/estop", json={"engaged": True},
+                                 headers={"Authorization": f"Bearer guess-{n:08d}"}) as answer:
+                statuses.append(answer.status)
+        assert statuses[:10] == [401] * 10 and set(statuses[10:]) == {429}, statuses
+        assert await upgrade_status(robot.ws_url + "?token=guess") == 429
+        assert await upgrade_status(robot.ws_url) == 101  # without a token: read-only, as ever
+        assert not robot.ctx.control.arbiter.estop_engaged

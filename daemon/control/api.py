@@ -134,7 +134,8 @@ class ControlComponent(BaseComponent):
 
     async def get_status(self, request: web.Request) -> web.Response:
         status = self.control.status()
-        if not self.security.sees_paths(request.headers, request.query):
+        if not self.security.sees_paths(request.headers, request.query,
+                                        request.remote):
             status = hide_paths(status)  # a fault naming a device node
         return json_response(status)
 

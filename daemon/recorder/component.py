@@ -136,7 +136,8 @@ class RecorderComponent(BaseComponent):
         infos = await asyncio.to_thread(self.index.list)
         current = self.recorder.current
         shown = str(self.directory)
-        if not self.ctx.security.sees_paths(request.headers, request.query):
+        if not self.ctx.security.sees_paths(request.headers, request.query,
+                                            request.remote):
             shown = hide_paths(shown)
         return json_response({
             "directory": shown,

@@ -57,7 +57,8 @@ class RosbridgeServer(BaseComponent):
         #: the robot's topics join when it starts (every component has declared its own)
         self.graph = BridgeGraph((), latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
-        self.refused = {"host": 0, "origin": 0, "token": 0, "full": 0, "idle": 0}
+        self.refused = {"host": 0, "origin": 0, "token": 0, "guessing": 0, "full": 0,
+                        "idle": 0}
         self.connections = 0
         self.bound_port: int | None = None
         self.bad_input = RateLimitedLog(log, interval_s=10.0)
@@ -132,10 +133,14 @@ class RosbridgeServer(BaseComponent):
     # -- admission ----------------------------------------------------------------------------
 
     async def _handle(self, request: web.Request) -> web.StreamResponse:
-        refusal = self._refusal(request)
+        if self.security.guessing(request.headers, request.query, request.remote):
+            return self._refuse("guessing", 429, "too many wrong tokens from this address; "
+                                "wait a second")
+        has_token = self.security.token_ok(request.headers, request.query, request.remote)
+        refusal = self._refusal(request, has_token)
         if refusal is not None:
             return refusal
-        authority = self._authority(request)
+        authority = self._authority(has_token)
         # a client that may not publish is held to small frames before any is parsed
         ws = web.WebSocketResponse(
             max_msg_size=self.limits.message_bytes(authority.may_drive))
@@ -159,20 +164,18 @@ class RosbridgeServer(BaseComponent):
             self._conn_log(logging.INFO, f"rosbridge client {client_id} disconnected")
         return ws
 
-    def _authority(self, request: web.Request) -> Authority:
-        has_token = self.security.token_ok(request.headers, request.query)
+    def _authority(self, has_token: bool) -> Authority:
         return Authority(may_read=has_token or not self.security.read_requires_token,
                          may_drive=has_token,
                          proved=has_token and self.security.token_required)
 
-    def _refusal(self, request: web.Request) -> web.Response | None:
+    def _refusal(self, request: web.Request, has_token: bool) -> web.Response | None:
         host = request.headers.get("Host")
         if not self.security.host_ok(host):
             return self._refuse("host", 403, "Host not allowed; add it to [security] "
                                 "allowed_hosts if this is the robot's name")
         if not self.security.origin_ok(request.headers.get("Origin"), host):
             return self._refuse("origin", 403, "Origin not allowed")
-        has_token = self.security.token_ok(request.headers, request.query)
         if self.security.read_requires_token and not has_token:
             return self._refuse("token", 401, "a valid token is required")
         if len(self.clients) >= self.max_clients:
