@@ -36,6 +36,15 @@ EXIT_OK, EXIT_FATAL, EXIT_USAGE, EXIT_HARDWARE, EXIT_CONFIG = 0, 1, 2, 69, 78
 #: problem: a state other than ready is logged as INFO until then, and as a WARNING if it lasts
 STARTUP_GRACE_S = 5.0
 
+#: Shutdown deadlines, well inside the unit's TimeoutStopSec= (10 s): zeroing the motors may
+#: take HALT_TIMEOUT_S (then the driver's emergency path is used), one component's stop()
+#: STOP_TIMEOUT_S, all of them together SHUTDOWN_BUDGET_S (then each one left gets
+#: MIN_STOP_S). A stop that does not finish in its time is abandoned, and said so.
+HALT_TIMEOUT_S = 1.0
+STOP_TIMEOUT_S = 3.0
+SHUTDOWN_BUDGET_S = 6.0
+MIN_STOP_S = 0.25
+
 
 def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
     """What counts as a health change: statuses and problem texts, not counters."""
@@ -202,18 +211,36 @@ class Daemon:
             task.cancel()
         control = self.ctx.control if self.ctx else None
         if control is not None:
-            try:
-                await control.halt()
-            except Exception:
-                log.exception("could not zero the motors")
+            await self._halt(control)
+        budget_end = time.monotonic() + SHUTDOWN_BUDGET_S
         for component in reversed(self.components):
+            timeout = max(MIN_STOP_S, min(STOP_TIMEOUT_S, budget_end - time.monotonic()))
             try:
-                await component.stop()
+                async with asyncio.timeout(timeout):
+                    await component.stop()
+            except TimeoutError:
+                log.error("stopping %s took longer than %.2f s; abandoned", component.name,
+                          timeout)
             except Exception:
                 log.exception("stopping %s failed", component.name)
         for plugs in reversed(self._plugs):
             plugs.release()
         log.info("stopped")
+
+    @staticmethod
+    async def _halt(control: ControlLoop) -> None:
+        """Latch the shutdown e-stop and zero the motors; if the driver does not take the
+        zero within HALT_TIMEOUT_S, its emergency path (no event loop, bounded) does."""
+        try:
+            async with asyncio.timeout(HALT_TIMEOUT_S):
+                await control.halt()
+            return
+        except TimeoutError:
+            log.error("zeroing the motors took longer than %.1f s; using the driver's "
+                      "emergency stop", HALT_TIMEOUT_S)
+        except Exception:
+            log.exception("could not zero the motors; using the driver's emergency stop")
+        await asyncio.to_thread(control.driver.emergency_stop)
 
     def _install_signal_handlers(self) -> None:
         loop = asyncio.get_running_loop()

@@ -283,7 +283,21 @@ def _unknown_key(source: str, section: str, key: str, options: Options) -> str:
     return f"{source}: [{section}] {key}: unknown key{hint}"
 
 
+#: the shortest token accepted (the installer writes 43 characters: secrets.token_urlsafe(32))
+MIN_TOKEN_CHARS = 12
+
+
 def _read_token(security: Mapping[str, Any], source: str, problems: list[str]) -> str:
+    token = _token_text(security, source, problems)
+    if token and len(token) < MIN_TOKEN_CHARS:
+        problems.append(f"{source}: [security] token: {len(token)} characters is too short to "
+                        f"keep anyone out; at least {MIN_TOKEN_CHARS} (make one with `python3 "
+                        f"-c 'import secrets; print(secrets.token_urlsafe(32))'`)")
+        return ""
+    return token
+
+
+def _token_text(security: Mapping[str, Any], source: str, problems: list[str]) -> str:
     token, token_file = security.get("token", ""), security.get("token_file", "")
     if token and token_file:
         problems.append(f"{source}: [security]: set token or token_file, not both")

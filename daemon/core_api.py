@@ -5,7 +5,8 @@ import asyncio
 import contextlib
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 from aiohttp import web
 
@@ -16,6 +17,7 @@ from daemon.latency import LatencyTracker
 from daemon.messages.convert import diagnostics_msg, json_string_msg, log_msg
 from daemon.messages.definitions import DIAGNOSTIC_ARRAY, LOG, STRING
 from daemon.metrics import prometheus_text
+from daemon.security import Security, hide_paths
 from daemon.settings import SecuritySettings
 from daemon.telemetry import HEALTH_CHANGE, LOG_RECORD, ROBOT_INFO
 from daemon.topics import Topic, TopicOut
@@ -29,11 +31,12 @@ class CoreApi(BaseComponent):
     name = "daemon"
 
     def __init__(self, reports: Reports, latency: LatencyTracker, bus: Bus,
-                 open_health: bool) -> None:
+                 open_health: bool, security: Security | None = None) -> None:
         self.reports = reports
         self.latency = latency
         self.bus = bus
         self.open_health = open_health
+        self.security = security or Security("")
         self._relay: LogRelay | None = None
 
     async def start(self) -> None:
@@ -60,11 +63,24 @@ class CoreApi(BaseComponent):
                          record=False),
                 TopicOut("/diagnostics", DIAGNOSTIC_ARRAY, HEALTH_CHANGE, diagnostics_msg,
                          "on change", bridge=False, latched=True),
-                TopicOut("/rosout", LOG, LOG_RECORD, log_msg, "per log line", state=False))
+                TopicOut("/rosout", LOG, LOG_RECORD, self._log_msg(), "per log line",
+                         state=False))
+
+    def _log_msg(self) -> Callable[[logging.LogRecord], dict[str, Any]]:
+        """/rosout's converter: with a token configured its subscribers may be read-only
+        clients, so paths in the lines (and the source file) are hidden for every one; the
+        journal keeps them."""
+        if not self.security.token_required:
+            return log_msg
+        return lambda record: cast(dict[str, Any], hide_paths(log_msg(record)))
 
     async def get_health(self, request: web.Request) -> web.Response:
         body = self.reports.health()
-        return json_response(body, status=503 if body["status"] == "error" else 200)
+        status = 503 if body["status"] == "error" else 200
+        if not self.security.sees_paths(request.headers, request.query,
+                                        request.remote):
+            body = hide_paths(body)
+        return json_response(body, status=status)
 
     async def get_latency(self, request: web.Request) -> web.Response:
         return json_response(self.latency.stats())
@@ -113,7 +129,8 @@ class LogRelay(logging.Handler):
 
 
 def create(ctx: DaemonContext) -> CoreApi:
-    return CoreApi(ctx.reports, ctx.latency, ctx.bus, ctx.settings(SecuritySettings).open_health)
+    return CoreApi(ctx.reports, ctx.latency, ctx.bus, ctx.settings(SecuritySettings).open_health,
+                   ctx.security)
 
 
 COMPONENT = ComponentSpec("daemon", create)

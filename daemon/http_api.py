@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
+import socket
+import struct
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, BinaryIO
 
 from aiohttp import web
 from aiohttp.web_urldispatcher import AbstractRoute
@@ -27,6 +30,16 @@ REFUSED = 409
 MAX_JSON_DEPTH = 32
 MAX_INT_DIGITS = 64
 READ_CHUNK = 65536
+#: on stop, how long a request in progress (a download to a reader that stalls) may go on
+#: before it is cancelled; its connection is closed after as long again at most
+SHUTDOWN_GRACE_S = 1.0
+#: a download goes out in pieces of this size, each within [http] send_timeout_s
+SEND_CHUNK = 65536
+#: what a connection let in beyond the cap (every other one busy) may still ask for
+PRIORITY_ROUTES = frozenset({("POST", "/api/estop"), ("GET", "/api/health"),
+                             ("HEAD", "/api/health")})
+
+slow_reader_log = LogLimiter(log, "slow-reader", burst=5, window_s=10.0)
 
 internal_error_log = LogLimiter(log, "internal-error", burst=2, window_s=60.0)
 
@@ -106,6 +119,13 @@ class Guard:
 
     @web.middleware
     async def middleware(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        if getattr(request.protocol, "priority_only", False) and (
+                request.method, request.path) not in PRIORITY_ROUTES:
+            request.protocol.force_close()
+            raise ApiError(503, "the HTTP server is at its connection limit",
+                           "this connection may only reach POST /api/estop and GET "
+                           "/api/health; [http] max_connections and reserved_connections "
+                           "set the limits")
         host = request.headers.get("Host")
         if not self.security.host_ok(host):
             raise ApiError(403, f"unknown Host {host!r}", "this daemon answers only to its IP "
@@ -127,7 +147,13 @@ class Guard:
                                "origin to [security] allowed_origins if it is yours")
         needs_token = access == "drive" or (access == "read" and
                                             self.security.read_requires_token)
-        if needs_token and not self.security.token_ok(request.headers, request.query):
+        if not needs_token:
+            return
+        if self.security.guessing(request.headers, request.query, request.remote):
+            raise ApiError(429, "too many wrong tokens from this address",
+                           "tokens from it are refused unchecked for a while; wait a second",
+                           {"Retry-After": "1"})
+        if not self.security.token_ok(request.headers, request.query, request.remote):
             raise ApiError(401, "a valid bearer token is required",
                            "send 'Authorization: Bearer <token>'",
                            {"WWW-Authenticate": 'Bearer realm="arbiterd"'})
@@ -227,6 +253,18 @@ def _depth(value: Any) -> int:
     return deepest
 
 
+def reset(transport: asyncio.Transport | None) -> None:
+    """Close a connection at once with a reset, dropping what is still queued for it (a plain
+    close would leave the kernel sending it to a client that reads nothing, for minutes)."""
+    if transport is None:
+        return
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    transport.abort()
+
+
 # -- the server ----------------------------------------------------------------------------
 
 class HttpServer:
@@ -242,6 +280,8 @@ class HttpServer:
         self.body_timeout_s = options.body_timeout_s
         self.idle_timeout_s = options.idle_timeout_s
         self.max_connections = options.max_connections
+        self.reserved_connections = options.reserved_connections
+        self.send_timeout_s = options.send_timeout_s
         self.guard = Guard(security)
         self.app = web.Application(middlewares=[_errors, self.guard.middleware],
                                    client_max_size=self.max_body_bytes)
@@ -275,11 +315,40 @@ class HttpServer:
         """The raw JSON body within this server's size and time limits."""
         return await read_json_body(request, self.max_body_bytes, self.body_timeout_s)
 
+    async def send_file(self, request: web.Request, file: BinaryIO, size: int,
+                        headers: Mapping[str, str]) -> web.StreamResponse:
+        """Stream an open file as the answer, ``SEND_CHUNK`` at a time; a client that takes
+        no piece for ``send_timeout_s`` is cut off (it would hold a connection slot, and the
+        daemon's shutdown, for as long as it pleases)."""
+        response = web.StreamResponse(headers=headers)
+        response.content_length = size
+        await response.prepare(request)
+        if request.method == "HEAD":
+            return response
+        sent = 0
+        while chunk := await asyncio.to_thread(file.read, SEND_CHUNK):
+            try:
+                async with asyncio.timeout(self.send_timeout_s):
+                    await response.write(chunk)
+            except TimeoutError:
+                slow_reader_log(logging.WARNING, "HTTP answer to %s closed: it made no progress "
+                                "for %g s (%d of %d bytes sent); [http] send_timeout_s sets the "
+                                "limit", request.remote, self.send_timeout_s, sent, size)
+                reset(request.transport)
+                request.protocol.force_close()
+                return response  # aiohttp finds the connection gone and lets it be
+            except ConnectionError:
+                return response  # the client went away: nothing to say, nobody to say it to
+            sent += len(chunk)
+        return response
+
     async def start(self) -> None:
         self._accept_errors = AcceptErrorFilter(asyncio.get_running_loop())
         self._accept_errors.install()
-        self._runner = CappedRunner(self.app, self.max_connections, access_log=None,
-                                    handle_signals=False, keepalive_timeout=self.idle_timeout_s)
+        self._runner = CappedRunner(self.app, self.max_connections,
+                                    reserved=self.reserved_connections, access_log=None,
+                                    handle_signals=False, keepalive_timeout=self.idle_timeout_s,
+                                    shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:

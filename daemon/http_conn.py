@@ -85,6 +85,10 @@ class JsonRequestHandler(RequestHandler):
         bad_request_log(logging.WARNING, "HTTP connection closed: %s%s", args[0] if args else
                         "error", f": {type(exc).__name__}: {detail}" if detail else "")
 
+    #: let in beyond the cap while every connection was busy: serves only the routes that
+    #: must always answer (the e-stop, health)
+    priority_only = False
+
     @property
     def closing(self) -> bool:
         return self._force_close or self.transport is None
@@ -104,10 +108,15 @@ def one_line(text: str, limit: int = 200) -> str:
 class CappedServer(web.Server):
     """The low-level server with :class:`JsonRequestHandler` and at most ``max_connections``
     open: a new connection beyond the cap closes the oldest idle one (or itself if every
-    connection is busy), so idle sockets cannot use up the file descriptors."""
+    connection is busy), so idle sockets cannot use up the file descriptors. Used by both
+    ports: ``label`` and ``setting`` name the server and its key in the log line."""
 
     max_connections = 256
+    #: beyond the cap, while every connection is busy: connections for the priority routes
+    reserved = 0
     refused = 0
+    label = "HTTP"
+    setting = "[http] max_connections"
 
     def __call__(self) -> RequestHandler:
         return JsonRequestHandler(self, loop=self._loop, **self._kwargs)
@@ -120,12 +129,21 @@ class CappedServer(web.Server):
         if len(live) <= self.max_connections:
             return  # the rest are closing already (their sockets go on the next loop pass)
         victim = next((h for h in live if h is not handler and getattr(h, "idle", False)),
-                      handler)
+                      None)
+        if victim is None and len(live) <= self.max_connections + self.reserved:
+            handler.priority_only = True  # type: ignore[attr-defined]
+            return
+        victim = victim or handler
         self.refused += 1
-        bad_request_log(logging.WARNING, "HTTP connection limit (%d) reached: closing %s "
-                        "connection; [http] max_connections sets it", self.max_connections,
-                        "the oldest idle" if victim is not handler else "the new")
-        victim.force_close()
+        bad_request_log(logging.WARNING, "%s connection limit (%d) reached: closing %s "
+                        "connection; %s sets it", self.label, self.max_connections,
+                        "the oldest idle" if victim is not handler else "the new",
+                        self.setting)
+        # marked closing now (the next connection must not pick it again), closed on the next
+        # pass: closing the new handler inside connection_made, before its task started,
+        # made aiohttp log an AssertionError traceback per refused connection
+        victim._force_close = True
+        self._loop.call_soon(victim.force_close)
 
 
 def json_http_errors(handler: Callable[[BaseRequest], Awaitable[web.StreamResponse]]
@@ -152,15 +170,21 @@ def json_http_errors(handler: Callable[[BaseRequest], Awaitable[web.StreamRespon
 class CappedRunner(web.AppRunner):
     """An :class:`~aiohttp.web.AppRunner` whose server is a :class:`CappedServer`."""
 
-    def __init__(self, app: web.Application, max_connections: int, **kwargs: Any) -> None:
+    def __init__(self, app: web.Application, max_connections: int, *, reserved: int = 0,
+                 label: str = "HTTP", setting: str = "[http] max_connections",
+                 **kwargs: Any) -> None:
         super().__init__(app, **kwargs)
         self.max_connections = max_connections
+        self.reserved = reserved
+        self.label, self.setting = label, setting
 
     async def _make_server(self) -> web.Server:
         server = await super()._make_server()
         server.__class__ = CappedServer  # same state, our handler class and the cap
         assert isinstance(server, CappedServer)
         server.max_connections = self.max_connections
+        server.reserved = self.reserved
+        server.label, server.setting = self.label, self.setting
         server.request_handler = json_http_errors(server.request_handler)
         return server
 
@@ -189,7 +213,8 @@ class AcceptErrorFilter:
             self.count += 1
             cause = ACCEPT_ERRNOS.get(exc.errno or 0, exc.strerror or str(exc))
             self.limiter(logging.ERROR, "cannot accept connections: %s; raise LimitNOFILE= in "
-                         "the unit or lower [http] max_connections (retrying each second)",
+                         "the unit or lower [http] or [rosbridge] max_connections (retrying "
+                         "each second)",
                          cause)
             return
         if self.previous is not None:

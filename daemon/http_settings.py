@@ -22,6 +22,14 @@ HTTP_OPTIONS: Options = {
     "max_connections": Option(int, 256, "most open HTTP connections; one more closes the "
                               "oldest idle one (keep it well under LimitNOFILE)",
                               minval=4, maxval=65536),
+    "reserved_connections": Option(int, 8, "connections let in beyond max_connections while "
+                                   "every open one is busy (stalled downloads): they serve "
+                                   "only POST /api/estop and GET /api/health", minval=0,
+                                   maxval=1024),
+    "send_timeout_s": Option(float, 10.0, "close a connection whose answer makes no progress "
+                             "for this long (a download whose client stopped reading: one "
+                             "64 KiB piece must go out within it), s", above=0.0,
+                             maxval=3600.0),
     "console": Option(bool, True, "serve the web console at / (its files are open; what moves "
                       "the robot still needs the token)"),
 }
@@ -38,4 +46,6 @@ class HttpSettings(SectionSettings, section="http", options=HTTP_OPTIONS):
     body_timeout_s: float
     idle_timeout_s: float
     max_connections: int
+    reserved_connections: int
+    send_timeout_s: float
     console: bool

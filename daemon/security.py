@@ -3,11 +3,32 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+import re
 import socket
-from collections.abc import Iterable, Mapping
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 from urllib.parse import urlsplit
 
 LOCAL_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+
+#: an absolute file system path inside a text, of two segments or more (/dev/ttyUSB0,
+#: /var/lib/arbiterd/recordings); not a one-segment topic name (/odom), nor a URL's path
+_PATH = re.compile(r"(?<![\w/.:~-])/(?:[\w.@+~-]+/)+[\w.@+~-]*")
+HIDDEN_PATH = "<path>"
+
+
+def hide_paths(value: Any) -> Any:
+    """``value`` (JSON-like) with every absolute path in its strings replaced by
+    :data:`HIDDEN_PATH`: what a read-only client is shown (docs/security.md)."""
+    if isinstance(value, str):
+        return _PATH.sub(HIDDEN_PATH, value) if "/" in value else value
+    if isinstance(value, dict):
+        return {key: hide_paths(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [hide_paths(item) for item in value]
+    return value
 
 
 def machine_names() -> set[str]:
@@ -38,6 +59,38 @@ def is_ip_literal(name: str) -> bool:
     return True
 
 
+class Guesses:
+    """Wrong tokens per peer address: ``burst`` at once, then ``rate`` a second. A peer over
+    its budget has every token it offers refused without a comparison until the budget
+    refills (so 8 000 guesses a second become one). At most ``max_peers`` are remembered
+    (the longest unheard of is forgotten first)."""
+
+    def __init__(self, rate: float = 1.0, burst: float = 10.0, max_peers: int = 4096,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate, self.burst, self.max_peers, self.clock = rate, burst, max_peers, clock
+        self.refused = 0
+        self._peers: OrderedDict[str, tuple[float, float]] = OrderedDict()  # level, when
+
+    def _level(self, peer: str) -> float:
+        level, since = self._peers.get(peer, (self.burst, self.clock()))
+        return min(self.burst, level + (self.clock() - since) * self.rate)
+
+    def allowed(self, peer: str) -> bool:
+        if self._level(peer) >= 1.0:
+            return True
+        self.refused += 1
+        return False
+
+    def exhausted(self, peer: str) -> bool:
+        return self._level(peer) < 1.0
+
+    def failed(self, peer: str) -> None:
+        self._peers[peer] = (self._level(peer) - 1.0, self.clock())
+        self._peers.move_to_end(peer)
+        while len(self._peers) > self.max_peers:
+            self._peers.popitem(last=False)
+
+
 class Security:
     """``[security]``: which Host names the daemon answers to, which browser Origins may open
     the WebSocket, and the token that everything moving the robot needs."""
@@ -50,6 +103,8 @@ class Security:
         self.read_requires_token = read_requires_token
         own = machine_names() if own_names is None else set(own_names)
         self.allowed_hosts = LOCAL_NAMES | {h.rstrip(".").lower() for h in allowed_hosts} | own
+        #: wrong tokens per peer address, rate-limited
+        self.guesses = Guesses()
 
     @property
     def token_required(self) -> bool:
@@ -86,10 +141,39 @@ class Security:
 
     # -- who may drive -------------------------------------------------------------------
 
-    def token_ok(self, headers: Mapping[str, str], query: Mapping[str, str]) -> bool:
-        """``Authorization: Bearer T`` or ``?token=T`` (for browsers that cannot set headers)."""
+    def sees_paths(self, headers: Mapping[str, str], query: Mapping[str, str],
+                   peer: str | None = None) -> bool:
+        """Whether a request is shown this machine's file system paths (device nodes, the
+        recordings directory): always without a token configured, else with the token."""
+        return not self.token_required or self.token_ok(headers, query, peer)
+
+    @staticmethod
+    def offered(headers: Mapping[str, str], query: Mapping[str, str]) -> str:
+        """The token a request offers: ``Authorization: Bearer T`` or ``?token=T`` (for
+        browsers that cannot set headers); "" for none."""
+        auth = headers.get("Authorization", "")
+        return auth[7:].strip() if auth[:7].lower() == "bearer " else query.get("token", "")
+
+    def token_ok(self, headers: Mapping[str, str], query: Mapping[str, str],
+                 peer: str | None = None) -> bool:
+        """The request shows the token (compared in constant time). With ``peer``, a wrong
+        one counts against that address's budget of guesses, and an address over it is
+        refused without a comparison (:meth:`guessing` says so)."""
         if not self.token:
             return True
-        auth = headers.get("Authorization", "")
-        offered = auth[7:].strip() if auth[:7].lower() == "bearer " else query.get("token", "")
-        return hmac.compare_digest(offered.encode(), self.token.encode())
+        offered = self.offered(headers, query)
+        if not offered:
+            return False
+        if peer is not None and not self.guesses.allowed(peer):
+            return False
+        if hmac.compare_digest(offered.encode(), self.token.encode()):
+            return True
+        if peer is not None:
+            self.guesses.failed(peer)
+        return False
+
+    def guessing(self, headers: Mapping[str, str], query: Mapping[str, str],
+                 peer: str | None) -> bool:
+        """The request offers a token from an address over its budget of wrong ones."""
+        return bool(self.token and peer is not None and self.offered(headers, query)
+                    and self.guesses.exhausted(peer))

@@ -90,7 +90,8 @@ DRIVER_OPTIONS: Options = {
 }
 
 SECURITY_OPTIONS: Options = {
-    "token": Option(str, "", "bearer token required to move the robot ('' = none)"),
+    "token": Option(str, "", "bearer token required to move the robot, at least 12 characters "
+                    "('' = none)"),
     "token_file": Option(str, "", "file holding the token (first line); '' = none"),
     "allowed_origins": Option(list, [], "extra browser origins allowed on the WebSocket "
                               "(same host and localhost are always allowed)", item=str),

@@ -107,11 +107,24 @@ def test_env_overrides_a_key_and_rejects_unknown(tmp_path: Path) -> None:
 
 def test_token_file(tmp_path: Path) -> None:
     token_file = tmp_path / "token"
-    token_file.write_text("s3cret\n")
+    token_file.write_text("s3cret-t0ken\n")
     path = write(tmp_path, f"[security]\ntoken_file = \"{token_file}\"\n")
-    assert load_config(path, env={}).token == "s3cret"
+    assert load_config(path, env={}).token == "s3cret-t0ken"
     path = write(tmp_path, f"[security]\ntoken_file = \"{tmp_path / 'missing'}\"\n")
     assert "token_file: cannot read" in problems_of(path)[0]
+
+
+def test_a_short_token_is_refused(tmp_path: Path) -> None:
+    """A 1-character token was accepted (8 555 guesses a second would find it at once)."""
+    for line in ('token = "x"', 'token = "eleven-char"'):
+        [problem] = problems_of(write(tmp_path, f"[security]\n{line}\n"))
+        assert "too short to keep anyone out; at least 12" in problem, problem
+    token_file = tmp_path / "token"
+    token_file.write_text("abc\n")
+    [problem] = problems_of(write(tmp_path, f"[security]\ntoken_file = \"{token_file}\"\n"))
+    assert "3 characters is too short" in problem
+    assert load_config(write(tmp_path, '[security]\ntoken = "twelve-chars"\n'),
+                       env={}).token == "twelve-chars"
 
 
 def test_bad_toml_names_the_line(tmp_path: Path) -> None:

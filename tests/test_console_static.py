@@ -105,13 +105,13 @@ async def test_nothing_outside_the_table_is_served(server: TestServer, target: s
 
 
 def test_the_page_is_open_when_reads_need_the_token(tmp_path: Path) -> None:
-    toml = '[security]\ntoken = "t0ken"\nread_requires_token = true\n'
+    toml = '[security]\ntoken = "console-t0ken"\nread_requires_token = true\n'
     daemon = DaemonSubprocess(tmp_path, toml).start(wait_ready=False)
     try:
         status, body = wait_for(lambda: _answer(daemon, "/"), "the console page", within_s=20)
         assert status == 200 and "<title>arbiterd console</title>" in body
         assert daemon.get("/api/health")[0] == 401
-        assert daemon.get("/api/health", token="t0ken")[0] == 200
+        assert daemon.get("/api/health", token="console-t0ken")[0] == 200
     finally:
         daemon.__exit__()
 

@@ -177,13 +177,13 @@ def test_metrics_and_robot_info(daemon: DaemonSubprocess) -> None:
 
 def test_token_guards_motion_but_not_health(
         daemon_subprocess: StartDaemonSubprocess) -> None:
-    daemon = daemon_subprocess("[security]\ntoken = \"s3cret\"\n")
+    daemon = daemon_subprocess("[security]\ntoken = \"s3cret-t0ken\"\n")
     status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}})
     assert status == 401 and "token" in body["error"]
     assert daemon.post("/api/estop", {"engaged": False})[0] == 401  # latching needs none
     assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="wrong")[0] == 401
     assert stopped(daemon)
-    status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret")
+    status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.1}}, token="s3cret-t0ken")
     assert status == 200 and body["accepted"]
     assert daemon.get("/api/health")[0] == 200
     assert daemon.get("/api/status")[0] == 200

@@ -111,13 +111,13 @@ def test_the_daemons_own_origin_drives_and_reads_carry_no_cors(
 
 def test_the_token_is_needed_even_from_the_own_origin(
         daemon_subprocess: StartDaemonSubprocess) -> None:
-    proc = daemon_subprocess('[security]\ntoken = "t0k"\n')
+    proc = daemon_subprocess('[security]\ntoken = "t0k-t0k-t0k-t0k"\n')
     own = {"Origin": f"http://127.0.0.1:{proc.http_port}"}
     answer = post(proc, headers=own)
     assert answer.status == 401 and answer.headers["www-authenticate"].startswith("Bearer")
-    assert post(proc, headers={**own, "Authorization": "Bearer t0k"}).status == 200
+    assert post(proc, headers={**own, "Authorization": "Bearer t0k-t0k-t0k-t0k"}).status == 200
     assert post(proc, headers={"Origin": "http://evil.example",
-                               "Authorization": "Bearer t0k"}).status == 403
+                               "Authorization": "Bearer t0k-t0k-t0k-t0k"}).status == 403
 
 
 # -- request bodies ------------------------------------------------------------------------

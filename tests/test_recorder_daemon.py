@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import signal
 import subprocess
@@ -177,18 +178,18 @@ def test_an_unwritable_directory_degrades_health_and_the_robot_still_drives(
 def test_http_control_listing_and_download(daemon_subprocess: StartDaemonSubprocess,
                                            tmp_path: Path) -> None:
     rec = tmp_path / "rec"
-    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n[security]\ntoken = "s3cret"\n',
-                            args=("--sim",))
+    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n'
+                               '[security]\ntoken = "s3cret-t0ken"\n', args=("--sim",))
     assert daemon.get("/api/recordings")[1]["recordings"] == []
     status, _ = daemon.post("/api/record", {"enabled": True})
     assert status == 401
-    status, body = daemon.post("/api/record", {"enabled": "yes"}, token="s3cret")
+    status, body = daemon.post("/api/record", {"enabled": "yes"}, token="s3cret-t0ken")
     assert status == 422 and "enabled" in body["error"]
-    status, body = daemon.post("/api/record", {"enabled": True}, token="s3cret")
+    status, body = daemon.post("/api/record", {"enabled": True}, token="s3cret-t0ken")
     assert status == 200 and body["recording"] is True
     (entry,) = daemon.get("/api/recordings")[1]["recordings"]
     assert entry["recording"] is True and entry["size"] > 0
-    status, body = daemon.post("/api/record", {"enabled": False}, token="s3cret")
+    status, body = daemon.post("/api/record", {"enabled": False}, token="s3cret-t0ken")
     assert status == 200 and body["recording"] is False
     (entry,) = daemon.get("/api/recordings")[1]["recordings"]
     assert entry["complete"] is True and entry["duration_s"] > 0 and entry["start"] > 0
@@ -197,4 +198,27 @@ def test_http_control_listing_and_download(daemon_subprocess: StartDaemonSubproc
     for name in ("..%2Fa-file", "..%2F..%2Fetc%2Fpasswd", "arbiterd-x.mcap%2F..%2F..%2Fx",
                  ".arbiterd-x.mcap", "arbiterd-nothing.mcap"):
         assert daemon.get(f"/api/recordings/{name}")[0] == 404, name
+    assert daemon.stop() == 0
+
+
+def test_links_and_odd_names_in_the_recordings_directory_are_not_served(
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
+    """A symbolic link named like a recording (to /etc/passwd) was listed and served without
+    a token; an over-long name answered 500 with a traceback (File name too long)."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "arbiterd-passwd.mcap").symlink_to("/etc/passwd")
+    (rec / "arbiterd-dir.mcap").mkdir()
+    os.mkfifo(rec / "arbiterd-fifo.mcap")
+    (rec / "arbiterd-real.mcap").write_bytes(b"\x89MCAP0\r\n")
+    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n'
+                               '[security]\ntoken = "s3cret-t0ken"\n')
+    names = [r["name"] for r in daemon.get("/api/recordings")[1]["recordings"]]
+    assert names == ["arbiterd-real.mcap"]
+    for name in ("arbiterd-passwd.mcap", "arbiterd-dir.mcap", "arbiterd-fifo.mcap",
+                 "arbiterd-" + "a" * 300 + ".mcap"):
+        status, body = daemon.get(f"/api/recordings/{name}")
+        assert status == 404 and len(body["error"]) < 120, (name, status, body)
+    assert daemon.get("/api/recordings/arbiterd-real.mcap")[0] == 200
+    assert "Traceback" not in daemon.log()
     assert daemon.stop() == 0

@@ -11,7 +11,7 @@ from daemon.rosbridge.session import OPS, TARGET_FIELDS, ClientSession
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.support.rosbridge import TWIST, Client, connect, upgrade_status
 
-TOKEN = "s3cret"
+TOKEN = "s3cret-t0ken"
 SAMPLE_TOPIC = "/walk"
 SAMPLE_SERVICE = "/walk_srv"
 TYPES = {"/cmd_vel": "geometry_msgs/msg/Twist", "/stamped_cmd_vel": "std_msgs/msg/String",

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import itertools
 import json
@@ -19,10 +20,11 @@ import pytest
 from daemon.bench.rosbridge_attacks import run_attack
 from daemon.bench.rosbridge_flood import Window, measure
 from daemon.config import env_name
+from daemon.messages.msgtypes import MessageError, normalize_type
 from daemon.rosbridge import limits as limits_module
 from daemon.rosbridge import session as session_module
 from daemon.rosbridge.access import Authority
-from daemon.rosbridge.codec import fragments
+from daemon.rosbridge.codec import ProtocolError, fragments, topic_name
 from daemon.rosbridge.graph import BridgeGraph
 from daemon.rosbridge.limits import Limits, Pacer
 from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
@@ -87,6 +89,81 @@ async def test_subscribe_bookkeeping_is_cheap_with_the_budgets_raised(
         report, window = await under_attack(robot, "subscribe-flood", "--count", "10000")
     assert report["statuses"] == {}, report
     assert_no_stall(window)
+
+
+async def test_huge_names_from_tokenless_clients_leave_the_ticks_on_time(
+        tmp_path: Path) -> None:
+    """8 clients without the token send subscribe/advertise/publish/call_service frames
+    naming a 1 MB topic (``/a/a/a...``): before, a regular expression ran over each name on
+    the loop (0.1-0.25 s a frame) and nearly every tick was late; now a client that may not
+    publish is held to small frames before one is parsed."""
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot:
+        latency = robot.daemon.latency
+        missed_before = latency.missed_ticks
+        report, window = await under_attack(robot, "long-names", "--clients", "8",
+                                            "--frames", "4")
+        missed = latency.missed_ticks - missed_before
+    assert_no_stall(window)
+    # a tick is missed when the loop is blocked for a whole period (20 ms): before, most were
+    assert missed <= window.ticks // 4, f"{missed} ticks missed, {window.ticks} ran"
+    # each frame closed the connection (1009, or 1006 when the close met the client still
+    # sending its megabyte) before anything was parsed: no status was ever needed
+    assert sum(report["closes"].values()) == 32 and report["statuses"] == {}, report
+    assert set(report["closes"]) <= {"1009", "1006"}, report
+
+
+async def test_a_huge_name_is_refused_by_its_length_before_any_work(tmp_path: Path) -> None:
+    """The token holder may send 1 MiB frames: a 1 MB name is refused at once, naming the
+    limit, without being echoed back; the loop's CPU time per frame stays small."""
+    name = "/a" * 524_000
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, \
+            connect(robot.ws_url, headers=OWNER) as owner:
+        for op, key in (("subscribe", "topic"), ("advertise", "topic"), ("publish", "topic"),
+                        ("call_service", "service")):
+            cpu = time.thread_time()  # the daemon runs in this thread
+            await owner.send(op=op, id=op, type="std_msgs/msg/String", **{key: name})
+            status = await owner.op("status", id=op)
+            cpu_ms = (time.thread_time() - cpu) * 1e3
+            assert f"{op}: {key} name '/a/a/a" in status["msg"], status
+            assert "is too long: the limit is 256 characters" in status["msg"]
+            assert len(status["msg"]) < 200
+            assert cpu_ms < 50, f"{op}: {cpu_ms:.0f} ms of CPU for one frame"
+        await owner.send(op="subscribe", topic="/odom", type="x" * 100_000, id="type")
+        status = await owner.op("status", id="type")
+        assert "is too long: the limit is 256 characters" in status["msg"], status
+
+
+async def test_a_1_mb_publish_costs_the_loop_little(tmp_path: Path) -> None:
+    """A 1 MB message (280 000 uint8 as a JSON list) from the token holder to another
+    client: checking it cost ~0.3 s of loop time (a path string built per element); now
+    C-level passes over uniform arrays."""
+    data = list(range(256)) * 1100
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, \
+            connect(robot.ws_url, headers=OWNER) as owner, \
+            connect(robot.ws_url, max_msg_size=0) as reader:
+        await reader.send(op="subscribe", topic="/blob", type="std_msgs/msg/UInt8MultiArray")
+        await owner.send(op="advertise", topic="/blob", type="std_msgs/msg/UInt8MultiArray")
+        await owner.call("/rosapi/get_time")
+        await reader.call("/rosapi/get_time")
+        text = json.dumps({"op": "publish", "topic": "/blob", "msg": {"data": data}},
+                          separators=(",", ":"))
+        assert 1_000_000 < len(text) < 1_048_576
+        cpu = time.thread_time()
+        await owner.ws.send_str(text)
+        await owner.call("/rosapi/get_time")  # handled
+        cpu_ms = (time.thread_time() - cpu) * 1e3
+        got = await reader.op("publish", topic="/blob")
+    assert len(base64.b64decode(got["msg"]["data"])) == len(data)
+    assert cpu_ms < 100, f"{cpu_ms:.0f} ms of CPU for one 1 MB publish"
+
+
+def test_names_and_types_are_bounded_before_their_pattern() -> None:
+    for name in ("/a" * 524_288, "a" * 257):
+        with pytest.raises(ProtocolError, match="is too long: the limit is 256 characters"):
+            topic_name({"op": "subscribe", "topic": name})
+    assert topic_name({"op": "subscribe", "topic": "/a" * 128}) == ("/a" * 128, "/a" * 128)
+    with pytest.raises(MessageError, match="is too long: the limit is 256 characters"):
+        normalize_type("pkg/" + "T" * 1_000_000)
 
 
 def synthetic_scan(rays: int = 720) -> LaserScan:
@@ -195,6 +272,25 @@ async def test_a_client_kept_over_its_request_rate_is_closed(
             closed = await flooder.ws.receive(timeout=10)
         assert flooder.ws.close_code == 1008
         assert (await polite.call("/rosapi/get_time"))["result"] is True
+
+
+async def test_a_client_flooding_at_the_default_rate_is_closed_too(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """At the default 1 000 requests a second the wait per frame is a millisecond, and a
+    sleep that overran let the next frame through unthrottled: that counted as a break, so
+    "held back for 10 s -> 1008" never fired (8 minutes of a 500 000-frame sender)."""
+    monkeypatch.setattr(session_module, "THROTTLE_CLOSE_S", 1.0)
+    async with in_process_daemon(tmp_path) as robot, connect(robot.ws_url) as flooder:
+        frame = json.dumps({"op": "set_level", "level": "error"})
+        t0 = time.monotonic()
+        with contextlib.suppress(ConnectionError):
+            while not flooder.ws.closed and time.monotonic() - t0 < 8.0:
+                await flooder.ws.send_str(frame)  # paced by TCP once the reader pauses
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(5.0):
+                while (await flooder.ws.receive()).type == aiohttp.WSMsgType.TEXT:
+                    pass
+        assert flooder.ws.close_code == 1008, f"not closed after {time.monotonic() - t0:.1f} s"
 
 
 async def test_calls_to_a_silent_provider_time_out(tmp_path: Path,

@@ -470,7 +470,7 @@ async def test_rosapi_services_with_and_without_slash(robot: InProcessDaemon, pr
 
 
 async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> None:
-    async with in_process_daemon(tmp_path, '[security]\ntoken = "s3cret"\n') as robot:
+    async with in_process_daemon(tmp_path, '[security]\ntoken = "s3cret-t0ken"\n') as robot:
         async with connect(robot.ws_url) as anonymous:
             await anonymous.send(op="subscribe", topic="/odom")
             await anonymous.op("publish", topic="/odom")
@@ -485,10 +485,11 @@ async def test_read_only_without_token_and_driving_with_it(tmp_path: Path) -> No
         async with connect(robot.ws_url + "?token=wrong") as wrong:
             await wrong.send(op="publish", topic="/cmd_vel", msg=TWIST, id="pub")
             await wrong.op("status", id="pub")
-        async with connect(robot.ws_url + "?token=s3cret") as by_query:
+        async with connect(robot.ws_url + "?token=s3cret-t0ken") as by_query:
             await by_query.send(op="publish", topic="/cmd_vel", msg=TWIST)
             await eventually(robot.moving, "driving with ?token=")
-        async with connect(robot.ws_url, headers={"Authorization": "Bearer s3cret"}) as header:
+        async with connect(robot.ws_url,
+                           headers={"Authorization": "Bearer s3cret-t0ken"}) as header:
             await header.send(op="publish", topic="/cmd_vel", msg=TWIST, id="ok")
             await header.call("/rosapi/get_time")
             assert not [m for m in header.received if m.get("op") == "status"]

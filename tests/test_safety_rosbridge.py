@@ -39,7 +39,7 @@ async def test_a_bad_mode_is_a_status_error(robot: InProcessDaemon) -> None:
 
 
 async def test_switching_autonomy_needs_the_token(tmp_path: Path) -> None:
-    async with in_process_daemon(tmp_path, '[security]\ntoken = "sesame"\n') as robot, \
+    async with in_process_daemon(tmp_path, '[security]\ntoken = "open-sesame-1"\n') as robot, \
             connect(robot.ws_url) as client:
         await client.send(op="subscribe", topic="/autonomy/state")  # reading is open
         await client.expect(lambda m: m.get("topic") == "/autonomy/state", what="a state")

@@ -4,15 +4,19 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
+from pathlib import Path
 from typing import Any
 
+import aiohttp
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from daemon.http_api import MAX_INT_DIGITS, MAX_JSON_DEPTH, ApiError, parse_json
 from daemon.http_conn import AcceptErrorFilter, LogLimiter
-from daemon.security import Security, host_name
+from daemon.security import Guesses, Security, hide_paths, host_name
+from tests.support.in_process_daemon import in_process_daemon
+from tests.support.rosbridge import OWNER, WITH_TOKEN, connect, upgrade_status
 
 OWN = ("robot", "robot.lan", "robot.local")
 
@@ -163,3 +167,68 @@ async def test_accept_errors_become_one_line(caplog: pytest.LogCaptureFixture) -
     assert quiet.count == 20
     assert seen == [{"message": "something else"}]  # everything else reaches the old handler
     assert loop.get_exception_handler() is not quiet
+
+
+# -- what a read-only client is shown ------------------------------------------------------------
+
+def test_hide_paths_hides_file_system_paths_only() -> None:
+    hidden = hide_paths({"port": "/dev/ttyUSB0", "n": 3, "topics": ["/odom", "/scan"],
+                         "error": "cannot open /var/lib/arbiterd/recordings: denied",
+                         "url": "see http://robot.local:8085/api/health"})
+    assert hidden == {"port": "<path>", "n": 3, "topics": ["/odom", "/scan"],
+                      "error": "cannot open <path>: denied",
+                      "url": "see http://robot.local:8085/api/health"}
+
+
+async def test_a_read_only_client_is_not_shown_paths(tmp_path: Path) -> None:
+    """/api/health showed the lidar's and the driver's device nodes and /api/recordings the
+    recordings directory to any client; /rosout the paths in log lines and source files."""
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http:
+        async def text(path: str, **headers: str) -> str:
+            async with http.get(robot.http_url + path, headers=headers) as answer:
+                assert answer.status == 200, await answer.text()
+                return await answer.text()
+
+        for path in ("/api/health", "/api/recordings", "/api/status"):
+            answer = await text(path)
+            assert not any(p in answer for p in ("/tmp/", "/dev/", f"{Path.home()}/")), answer
+        assert "<path>" in await text("/api/health")
+        assert '"directory": "<path>"' in await text("/api/recordings")
+        assert "/rplidar" in await text("/api/health", **OWNER)  # the token holder sees them
+        async with connect(robot.ws_url) as reader:
+            await reader.send(op="subscribe", topic="/rosout")
+            await reader.call("/rosapi/get_time")
+            logging.getLogger("arbiterd").warning("lost /dev/ttyUSB7")
+            line = await reader.expect(lambda m: m.get("op") == "publish"
+                                       and "lost" in m["msg"]["msg"])
+        assert line["msg"]["msg"] == "lost <path>" and line["msg"]["file"] == "<path>"
+
+
+# -- guessing the token ----------------------------------------------------------------------
+
+def test_wrong_tokens_are_limited_per_peer() -> None:
+    now = [0.0]
+    sec = security(token="right-token-1")
+    sec.guesses = Guesses(rate=1.0, burst=10, clock=lambda: now[0])
+    wrong, right = {"Authorization": "Bearer nope"}, {"Authorization": "Bearer right-token-1"}
+    assert [sec.token_ok(wrong, {}, "10.0.0.9") for _ in range(10)] == [False] * 10
+    assert sec.guessing(wrong, {}, "10.0.0.9") and sec.guessing(right, {}, "10.0.0.9")
+    assert not sec.token_ok(right, {}, "10.0.0.9")  # refused unchecked while over budget
+    assert sec.token_ok(right, {}, "10.0.0.10")  # another address is not held back
+    assert not sec.guessing({}, {}, "10.0.0.9")  # no token offered: no guess
+    now[0] += 1.0
+    assert sec.token_ok(right, {}, "10.0.0.9")  # a second later one more try
+
+
+async def test_token_guessing_is_refused_with_429_on_both_ports(tmp_path: Path) -> None:
+    """Wrong tokens were unlimited (8 555 guesses a second over HTTP)."""
+    async with in_process_daemon(tmp_path, WITH_TOKEN) as robot, aiohttp.ClientSession() as http:
+        statuses = []
+        for n in range(30):
+            async with http.post(robot.http_url + "/api/cmd_vel", json={"linear": {"x": 0.2}},
+                                 headers={"Authorization": f"Bearer guess-{n:08d}"}) as answer:
+                statuses.append(answer.status)
+        assert statuses[:10] == [401] * 10 and set(statuses[10:]) == {429}, statuses
+        assert await upgrade_status(robot.ws_url + "?token=guess") == 429
+        assert await upgrade_status(robot.ws_url) == 101  # without a token: read-only, as ever
+        assert not robot.moving()

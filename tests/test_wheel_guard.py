@@ -2,6 +2,7 @@
 # within its configured time, and never trips on a healthy one driving around.
 from __future__ import annotations
 
+import math
 import random
 import time
 from collections.abc import Iterator
@@ -10,8 +11,16 @@ from typing import Any
 
 import pytest
 
+from daemon.bus import Bus
+from daemon.config import load_config
+from daemon.control.clock import VirtualClock
+from daemon.control.commands import Twist
+from daemon.control.loop import ControlLoop
+from daemon.control.supervisor import StallSupervisor
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
+from daemon.latency import LatencyTracker
 from drivers import EncoderReading
+from drivers.mock import MockDriver
 from tests.support.compare import close_to
 from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.wait import wait_for
@@ -132,3 +141,80 @@ def test_no_false_trip_while_wandering(driver: str, tmp_path: Path) -> None:
         commanded = sum(c[side] for c, _ in samples) / len(samples)
         measured = sum(m[side] for _, m in samples) / len(samples)
         assert close_to(measured, commanded, 0.4), (side, samples)
+
+
+class SlowMotors(MockDriver):
+    """The mock driver with slow hobby motors: each wheel follows its command through a
+    first-order lag (time constant ``tau``), read out as exact encoder positions, all in the
+    test's virtual time; the emergency path sets the target to zero (the wheels coast)."""
+
+    def __init__(self, clock: VirtualClock, tau: float = 0.25) -> None:
+        super().__init__({}, max_wheel_speed=40.0)
+        self.clock, self.tau = clock, tau
+        self.speed, self.target, self.position = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
+        self.t = clock()
+
+    def advance(self) -> None:
+        now = self.clock()
+        dt, self.t = now - self.t, now
+        decay = math.exp(-dt / self.tau)
+        for i in (0, 1):
+            v0, vt = self.speed[i], self.target[i]
+            self.position[i] += vt * dt + (v0 - vt) * self.tau * (1 - decay)
+            self.speed[i] = vt + (v0 - vt) * decay
+
+    async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
+        self.advance()
+        self.target = [left_rad_s, right_rad_s]
+
+    async def _read_encoders(self) -> EncoderReading | None:
+        self.advance()
+        return EncoderReading(self.position[0], self.position[1], self.clock())
+
+    def _emergency_zero(self) -> bool:
+        self.advance()
+        self.target = [0.0, 0.0]
+        return True
+
+
+async def test_stall_stops_under_a_flood_are_no_wheel_mismatch() -> None:
+    """A flood stalls the loop again and again, longer than the supervisor's 0.2 s, with a
+    tick in between; the supervisor zeroes the wheels each time and slow motors coast down.
+    Before, the readings from before a stall still made up the measured speed after it (the
+    turns made before the stop, over the whole stall) against a command of zero, and the
+    stalls' own time counted as mismatch time: the guard tripped ("too fast: a runaway speed
+    loop?"), latched the e-stop and health went to error. A stall stop is no miswiring: the
+    guard starts afresh after one. (Virtual time: the ticks, the stalls and the supervisor's
+    check are stepped by the test.)"""
+    clock = VirtualClock()
+    config = load_config(None, env={})
+    driver = SlowMotors(clock)
+    control = ControlLoop(config, driver, Bus(), LatencyTracker(), clock=clock)
+    control.supervisor = StallSupervisor(driver, 0.2, clock=clock)
+    await control.start(realtime=False)
+    period = control.period_s
+
+    async def tick() -> None:
+        clock.advance(period)
+        control.supervisor.beat()
+        await control.tick(clock())
+
+    for step in range(100):  # 2 s at 1 m/s: the wheels at 20 rad/s
+        if step % 5 == 0:
+            assert (await control.submit("teleop", Twist(1.0, 0.0), t_recv=clock())).accepted
+        await tick()
+    assert driver.speed[0] > 19.0
+    for _ in range(3):
+        clock.advance(0.2 + 1e-6)  # the loop is blocked ...
+        control.supervisor.check()  # ... the supervisor zeroes the wheels ...
+        clock.advance(0.3)  # ... and the stall goes on while they coast down
+        await tick()
+    assert control.supervisor.stall_stops == 3
+    for _ in range(50):
+        await tick()
+    assert control.wheel_guard.tripped is None, control.wheel_guard.tripped
+    assert not control.arbiter.estop_engaged
+    assert control.health()["status"] == "ok", control.health()
+    assert control.wheel_guard.restarts == 3
+    assert (await control.submit("teleop", Twist(0.5, 0.0), t_recv=clock())).accepted
+    await control.stop()

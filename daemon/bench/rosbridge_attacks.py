@@ -1,4 +1,5 @@
-# Hostile rosbridge clients (floods, fragment games, a seeded fuzzer) run in their own process.
+# Hostile clients (rosbridge floods, fragment games, a seeded fuzzer; idle sockets, slow headers
+# and stalled downloads on either port) run in their own process.
 from __future__ import annotations
 
 import argparse
@@ -8,6 +9,7 @@ import contextlib
 import json
 import os
 import random
+import socket
 import sys
 import time
 from collections import Counter
@@ -187,6 +189,132 @@ async def scan_subscribers(url: str, clients: int, seconds: float,
     return {"scans": whole}
 
 
+def long_name_frame(n: int, chars: int) -> str:
+    """A subscribe, advertise, publish or call_service naming a topic or service of ``chars``
+    characters that looks valid (``/a/a/a...``)."""
+    name = "/a" * (chars // 2)
+    op = ("subscribe", "advertise", "publish", "call_service")[n % 4]
+    frame: Frame = {"op": op, "id": f"long{n}", "type": "std_msgs/msg/String"}
+    frame["service" if op == "call_service" else "topic"] = name
+    if op == "publish":
+        frame["msg"] = {"data": "x"}
+    return json.dumps(frame)
+
+
+async def long_names(url: str, clients: int, frames: int, chars: int) -> dict[str, Any]:
+    """``clients`` clients each send ``frames`` frames with names of ``chars`` characters,
+    each followed by a barrier (so every frame is handled before the next one goes out); a
+    client that is closed for one connects again."""
+    statuses, closes = Statuses(), Counter[str]()
+
+    async def one(index: int) -> None:
+        async with aiohttp.ClientSession() as session:
+            ws: aiohttp.ClientWebSocketResponse | None = None
+            for n in range(frames):
+                if ws is None or ws.closed:
+                    ws = await session.ws_connect(url, max_msg_size=0)
+                try:
+                    await ws.send_str(long_name_frame(index * frames + n, chars))
+                    await barrier(ws, f"long-{index}-{n}", statuses)
+                except (RuntimeError, ConnectionError, aiohttp.ClientError):
+                    closes[str(ws.close_code)] += 1
+                    await ws.close()
+            if ws is not None:
+                await ws.close()
+
+    await asyncio.gather(*(one(i) for i in range(clients)))
+    return {"frames": clients * frames, "statuses": dict(statuses.counts),
+            "closes": dict(closes)}
+
+
+# -- sockets that hold a slot: idle, dripping headers, reading nothing ---------------------------
+
+
+def host_port(url: str) -> tuple[str, int]:
+    host, port = url.split("//", 1)[1].split("/", 1)[0].rsplit(":", 1)
+    return host, int(port)
+
+
+async def _held_until_closed(reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                             drip: bytes, every_s: float, closed: list[float],
+                             t0: float) -> None:
+    """Hold one connection, writing ``drip`` a byte at a time; note when the server closed."""
+    with contextlib.suppress(OSError):
+        for byte in drip:
+            writer.write(bytes([byte]))
+            with contextlib.suppress(TimeoutError):
+                if await asyncio.wait_for(reader.read(65536), every_s) == b"":
+                    break
+        else:
+            while await reader.read(65536):
+                pass
+    closed.append(time.monotonic() - t0)
+    writer.close()
+
+
+async def idle_sockets(url: str, count: int, seconds: float, drip: bool) -> dict[str, Any]:
+    """``count`` connections to the port of ``url`` that send nothing or, with ``drip``, a
+    WebSocket upgrade request one byte every 0.5 s (slowloris); after ``seconds``, how many the
+    server had closed and when."""
+    host, port = host_port(url)
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
+               f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+               f"Sec-WebSocket-Version: 13\r\n\r\n").encode() if drip else b""
+    closed: list[float] = []
+    tasks, refused, t0 = [], 0, time.monotonic()
+    for _ in range(count):
+        try:
+            reader, writer = await asyncio.open_connection(host, port)
+        except OSError:
+            refused += 1
+            continue
+        tasks.append(asyncio.create_task(
+            _held_until_closed(reader, writer, request, 0.5, closed, t0)))
+    await asyncio.wait(tasks, timeout=max(0.0, seconds - (time.monotonic() - t0)))
+    for task in tasks:
+        task.cancel()
+    return {"opened": len(tasks), "refused": refused, "closed_by_server": len(closed),
+            "last_closed_after_s": round(max(closed, default=0.0), 2)}
+
+
+async def stalled_readers(url: str, count: int, seconds: float) -> dict[str, Any]:
+    """``count`` clients that GET ``url`` (a download) with a small receive window, read the
+    answer's first bytes and then nothing; after ``seconds``, what they were answered and how
+    many the server had cut off (reset: a server that gives up on a reader drops its data)."""
+    host, port = host_port(url)
+    path = "/" + url.split("//", 1)[1].split("/", 1)[1]
+    loop = asyncio.get_running_loop()
+    answers: Counter[str] = Counter()
+    held: list[socket.socket] = []
+    for _ in range(count):
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect
+        sock.setblocking(False)
+        try:
+            async with asyncio.timeout(5.0):
+                await loop.sock_connect(sock, (host, port))
+                await loop.sock_sendall(sock, f"GET {path} HTTP/1.1\r\nHost: {host}:{port}"
+                                        "\r\n\r\n".encode())
+                head = await loop.sock_recv(sock, 64)
+        except (OSError, TimeoutError):
+            answers["refused"] += 1
+            sock.close()
+            continue
+        answers[head.split(b" ")[1].decode() if head.startswith(b"HTTP/") else "closed"] += 1
+        held.append(sock)
+    t0, cut = time.monotonic(), dict[int, float]()
+    while len(cut) < len(held) and time.monotonic() - t0 < seconds:
+        for index, sock in enumerate(held):
+            if index not in cut and sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR):
+                cut[index] = time.monotonic() - t0
+        await asyncio.sleep(0.1)
+    for sock in held:
+        sock.close()
+    return {"answers": dict(answers), "held": len(held), "cut_off_by_server": len(cut),
+            "last_cut_off_after_s": round(max(cut.values(), default=0.0), 2)}
+
+
 # -- the fuzzer ------------------------------------------------------------------------------
 
 JUNK_VALUES: list[Any] = [None, True, -1, 0, 2**63, -(2**63), 10**400, 1e308, -0.0, 1.5, "",
@@ -265,6 +393,18 @@ def fuzz_services(rng: random.Random) -> str:
                        "values": junk(rng)})
 
 
+def fuzz_names(rng: random.Random) -> str:
+    """Over-long or odd names in a field that names something (topic, service, type, op,
+    id): just over the 256-character limit, a few KiB, just under and far over the frame
+    limit of a client without the token (16 KiB)."""
+    length = rng.choice([257, 4096, 15_000, 100_000])
+    name = rng.choice(["/a" * (length // 2), "a" * length, "/" + "é" * length])
+    frame: Frame = {"op": rng.choice(OPS), "topic": "/x", "service": "/s",
+                    "type": "std_msgs/String", "id": rng.randint(0, 9)}
+    frame[rng.choice(["topic", "service", "type", "op", "id"])] = name
+    return json.dumps(frame)
+
+
 def fuzz_binary(rng: random.Random) -> bytes:
     return rng.randbytes(rng.randint(0, 2000))
 
@@ -272,6 +412,7 @@ def fuzz_binary(rng: random.Random) -> bytes:
 TEXT_CATEGORIES: dict[str, Callable[[random.Random], str]] = {
     "json": fuzz_json, "fields": fuzz_fields, "commands": fuzz_commands,
     "fragments": fuzz_fragments, "subscriptions": fuzz_subscriptions, "services": fuzz_services,
+    "names": fuzz_names,
 }
 
 
@@ -370,6 +511,9 @@ ATTACK_OPTIONS: dict[str, list[tuple[str, type, float]]] = {
     "subscribe-flood": [("--count", int, 10_000), ("--seconds", float, 0.0)],
     "scan-subscribers": [("--clients", int, 3), ("--seconds", float, 3.0),
                          ("--fragment-size", int, 1)],
+    "long-names": [("--clients", int, 8), ("--frames", int, 4), ("--chars", int, 1_048_000)],
+    "idle-sockets": [("--count", int, 300), ("--seconds", float, 20.0), ("--drip", int, 0)],
+    "stalled-readers": [("--count", int, 260), ("--seconds", float, 30.0)],
     "fuzz": [("--seconds", float, 10.0), ("--seed", int, 1), ("--workers", int, 4)],
 }
 
@@ -393,6 +537,12 @@ async def attack(args: argparse.Namespace) -> dict[str, Any]:
         return await advertise_many(args.url, args.topics, args.per_client, args.fragment_size)
     if args.attack == "subscribe-flood":
         return await subscribe_flood(args.url, args.count, args.seconds)
+    if args.attack == "idle-sockets":
+        return await idle_sockets(args.url, args.count, args.seconds, bool(args.drip))
+    if args.attack == "stalled-readers":
+        return await stalled_readers(args.url, args.count, args.seconds)
+    if args.attack == "long-names":
+        return await long_names(args.url, args.clients, args.frames, args.chars)
     if args.attack == "scan-subscribers":
         return await scan_subscribers(args.url, args.clients, args.seconds, args.fragment_size)
     return await Fuzzer(args.url, args.seed, args.workers, args.only).run(args.seconds)

@@ -31,6 +31,7 @@ from daemon.messages.definitions import (
     TWIST,
     TWIST_STAMPED,
 )
+from daemon.security import Security, hide_paths
 from daemon.settings import ControlSettings
 from daemon.telemetry import COMMAND as COMMAND_KEY
 from daemon.telemetry import LATENCY_REPORT, ODOM
@@ -45,9 +46,11 @@ class ControlComponent(BaseComponent):
     name = "control"
     core = True
 
-    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings) -> None:
+    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings,
+                 security: Security | None = None) -> None:
         self.control = control
         self.settings = settings
+        self.security = security or Security("")
         self.read_json = http.read_json
         self.read_json_body = http.read_json_body
         self.authorize = http.guard.authorize
@@ -130,17 +133,19 @@ class ControlComponent(BaseComponent):
         access :func:`estop_access` asks for)."""
         refused = await self._set_estop(message.msg["data"], "rosbridge /estop",
                                         message.sender, message.peer)
-        return Refusal(refused, repeats=True) if refused else None
+        return Refusal(refused[1], repeats=True) if refused else None
 
-    async def _set_estop(self, engaged: bool, reason: str, by: str, peer: str) -> str | None:
-        """Latch or release for ``by`` (whose access was checked); the reason a latch was not
-        taken: over its peer's rate while the e-stop is already engaged (a latch that stops
-        the robot is never refused)."""
+    async def _set_estop(self, engaged: bool, reason: str, by: str,
+                         peer: str) -> tuple[int, str] | None:
+        """Latch or release for ``by`` (whose access was checked); why not, with its HTTP
+        status: a release once the daemon is shutting down (409), a latch over its peer's
+        rate while the e-stop is already engaged (429; a latch that stops the robot is never
+        refused)."""
         if not engaged:
-            self.control.release_estop(by)
-            return None
+            refusal = self.control.release_estop(by)
+            return (409, f"e-stop not released: {refusal}") if refusal else None
         if not self.latches.allow(peer) and self.control.arbiter.estop_engaged:
-            return (f"e-stop already engaged; {peer} latched it more than "
+            return (429, f"e-stop already engaged; {peer} latched it more than "
                     f"{self.latches.burst} times in {self.latches.window_s:g} s")
         await self.control.engage_estop(reason, by)
         return None
@@ -148,7 +153,11 @@ class ControlComponent(BaseComponent):
     # -- HTTP --------------------------------------------------------------------------------
 
     async def get_status(self, request: web.Request) -> web.Response:
-        return json_response(self.control.status())
+        status = self.control.status()
+        if not self.security.sees_paths(request.headers, request.query,
+                                        request.remote):
+            status = hide_paths(status)  # a fault naming a device node
+        return json_response(status)
 
     async def post_cmd_vel(self, request: web.Request) -> web.Response:
         raw = await self.read_json_body(request)
@@ -185,7 +194,8 @@ class ControlComponent(BaseComponent):
         peer = request.remote or "?"
         refused = await self._set_estop(engaged, reason, f"HTTP {peer}", peer)
         if refused:
-            raise ApiError(429, refused, None, {"Retry-After": "1"})
+            status, text = refused
+            raise ApiError(status, text, None, {"Retry-After": "1"} if status == 429 else None)
         return json_response({"engaged": self.control.arbiter.estop_engaged})
 
     async def post_odom_reset(self, request: web.Request) -> web.Response:
@@ -212,7 +222,7 @@ class ControlComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> ControlComponent:
-    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings))
+    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings), ctx.security)
 
 
 COMPONENT = ComponentSpec("control", create, ControlSettings)

@@ -43,6 +43,8 @@ class Arbiter:
         self.sources: dict[str, SourceState] = {}
         self.estop_engaged = False
         self.estop_reason = ""
+        #: latched for good (the daemon is shutting down): nothing releases it
+        self.estop_final = False
         self._generation = 0
         self._last_source: str | None = None
 
@@ -65,13 +67,21 @@ class Arbiter:
         for state in self.sources.values():
             state.active = False
 
-    def engage_estop(self, reason: str) -> None:
-        self.estop_engaged, self.estop_reason = True, reason
+    def engage_estop(self, reason: str, *, final: bool = False) -> None:
+        """Latch the e-stop; ``final`` (shutdown): for good, :meth:`release_estop` refuses."""
+        if not self.estop_final:
+            self.estop_reason = reason
+        self.estop_engaged = True
+        self.estop_final = self.estop_final or final
         self.invalidate_all()
 
-    def release_estop(self) -> None:
+    def release_estop(self) -> bool:
+        """Release the e-stop; False (still engaged) when it was latched for good."""
+        if self.estop_final:
+            return False
         self.estop_engaged, self.estop_reason = False, ""
         self.invalidate_all()
+        return True
 
     def decide(self, now: float) -> Decision:
         if self.estop_engaged:

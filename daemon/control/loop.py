@@ -148,6 +148,7 @@ class ControlLoop:
 
     async def stop(self) -> None:
         self._stopping = True
+        self.arbiter.engage_estop("shutdown", final=True)
         self.supervisor.stop()  # the tick stops now: that is no stall
         if self._metronome:
             self._metronome.stop()
@@ -158,8 +159,11 @@ class ControlLoop:
         await self.driver.close()
 
     async def halt(self) -> None:
-        """Zero the wheels now (shutdown path): no ramp, it is what stopping the daemon means."""
-        self.arbiter.engage_estop("shutdown")
+        """Zero the wheels now (shutdown path): no ramp, it is what stopping the daemon means.
+        From here on nothing moves the robot: the e-stop is latched for good (no release) and
+        every command is refused."""
+        self._stopping = True
+        self.arbiter.engage_estop("shutdown", final=True)
         self.linear.reset()
         self.angular.reset()
         async with self._lock:
@@ -182,7 +186,7 @@ class ControlLoop:
         refusal = self._refusal_reason()
         if refusal:
             return Applied(False, self.decision.source, self.wheels, [], None, refusal)
-        self._forget_after_stall()  # older commands are stale, this one is fresh
+        self._forget_after_stall(self.clock())  # older commands are stale, this one is fresh
         self.arbiter.submit(source, twist, self.clock(), priority)
         for callback in self.on_command:
             callback(source)
@@ -226,14 +230,15 @@ class ControlLoop:
         async with self._lock:
             await self._step(self.clock())
 
-    def release_estop(self, by: str = "") -> None:
-        if self.arbiter.estop_engaged:
-            log.warning("e-stop released%s; waiting for a fresh command",
-                        f" by {by}" if by else "")
-        self.arbiter.release_estop()
+    def release_estop(self, by: str = "") -> str | None:
+        """Release the e-stop; the reason when it may not be (the daemon is shutting down)."""
+        if self._stopping or not self.arbiter.release_estop():
+            return "the daemon is shutting down"
+        log.warning("e-stop released%s; waiting for a fresh command", f" by {by}" if by else "")
         self.invalidations += 1
         self.bus.publish(COMMAND, CommandEvent(time.time(), "", "estop_release"))
         self.wheel_guard.reset()
+        return None
 
     # -- tick path -----------------------------------------------------------------------
 
@@ -279,7 +284,7 @@ class ControlLoop:
 
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
-        self._forget_after_stall()
+        self._forget_after_stall(now)
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
@@ -354,9 +359,10 @@ class ControlLoop:
             return floor
         return configured
 
-    def _forget_after_stall(self) -> None:
+    def _forget_after_stall(self, now: float) -> None:
         """The supervisor zeroed the wheels while this loop stood still: every command and the
-        ramp state are stale, so the robot waits for a fresh command (as after a reconnect)."""
+        ramp state are stale, so the robot waits for a fresh command (as after a reconnect);
+        and the wheel guard starts afresh (a stall stop is no miswiring)."""
         if not self.supervisor.take_stop():
             return
         self.arbiter.invalidate_all()
@@ -364,6 +370,7 @@ class ControlLoop:
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)
+        self.wheel_guard.restart(now)
         log.warning("control tick running again after a stall stop; wheels stay still until "
                     "a fresh command")
 

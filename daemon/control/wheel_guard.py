@@ -44,6 +44,9 @@ class WheelGuard:
         self._readings: deque[EncoderReading] = deque()
         self._since: list[float | None] = [None, None]
         self._commands: deque[tuple[float, tuple[float, float]]] = deque()
+        self._quiet_until = -float("inf")
+        #: times the guard started afresh after the wheels were stopped behind its back
+        self.restarts = 0
 
     def update(self, reading: EncoderReading | None, commanded: tuple[float, float],
                now: float) -> str | None:
@@ -55,6 +58,9 @@ class WheelGuard:
         self._measure(reading)
         self._remember(commanded, now)
         if self.measured is None or self.tripped or self.settings.time_s <= 0:
+            return None
+        if now < self._quiet_until:  # the wheels may still be coasting down from a stop
+            self._since = [None, None]
             return None
         for index, side in enumerate(SIDES):
             reason = self._check(index, side, commanded[index], now)
@@ -105,6 +111,16 @@ class WheelGuard:
         self._since = [None, None]
         self._commands.clear()
 
+    def restart(self, now: float) -> None:
+        """The wheels were zeroed behind the loop's back (the stall supervisor's stop): the
+        readings and commands from before say nothing about the speeds now (a measurement
+        spanning the stall would average the turns made before the stop over all of it), and
+        a wheel may still be coasting down from its old speed. Measure afresh, and judge again
+        ``lag_s`` from ``now`` (a stall stop is no miswiring)."""
+        self.forget()
+        self._quiet_until = now + self.settings.lag_s
+        self.restarts += 1
+
     def reset(self) -> None:
         """The e-stop was released: a fresh start."""
         self.tripped = None
@@ -117,7 +133,7 @@ class WheelGuard:
 
     def health(self) -> dict[str, Any]:
         return {"enabled": self.settings.time_s > 0, "tripped": self.tripped,
-                "trips": self.trips}
+                "trips": self.trips, "restarts_after_stall": self.restarts}
 
 
 def _likely(measured: float, commanded: float) -> str:

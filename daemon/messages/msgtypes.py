@@ -1,6 +1,7 @@
 # ROS 2 message types: name normalisation, .msg parsing, strict JSON checking, gendeps text.
 from __future__ import annotations
 
+import array
 import base64
 import binascii
 import math
@@ -22,6 +23,8 @@ FLOAT_MAX = {"float32": 3.4028234663852886e38, "float64": math.inf}
 PRIMITIVES = {"bool", "string", "wstring", "float32", "float64", *INT_RANGES}
 BYTE_ARRAY_BASES = {"uint8", "char"}
 TIME_TYPES = {"builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration"}
+#: longest type name accepted (checked before the pattern looks at it)
+MAX_TYPE_CHARS = 256
 _NAME_PART = r"[A-Za-z][A-Za-z0-9_]*"
 _TYPE_NAME = re.compile(rf"^({_NAME_PART})/(?:(msg|srv|action)/)?({_NAME_PART})$")
 _FIELD_LINE = re.compile(r"^([A-Za-z0-9_/]+)(\[(\d*)\])?\s+([A-Za-z][A-Za-z0-9_]*)(?:\s+(.+))?$")
@@ -69,6 +72,9 @@ def normalize_type(name: Any, kind: str = "msg") -> str:
     if not isinstance(name, str):
         raise MessageError(f"type: expected a string like 'pkg/msg/Type', got "
                            f"{type(name).__name__}")
+    if len(name) > MAX_TYPE_CHARS:
+        raise MessageError(f"type {name[:40]!r}... ({len(name)} characters) is too long: the "
+                           f"limit is {MAX_TYPE_CHARS} characters")
     match = _TYPE_NAME.match(name)
     if match is None:
         raise MessageError(f"type {name!r}: not a type name; expected 'pkg/Type' or "
@@ -163,27 +169,68 @@ def default_scalar(base: str) -> Any:
 
 
 # -- checking JSON input --------------------------------------------------------------------
+# Work is proportional to the message, with a small constant: uniform arrays (all int, all
+# float, ...) are checked by C-level passes, nothing is copied that need not be, and the path
+# naming a bad field is built only for the error (as it propagates up), never per element.
+
+
+class _Bad(Exception):
+    """A misfit below a message: what is wrong, and the path to it, innermost first."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(what)
+        self.what = what
+        self.where: list[str] = []
+
+    def at(self, step: str) -> _Bad:
+        self.where.append(step)
+        return self
+
+    def error(self, path: str) -> MessageError:
+        return MessageError(f"{path}{''.join(reversed(self.where))}: {self.what}")
 
 
 def check_message(name: str, value: Any, path: str = "msg") -> dict[str, Any]:
     """``value`` (decoded JSON) checked field by field against ``name``; missing fields take
     their defaults. Returns the normalised message (``{sec, nanosec}`` times, bytes for
     ``uint8[]``); raises :class:`MessageError` naming the first bad field."""
+    try:
+        return _message(name, value)
+    except _Bad as bad:
+        raise bad.error(path) from None
+
+
+def check_scalar(base: str, value: Any, path: str) -> Any:
+    """One value of a primitive or message type, checked (MessageError naming ``path``)."""
+    try:
+        return _scalar(base, value)
+    except _Bad as bad:
+        raise bad.error(path) from None
+
+
+@cache
+def _field_names(name: str) -> frozenset[str]:
+    return frozenset(f.name for f in get_type(name).fields)
+
+
+def _message(name: str, value: Any) -> dict[str, Any]:
     if name in TIME_TYPES:
-        return _check_time(name, value, path)
+        return _time(name, value)
     if not isinstance(value, dict):
-        raise MessageError(f"{path}: expected an object ({name}), got {_kind(value)}")
-    spec = get_type(name)
+        raise _Bad(f"expected an object ({name}), got {_kind(value)}")
+    names = _field_names(name)
     for key in value:
-        if spec.field(key) is None:
-            raise MessageError(f"{path}: message type {name} does not have a field {key!r}")
+        if key not in names:
+            raise _Bad(f"message type {name} does not have a field {_short(key)}")
     out: dict[str, Any] = {}
-    for f in spec.fields:
-        sub = f"{path}.{f.name}"
+    for f in get_type(name).fields:
         if f.name not in value:
             out[f.name] = _now_stamp() if _is_header_stamp(name, f) else default_field(f)
-        else:
-            out[f.name] = _check_field(f, value[f.name], sub)
+            continue
+        try:
+            out[f.name] = _field(f, value[f.name])
+        except _Bad as bad:
+            raise bad.at(f".{f.name}") from None
     return out
 
 
@@ -191,68 +238,123 @@ def _is_header_stamp(owner: str, f: Field) -> bool:
     return owner == "std_msgs/msg/Header" and f.name == "stamp"
 
 
-def _check_field(f: Field, value: Any, path: str) -> Any:
+def _field(f: Field, value: Any) -> Any:
     if not f.is_array:
-        return check_scalar(f.base, value, path)
+        return _scalar(f.base, value)
     if f.base in BYTE_ARRAY_BASES:
-        return _check_bytes(f, value, path)
+        return _bytes(f, value)
     if not isinstance(value, list):
-        raise MessageError(f"{path}: expected an array of {f.base}, got {_kind(value)}")
+        raise _Bad(f"expected an array of {f.base}, got {_kind(value)}")
     if f.length is not None and len(value) != f.length:
-        raise MessageError(f"{path}: expected exactly {f.length} items, got {len(value)}")
-    if f.base in FLOAT_MAX:
-        return [math.nan if v is None else check_scalar(f.base, v, f"{path}[{i}]")
-                for i, v in enumerate(value)]
-    return [check_scalar(f.base, v, f"{path}[{i}]") for i, v in enumerate(value)]
+        raise _Bad(f"expected exactly {f.length} items, got {len(value)}")
+    uniform = _uniform(f.base, value)
+    if uniform is not None:
+        return uniform
+    nullable = f.base in FLOAT_MAX  # null stands for NaN in float arrays
+    try:
+        return [math.nan if v is None and nullable else _scalar(f.base, v) for v in value]
+    except _Bad:
+        pass
+    raise _first_bad(f.base, value, nullable)
 
 
-def _check_bytes(f: Field, value: Any, path: str) -> bytes:
+def _first_bad(base: str, items: list[Any], nullable: bool = False) -> _Bad:
+    """The misfit of the first bad item, named by its index (only on the error path)."""
+    for index, item in enumerate(items):
+        if item is None and nullable:
+            continue
+        try:
+            _scalar(base, item)
+        except _Bad as bad:
+            return bad.at(f"[{index}]")
+    return _Bad("an item does not fit")  # not reached: the caller found one
+
+
+#: the array module's code for each integer type: its constructor range-checks in C
+_INT_CODES = {"int8": "b", "uint8": "B", "byte": "B", "char": "B", "int16": "h", "uint16": "H",
+              "int32": "i", "uint32": "I", "int64": "q", "uint64": "Q"}
+
+
+def _uniform(base: str, items: list[Any]) -> list[Any] | None:
+    """``items`` checked by C-level passes when all are of the one expected JSON type (the
+    common case); None when the items must be checked one by one."""
+    if not items:
+        return []
+    kinds = set(map(type, items))  # one pass; bool is its own type, so it is never let through
+    if base in INT_RANGES:
+        if kinds != {int}:
+            return None
+        try:
+            array.array(_INT_CODES[base], items)  # the range check, in C
+        except OverflowError:
+            return None
+        return items
+    if base in FLOAT_MAX:
+        if not kinds <= {float, int}:
+            return None
+        numbers = items if kinds == {float} else list(map(float, items))
+        if base != "float64" and (max(numbers) > FLOAT_MAX[base]
+                                  or min(numbers) < -FLOAT_MAX[base]):
+            return None  # out of range or infinite: one by one says which
+        return numbers
+    if base in ("string", "wstring"):
+        return items if kinds == {str} else None
+    if base == "bool":
+        return items if kinds == {bool} else None
+    return None
+
+
+def _bytes(f: Field, value: Any) -> bytes:
     if isinstance(value, str):
         try:
             data = base64.b64decode(value, validate=True)
         except (binascii.Error, ValueError):
-            raise MessageError(f"{path}: not valid base64") from None
+            raise _Bad("not valid base64") from None
     elif isinstance(value, list):
-        data = bytes(check_scalar("uint8", v, f"{path}[{i}]") for i, v in enumerate(value))
+        try:
+            if value and set(map(type, value)) != {int}:  # bool is its own type: refused
+                raise ValueError
+            data = bytes(value)  # the range check, in C
+        except ValueError:
+            raise _first_bad("uint8", value) from None
     else:
-        raise MessageError(f"{path}: expected base64 text or an array of uint8, got "
-                           f"{_kind(value)}")
+        raise _Bad(f"expected base64 text or an array of uint8, got {_kind(value)}")
     if f.length is not None and len(data) != f.length:
-        raise MessageError(f"{path}: expected exactly {f.length} bytes, got {len(data)}")
+        raise _Bad(f"expected exactly {f.length} bytes, got {len(data)}")
     return data
 
 
-def check_scalar(base: str, value: Any, path: str) -> Any:
+def _scalar(base: str, value: Any) -> Any:
     if base in INT_RANGES:
-        return _check_int(base, value, path)
+        return _int(base, value)
     if base in FLOAT_MAX:
-        return _check_float(base, value, path)
+        return _float(base, value)
     if base == "bool":
         if not isinstance(value, bool):
-            raise MessageError(f"{path}: expected bool, got {_kind(value)}")
+            raise _Bad(f"expected bool, got {_kind(value)}")
         return value
     if base in ("string", "wstring"):
         if not isinstance(value, str):
-            raise MessageError(f"{path}: expected string, got {_kind(value)}")
+            raise _Bad(f"expected string, got {_kind(value)}")
         return value
-    return check_message(base, value, path)
+    return _message(base, value)
 
 
-def _check_int(base: str, value: Any, path: str) -> int:
+def _int(base: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise MessageError(f"{path}: expected {base}, got {_kind(value)}")
+        raise _Bad(f"expected {base}, got {_kind(value)}")
     low, high = INT_RANGES[base]
     if not low <= value <= high:
-        raise MessageError(f"{path}: {value} is out of range for {base} ({low}..{high})")
+        raise _Bad(f"{value} is out of range for {base} ({low}..{high})")
     return value
 
 
-def _check_float(base: str, value: Any, path: str) -> float:
+def _float(base: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise MessageError(f"{path}: expected {base}, got {_kind(value)}")
+        raise _Bad(f"expected {base}, got {_kind(value)}")
     number = float(value)
     if math.isfinite(number) and abs(number) > FLOAT_MAX[base]:
-        raise MessageError(f"{path}: {value} is out of range for {base}")
+        raise _Bad(f"{value} is out of range for {base}")
     return number
 
 
@@ -264,25 +366,34 @@ TIME_NANOSECONDS = ("nanosec", "nsecs", "nsec")
 TIME_SPELLINGS = "{sec, nanosec}, {secs, nsecs} or {sec, nsec}"
 
 
-def _check_time(name: str, value: Any, path: str) -> dict[str, int]:
+def _time(name: str, value: Any) -> dict[str, int]:
     if value == "now" and name.endswith("/Time"):
         return _now_stamp()
     if not isinstance(value, dict):
-        raise MessageError(f"{path}: expected {TIME_SPELLINGS} ({name}), got {_kind(value)}")
-    unknown = sorted(set(value) - {*TIME_SECONDS, *TIME_NANOSECONDS})
-    if unknown:
-        raise MessageError(f"{path}: expected {TIME_SPELLINGS}, got fields {sorted(value)}")
-    sec = _time_part(value, TIME_SECONDS, "int32", path)
-    nanosec = _time_part(value, TIME_NANOSECONDS, "uint32", path)
-    return {"sec": sec, "nanosec": nanosec}
+        raise _Bad(f"expected {TIME_SPELLINGS} ({name}), got {_kind(value)}")
+    if not set(value) <= {*TIME_SECONDS, *TIME_NANOSECONDS}:
+        raise _Bad(f"expected {TIME_SPELLINGS}, got fields "
+                   f"{sorted(_short(k) for k in value)[:8]}")
+    return {"sec": _time_part(value, TIME_SECONDS, "int32"),
+            "nanosec": _time_part(value, TIME_NANOSECONDS, "uint32")}
 
 
-def _time_part(value: dict[str, Any], spellings: tuple[str, ...], base: str, path: str) -> int:
+def _time_part(value: dict[str, Any], spellings: tuple[str, ...], base: str) -> int:
     """One field of a time under whichever of its spellings is there (0 when none is)."""
     given = [key for key in spellings if key in value]
     if len(given) > 1:
-        raise MessageError(f"{path}: {' and '.join(given)} are the same field; give one")
-    return _check_int(base, value[given[0]], f"{path}.{given[0]}") if given else 0
+        raise _Bad(f"{' and '.join(given)} are the same field; give one")
+    if not given:
+        return 0
+    try:
+        return _int(base, value[given[0]])
+    except _Bad as bad:
+        raise bad.at(f".{given[0]}") from None
+
+
+def _short(key: str, limit: int = 40) -> str:
+    """A client's key for an error message: its repr, cut short."""
+    return repr(key) if len(key) <= limit else f"{key[:limit]!r}... ({len(key)} characters)"
 
 
 def _now_stamp() -> dict[str, int]:

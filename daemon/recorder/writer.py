@@ -367,8 +367,11 @@ class FlightRecorder:
 
 
 def recordings(directory: Path) -> list[Path]:
-    """The flight recorder's files in ``directory`` (nothing else there is touched)."""
+    """The flight recorder's files in ``directory`` (nothing else there is touched): regular
+    files only, never a symbolic link (a link to /etc/passwd named like a recording would
+    otherwise be listed, served and, past max_total_mb, counted)."""
     if not directory.is_dir():
         return []
     return [p for p in directory.iterdir()
-            if p.name.startswith(PREFIX) and p.name.endswith(SUFFIX) and p.is_file()]
+            if p.name.startswith(PREFIX) and p.name.endswith(SUFFIX) and not p.is_symlink()
+            and p.is_file()]

@@ -12,6 +12,8 @@ from typing import Any
 import orjson
 
 STATUS_LEVELS = ("info", "warning", "error", "none")
+#: longest topic or service name accepted, checked before anything else looks at the name
+MAX_NAME_CHARS = 256
 _ROS_NAME = re.compile(r"^(/[A-Za-z0-9_~]+)+$")
 
 Id = str | int | None
@@ -98,12 +100,27 @@ def get_bool(frame: dict[str, Any], key: str, default: bool) -> bool:
 
 
 def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
-    """(canonical ``/name``, spelling as sent) of a topic or service field."""
+    """(canonical ``/name``, spelling as sent) of a topic or service field; its length is
+    checked first (at most MAX_NAME_CHARS), so a huge name costs nothing."""
     sent = get_str(frame, key)
+    if len(sent) > MAX_NAME_CHARS:
+        raise ProtocolError(f"{frame['op']}: {key} name {shown(sent)} is too long: the limit "
+                            f"is {MAX_NAME_CHARS} characters")
     name = sent if sent.startswith("/") else "/" + sent
     if _ROS_NAME.match(name) is None:
         raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name")
     return name, sent
+
+
+def shown(value: Any, limit: int = 40) -> str:
+    """A client's value for an error message: its repr, cut to about ``limit`` characters
+    (a 1 MiB name is not echoed back)."""
+    if isinstance(value, str) and len(value) > limit:
+        return f"{value[:limit]!r}... ({len(value)} characters)"
+    if isinstance(value, dict | list):
+        return f"a {type(value).__name__} of {len(value)} items"
+    text = repr(value)
+    return text if len(text) <= limit + 2 else text[:limit] + "..."
 
 
 # -- encoding -----------------------------------------------------------------------------------
@@ -234,19 +251,19 @@ class Defragmenter:
             raise ProtocolError("fragment: fields 'num' and 'total' must be integers with "
                                 "0 <= num < total")
         if total > self.limits.max_fragments:
-            raise over_limit(f"fragment: message {rid!r} would have {total} fragments",
+            raise over_limit(f"fragment: message {shown(rid)} would have {total} fragments",
                              self.limits.max_fragments, "max_fragments_per_message")
         return rid, data, num, total
 
     def _check_room(self, rid: str | int, partial: _Partial, delta: int) -> None:
         if partial.size + delta > self.limits.max_message_bytes:
             self._drop(rid)
-            raise over_limit(f"fragment: message {rid!r} is larger than allowed; dropped",
+            raise over_limit(f"fragment: message {shown(rid)} is larger than allowed; dropped",
                              self.limits.max_message_bytes, "max_message_bytes")
         if self.held_bytes + delta > self.limits.max_bytes:
             self._drop(rid)
             raise over_limit(f"fragment: this client's unfinished fragments would exceed the "
-                             f"bytes allowed; message {rid!r} dropped", self.limits.max_bytes,
+                             f"bytes allowed; message {shown(rid)} dropped", self.limits.max_bytes,
                              "max_fragment_bytes_per_client")
 
     def _partial(self, rid: str | int, total: int, now: float) -> _Partial:
@@ -254,7 +271,7 @@ class Defragmenter:
         if partial is not None and partial.total != total:
             self._drop(rid)
             raise ProtocolError(f"fragment: 'total' changed from {partial.total} to {total} "
-                                f"for id {rid!r}; dropped")
+                                f"for id {shown(rid)}; dropped")
         if partial is None:
             if len(self._pending) >= self.limits.max_sets:
                 raise over_limit("fragment: too many fragmented messages in flight",

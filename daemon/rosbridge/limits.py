@@ -18,6 +18,7 @@ class Limits:
     """The ``[rosbridge]`` budgets one client works within (field name = config key)."""
 
     max_message_bytes: int = 1048576
+    max_readonly_message_bytes: int = 16384
     ops_per_second: float = 1000.0
     ops_burst: int = 2000
     max_topics_per_client: int = 100
@@ -40,8 +41,16 @@ class Limits:
         """From the ``[rosbridge]`` settings (the limits are its keys of the same names)."""
         return cls(**{f.name: getattr(settings, f.name) for f in fields(cls)})
 
-    def fragments(self) -> FragmentLimits:
-        return FragmentLimits(self.max_message_bytes, self.max_fragment_sets_per_client,
+    def message_bytes(self, may_publish: bool) -> int:
+        """The largest message a client may send: a client that may not publish needs no
+        more than a subscribe or a rosapi call, and gets ``max_readonly_message_bytes``."""
+        if may_publish:
+            return self.max_message_bytes
+        return min(self.max_message_bytes, self.max_readonly_message_bytes)
+
+    def fragments(self, may_publish: bool = True) -> FragmentLimits:
+        return FragmentLimits(self.message_bytes(may_publish),
+                              self.max_fragment_sets_per_client,
                               self.max_fragment_bytes_per_client,
                               self.max_fragments_per_message)
 
@@ -69,6 +78,11 @@ class TokenBucket:
         self._refill()
         self._tokens -= units
         return max(0.0, -self._tokens / self.rate)
+
+    def level(self) -> float:
+        """Units there now (negative: owed)."""
+        self._refill()
+        return self._tokens
 
     def _refill(self) -> None:
         now = self.clock()

@@ -12,6 +12,7 @@ from aiohttp import WSCloseCode, web
 
 from base.config import Config
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
+from daemon.http_conn import CappedRunner
 from daemon.listen import Listener, as_port_error
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
@@ -22,6 +23,9 @@ from daemon.rosbridge.settings import RosbridgeSettings
 from daemon.topics import TopicOut
 
 log = logging.getLogger("arbiterd.rosbridge")
+
+#: on stop: how long the clients get to take their close frames, and a handler to end
+SHUTDOWN_GRACE_S = 1.0
 
 
 def create(ctx: DaemonContext) -> RosbridgeServer | None:
@@ -47,19 +51,22 @@ class RosbridgeServer(BaseComponent):
         self.host: str = cfg.host
         self.port: int = cfg.port
         self.max_clients: int = cfg.max_clients
+        self.max_connections: int = cfg.max_connections
+        self.handshake_timeout_s: float = cfg.handshake_timeout_s
         self.reserved_clients: int = cfg.reserved_clients
         self.idle_timeout: float = cfg.idle_timeout
         self.limits = Limits.from_settings(cfg)
         #: the robot's topics join when it starts (every component has declared its own)
         self.graph = BridgeGraph((), latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
-        self.refused = {"host": 0, "origin": 0, "token": 0, "full": 0, "idle": 0}
+        self.refused = {"host": 0, "origin": 0, "token": 0, "guessing": 0, "full": 0,
+                        "idle": 0}
         self.connections = 0
         self.bound_port: int | None = None
         self.bad_input = RateLimitedLog(log, interval_s=10.0)
         self.pacer = Pacer(self.limits.fragments_per_second)
         self._conn_log = RateLimitedLog(log, interval_s=1.0)
-        self._runner: web.AppRunner | None = None
+        self._runner: CappedRunner | None = None
         self._sweeper: asyncio.Task[None] | None = None
         self._bus_unsubscribers: list[Callable[[], None]] = []
 
@@ -69,7 +76,13 @@ class RosbridgeServer(BaseComponent):
         self.graph = BridgeGraph(self.ctx.topics.bridged(), latest=self.ctx.bus.latest)
         app = web.Application()
         app.router.add_get("/", self._handle)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        # every TCP connection counts, upgraded or not: over the cap the oldest one still
+        # without a complete upgrade request goes, and one that sends none in time too
+        self._runner = CappedRunner(app, self.max_connections, label="rosbridge",
+                                    setting="[rosbridge] max_connections", access_log=None,
+                                    handle_signals=False,
+                                    keepalive_timeout=self.handshake_timeout_s,
+                                    shutdown_timeout=SHUTDOWN_GRACE_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:
@@ -96,15 +109,23 @@ class RosbridgeServer(BaseComponent):
         for unsubscribe in self._bus_unsubscribers:
             unsubscribe()
         self._bus_unsubscribers.clear()
-        for client in list(self.clients.values()):
-            await client.ws.close(code=WSCloseCode.GOING_AWAY, message=b"arbiterd stopping")
+        closing = [asyncio.create_task(client.ws.close(code=WSCloseCode.GOING_AWAY,
+                                                       message=b"arbiterd stopping"))
+                   for client in list(self.clients.values())]
+        if closing:  # a client that reads nothing does not hold the others (or the daemon)
+            _, late = await asyncio.wait(closing, timeout=SHUTDOWN_GRACE_S)
+            for task in late:
+                task.cancel()
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
 
     def health(self) -> dict[str, Any]:
+        server = self._runner.server if self._runner is not None else None
         return {"status": "ok" if self._runner is not None else "error",
                 "port": self.bound_port, "clients": len(self.clients),
+                "open_connections": len(server.connections) if server else 0,
+                "connections_closed_at_cap": getattr(server, "refused", 0),
                 "connections": self.connections, "refused": dict(self.refused),
                 "dropped_messages": sum(c.outbox.dropped for c in self.clients.values()),
                 "throttled_requests": sum(c.over_rate for c in self.clients.values()),
@@ -114,17 +135,23 @@ class RosbridgeServer(BaseComponent):
     # -- admission ----------------------------------------------------------------------------
 
     async def _handle(self, request: web.Request) -> web.StreamResponse:
-        refusal = self._refusal(request)
+        if self.security.guessing(request.headers, request.query, request.remote):
+            return self._refuse("guessing", 429, "too many wrong tokens from this address; "
+                                "wait a second")
+        has_token = self.security.token_ok(request.headers, request.query, request.remote)
+        refusal = self._refusal(request, has_token)
         if refusal is not None:
             return refusal
-        ws = web.WebSocketResponse(max_msg_size=self.limits.max_message_bytes)
+        authority = self._authority(has_token)
+        # a client that may not publish is held to small frames before any is parsed
+        ws = web.WebSocketResponse(
+            max_msg_size=self.limits.message_bytes(authority.may_drive))
         if not ws.can_prepare(request).ok:
             return web.Response(status=426, text="rosbridge v2: connect with a WebSocket\n")
         await ws.prepare(request)
         self.connections += 1
         client_id = self.connections
         peer = request.remote or "?"
-        authority = self._authority(request)
         client = self.clients[client_id] = ClientSession(
             ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
             limits=self.limits, bad_input=self.bad_input, pacer=self.pacer)
@@ -139,20 +166,18 @@ class RosbridgeServer(BaseComponent):
             self._conn_log(logging.INFO, f"rosbridge client {client_id} disconnected")
         return ws
 
-    def _authority(self, request: web.Request) -> Authority:
-        has_token = self.security.token_ok(request.headers, request.query)
+    def _authority(self, has_token: bool) -> Authority:
         return Authority(may_read=has_token or not self.security.read_requires_token,
                          may_drive=has_token,
                          proved=has_token and self.security.token_required)
 
-    def _refusal(self, request: web.Request) -> web.Response | None:
+    def _refusal(self, request: web.Request, has_token: bool) -> web.Response | None:
         host = request.headers.get("Host")
         if not self.security.host_ok(host):
             return self._refuse("host", 403, "Host not allowed; add it to [security] "
                                 "allowed_hosts if this is the robot's name")
         if not self.security.origin_ok(request.headers.get("Origin"), host):
             return self._refuse("origin", 403, "Origin not allowed")
-        has_token = self.security.token_ok(request.headers, request.query)
         if self.security.read_requires_token and not has_token:
             return self._refuse("token", 401, "a valid token is required")
         if len(self.clients) >= self.max_clients:

@@ -28,6 +28,7 @@ from daemon.rosbridge.codec import (
     over_limit,
     parse_json,
     request_id,
+    shown,
     status_frame,
     topic_name,
 )
@@ -111,7 +112,7 @@ class ClientSession:
         self.outbox = Outbox(lambda: self.writer.wake(), clock)
         self.writer = Writer(ws, self.outbox, limits, pacer or Pacer(limits.fragments_per_second,
                                                                      clock), self._say_once)
-        self.defrag = Defragmenter(limits.fragments())
+        self.defrag = Defragmenter(limits.fragments(authority.may_drive))
         self.frames_in = 0
         self.errors = 0
         self.last_received = clock()
@@ -164,7 +165,9 @@ class ClientSession:
         if wait > 0:
             if not await self._throttle(wait, t_recv):
                 return False
-        else:
+        elif self._bucket.level() >= self._bucket.burst / 2:
+            # a break: the client sent less than its rate for a while (one frame let through
+            # because a sleep overran is none, or a steady flood would never be closed)
             self._throttled_since = None
         await self.handle_text(data, t_recv)
         await self.writer.send_inline(self.transport)
@@ -213,7 +216,7 @@ class ClientSession:
         """The request context: a known op, its target parsed, its access checked."""
         op = frame["op"]
         if op not in self._ops or (nested and op == "fragment"):
-            raise ProtocolError(f"unknown operation {op!r}; allowed operations: "
+            raise ProtocolError(f"unknown operation {shown(op)}; allowed operations: "
                                 f"{', '.join(self._ops)}")
         request = Request(frame, t_recv, request_id(frame))
         key = TARGET_FIELDS.get(op)
@@ -483,7 +486,7 @@ class ClientSession:
             raise ProtocolError("service_response: missing field 'result'")
         values = req.frame.get("values", {})
         if req.id is None or not self.graph.answer_call(self, str(req.id), values, result):
-            raise ProtocolError(f"service_response: no call with id {req.id!r} is waiting for "
+            raise ProtocolError(f"service_response: no call with id {shown(req.id)} is waiting for "
                                 "this client")
 
     async def op_advertise_service(self, req: Request) -> None:

@@ -12,11 +12,24 @@ ROSBRIDGE_OPTIONS: Options = {
     "port": Option(int, 9090, "rosbridge listen port", minval=1, maxval=65535),
     "max_clients": Option(int, 32, "most simultaneous WebSocket clients", minval=1,
                           maxval=1024),
+    "max_connections": Option(int, 256, "most open TCP connections to the port, WebSocket "
+                              "or not yet; one more closes the oldest that has not completed "
+                              "its upgrade request (keep it well under LimitNOFILE)",
+                              minval=4, maxval=65536),
+    "handshake_timeout_s": Option(float, 10.0, "close a connection that has not sent a "
+                                  "complete upgrade request (request line and headers) this "
+                                  "long after it opened, s (slowloris)", above=0.0,
+                                  maxval=3600.0),
     "reserved_clients": Option(int, 4, "of max_clients, slots only clients with the token may "
                                "take (when a token is configured)", minval=0, maxval=1024),
     "max_message_bytes": Option(int, 1048576, "largest accepted incoming message (one frame, "
                                 "or one message joined from fragments), bytes",
                                 minval=1024, maxval=64 * 1048576),
+    "max_readonly_message_bytes": Option(int, 16384, "largest incoming message from a client "
+                                         "that may not publish (no valid token while one is "
+                                         "configured): one frame, or one message joined from "
+                                         "fragments, bytes", minval=1024,
+                                         maxval=64 * 1048576),
     "idle_timeout": Option(float, 60.0, "close a connection without the token that has sent "
                            "nothing and set nothing up (no subscription, topic or service) "
                            "for this long, s (0 = never)", minval=0.0, maxval=86400.0),
@@ -62,8 +75,11 @@ class RosbridgeSettings(SectionSettings, section="rosbridge", options=ROSBRIDGE_
     host: str
     port: int
     max_clients: int
+    max_connections: int
+    handshake_timeout_s: float
     reserved_clients: int
     max_message_bytes: int
+    max_readonly_message_bytes: int
     idle_timeout: float
     ops_per_second: float
     ops_burst: int

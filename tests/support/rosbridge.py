@@ -17,7 +17,7 @@ TIMEOUT = 10.0  # for an expected message
 #: A drive command.
 TWIST = {"linear": {"x": 0.3, "y": 0, "z": 0}, "angular": {"x": 0, "y": 0, "z": 0.2}}
 #: A daemon config with a token, and the header of the client that has it.
-TOKEN = "s3cret"
+TOKEN = "s3cret-t0ken"
 WITH_TOKEN = f'[security]\ntoken = "{TOKEN}"\n'
 OWNER = {"Authorization": f"Bearer {TOKEN}"}
 # the deadman (cmd_vel_timeout, 0.5 s) must be able to fire; on a shared 2-core box garbage
