@@ -30,9 +30,10 @@ from drivers import DriverError, MotorDriver
 log = logging.getLogger("arbiterd.control")
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Applied:
-    """What the event path did with one command."""
+    """What the event path did with one command (made once per command, not changed after:
+    not frozen, which would cost four times as much to make)."""
 
     accepted: bool
     source: str | None
@@ -275,18 +276,20 @@ class ControlLoop:
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
-        self.last_clamped = self._target_clamps(decision.twist)
-        target_v, _ = self.linear.clamp_target(decision.twist.linear_x)
-        target_w, _ = self.angular.clamp_target(decision.twist.angular_z)
+        linear, angular = self.linear, self.angular
+        target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
+        target_w, clamped_w = angular.clamp_target(decision.twist.angular_z)
+        self.last_clamped = self._target_clamps(clamped_v, clamped_w) \
+            if clamped_v or clamped_w else []
         brake = decision.emergency
         if self.guard is not None:
-            guarded = self.guard.limit(target_v, target_w, self.linear.velocity,
-                                       self.angular.velocity, now)
+            guarded = self.guard.limit(target_v, target_w, linear.velocity, angular.velocity,
+                                       now)
             target_v, target_w = guarded.linear, guarded.angular
             brake = brake or guarded.brake
             self.guard_action = guarded.action
-        v = self.linear.step(target_v, dt, brake)
-        w = self.angular.step(target_w, dt, brake)
+        v = linear.step(target_v, dt, brake)
+        w = angular.step(target_w, dt, brake)
         if decision.source is None and v == 0.0 and w == 0.0:
             self.arbiter.idle()
         left, right = self.geometry.wheel_speeds(v, w)
@@ -307,11 +310,10 @@ class ControlLoop:
             return False
         return True
 
-    def _target_clamps(self, twist: Twist) -> list[str]:
+    def _target_clamps(self, linear: bool, angular: bool) -> list[str]:
         clamped = []
-        for name, limiter, value in (("linear.x", self.linear, twist.linear_x),
-                                     ("angular.z", self.angular, twist.angular_z)):
-            if limiter.clamp_target(value)[1]:
+        for name, was_clamped in (("linear.x", linear), ("angular.z", angular)):
+            if was_clamped:
                 clamped.append(name)
                 self._count_clamp(name)
         return clamped
