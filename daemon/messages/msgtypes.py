@@ -7,7 +7,7 @@ import math
 import re
 import time
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 from typing import Any
 
 from daemon.messages.definitions import MSG_TEXT
@@ -21,6 +21,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
 FLOAT_MAX = {"float32": 3.4028234663852886e38, "float64": math.inf}
 PRIMITIVES = {"bool", "string", "wstring", "float32", "float64", *INT_RANGES}
 BYTE_ARRAY_BASES = {"uint8", "char"}
+STRINGS = {"string", "wstring"}
 TIME_TYPES = {"builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration"}
 _NAME_PART = r"[A-Za-z][A-Za-z0-9_]*"
 _TYPE_NAME = re.compile(rf"^({_NAME_PART})/(?:(msg|srv|action)/)?({_NAME_PART})$")
@@ -62,6 +63,11 @@ class MsgType:
 
     def field(self, name: str) -> Field | None:
         return next((f for f in self.fields if f.name == name), None)
+
+    @cached_property
+    def names(self) -> frozenset[str]:
+        """The field names (checked against every incoming message's keys)."""
+        return frozenset(f.name for f in self.fields)
 
 
 def normalize_type(name: Any, kind: str = "msg") -> str:
@@ -174,16 +180,21 @@ def check_message(name: str, value: Any, path: str = "msg") -> dict[str, Any]:
     if not isinstance(value, dict):
         raise MessageError(f"{path}: expected an object ({name}), got {_kind(value)}")
     spec = get_type(name)
-    for key in value:
-        if spec.field(key) is None:
-            raise MessageError(f"{path}: message type {name} does not have a field {key!r}")
+    if not spec.names.issuperset(value):
+        key = next(k for k in value if k not in spec.names)
+        raise MessageError(f"{path}: message type {name} does not have a field {key!r}")
     out: dict[str, Any] = {}
     for f in spec.fields:
-        sub = f"{path}.{f.name}"
         if f.name not in value:
             out[f.name] = _now_stamp() if _is_header_stamp(name, f) else default_field(f)
+            continue
+        item = value[f.name]
+        # the common cases without a call (and without the field's path, made only for errors)
+        if not f.is_array and ((type(item) is float and f.base == "float64")
+                               or (type(item) is str and f.base in STRINGS)):
+            out[f.name] = item
         else:
-            out[f.name] = _check_field(f, value[f.name], sub)
+            out[f.name] = _check_field(f, item, f"{path}.{f.name}")
     return out
 
 
