@@ -166,8 +166,11 @@ class ClientSession:
                 return False
         else:
             self._throttled_since = None
-        await self.handle_text(data, t_recv)
-        await self.writer.send_inline(self.transport)
+        self.writer.inline = True  # what the request queues is sent below, from here
+        try:
+            await self.handle_text(data, t_recv)
+        finally:
+            await self.writer.send_inline(self.transport)
         await asyncio.sleep(0)
         return True
 
@@ -298,7 +301,9 @@ class ClientSession:
             raise ProtocolError(f"publish {name}: {exc}") from None
         if isinstance(topic.robot, TopicIn):
             await self._deliver_inbound(req, topic.robot, type_name, msg)
-        self.graph.publish(topic, SharedMessage(name, msg), latch=name in self.latching)
+        latch = name in self.latching
+        if latch or topic.subscribers:  # nobody to hand it to: nothing to share
+            self.graph.publish(topic, SharedMessage(name, msg), latch=latch)
 
     def _publish_type(self, req: Request, topic: Topic, raw: Any) -> str:
         declared = topic.publishers.get(self)
