@@ -169,7 +169,11 @@ class ControlLoop:
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
                      priority: int = 10) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
-        applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
+        refusal = self._refusal_reason()
+        if refusal:
+            applied = Applied(False, self.decision.source, self.wheels, [], None, refusal)
+        else:
+            applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
         self.bus.publish(COMMAND, CommandEvent(
             time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
             applied.accepted, applied.error or ""))
@@ -177,16 +181,14 @@ class ControlLoop:
 
     async def _apply(self, source: str, twist: Twist, t_recv: float, cmd_id: str | int | None,
                      t_sent_ms: float | None, priority: int) -> Applied:
-        refusal = self._refusal_reason()
-        if refusal:
-            return Applied(False, self.decision.source, self.wheels, [], None, refusal)
         self._forget_after_stall()  # older commands are stale, this one is fresh
-        self.arbiter.submit(source, twist, self.clock(), priority)
+        clock = self.clock
+        self.arbiter.submit(source, twist, clock(), priority)
         for callback in self.on_command:
             callback(source)
         async with self._lock:
-            written = await self._step(self.clock())
-        t_exec = self.clock()
+            written = await self._step(clock())
+        t_exec = clock()
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)
@@ -296,9 +298,14 @@ class ControlLoop:
         left, right, scaled = scale_to_limit(left, right, self.driver.max_wheel_speed)
         if scaled:
             self._count_clamp("wheel_speed")
-        if self.fault:
+        if self.fault or not self.driver.is_open:
             return False
-        return await self._write(left, right)
+        try:  # _write, inlined: this runs for every command and every tick
+            self.wheels = await self.driver.set_wheel_speeds(left, right)
+        except DriverError as exc:
+            await self._on_fault(str(exc))
+            return False
+        return True
 
     async def _write(self, left: float, right: float) -> bool:
         if not self.driver.is_open:
