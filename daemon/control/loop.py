@@ -92,6 +92,8 @@ class ControlLoop:
         self.guard_action: str | None = None
         #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
         self.invalidations = 0
+        #: ... of which because the stall supervisor had stopped the wheels
+        self.stall_invalidations = 0
         #: extra fields of /api/status supplied by other components (the simulator's truth)
         self.status_fields: HookMap[Callable[[], Any]] = HookMap()
         self.fault: str | None = None
@@ -362,6 +364,7 @@ class ControlLoop:
             return
         self.arbiter.invalidate_all()
         self.invalidations += 1
+        self.stall_invalidations += 1
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)
