@@ -14,6 +14,7 @@ from daemon.component import Component, DaemonContext, Plugs, worst
 from daemon.components import COMPONENTS
 from daemon.config import build_driver
 from daemon.control.loop import ControlLoop
+from daemon.heap import freeze_startup_heap, thaw
 from daemon.http_api import HttpServer
 from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
@@ -188,6 +189,7 @@ class Daemon:
                     raise StartupError(f"{component.name}: {exc}") from exc
                 log.error("%s failed to start: %s", component.name, exc)
         self._tasks.append(asyncio.create_task(self._supervise(), name="supervise"))
+        freeze_startup_heap()  # full collections no longer walk what start-up built
         self._update_state()
         self.notifier.ready(self.status_line())
         log.info("ready: %s", self.status_line())
@@ -225,6 +227,7 @@ class Daemon:
                 log.exception("stopping %s failed", component.name)
         for plugs in reversed(self._plugs):
             plugs.release()
+        thaw()
         log.info("stopped")
 
     @staticmethod

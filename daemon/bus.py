@@ -30,27 +30,31 @@ class Bus:
     """
 
     def __init__(self) -> None:
-        self._subscribers: dict[str, list[Callable[[Any], None]]] = {}
+        # tuples, replaced on (un)subscribe: publishing (per command, per tick) iterates
+        # without copying, and a callback may (un)subscribe while it runs
+        self._subscribers: dict[str, tuple[Callable[[Any], None], ...]] = {}
         self._latest: dict[str, Any] = {}
 
     def subscribe(self, key: BusKey[T], callback: Callable[[T], None]) -> Callable[[], None]:
         """Call ``callback(message)`` on every publish to ``key``; returns an unsubscriber."""
-        self._subscribers.setdefault(key.name, []).append(callback)
+        self._subscribers[key.name] = (*self._subscribers.get(key.name, ()), callback)
 
         def unsubscribe() -> None:
-            callbacks = self._subscribers.get(key.name, [])
+            callbacks = list(self._subscribers.get(key.name, ()))
             if callback in callbacks:
                 callbacks.remove(callback)
+                self._subscribers[key.name] = tuple(callbacks)
 
         return unsubscribe
 
     def publish(self, key: BusKey[T], message: T) -> None:
-        self._latest[key.name] = message
-        for callback in tuple(self._subscribers.get(key.name, ())):
+        name = key.name
+        self._latest[name] = message
+        for callback in self._subscribers.get(name, ()):
             try:
                 callback(message)
             except Exception:
-                log.exception("subscriber of %s failed", key.name)
+                log.exception("subscriber of %s failed", name)
 
     def latest(self, key: BusKey[T]) -> T | None:
         """The last message published on ``key``, or ``None``."""

@@ -2,12 +2,16 @@
 from __future__ import annotations
 
 import time
+from bisect import bisect_left
 from collections import OrderedDict, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
-from prometheus_client import CollectorRegistry, Counter, Histogram
+from prometheus_client import CollectorRegistry
+from prometheus_client.core import CounterMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.registry import Collector
+from prometheus_client.utils import floatToGoString
 
 from daemon.telemetry import LatencyReport
 
@@ -21,32 +25,70 @@ CLOCK_NOTE = ("client wall clock vs daemon wall clock: only meaningful when the 
               "synchronised (same machine, or NTP/PTP)")
 
 
-class LatencyMetrics:
-    """The latency figures as Prometheus histograms, in a registry of their own."""
+class Buckets:
+    """A cumulative histogram kept as plain counts: one ``bisect`` and two additions per
+    observation (prometheus_client's ``Histogram.observe`` takes a lock per bucket and costs
+    about ten times more on the command path). Read on scrape by :class:`LatencyMetrics`."""
+
+    __slots__ = ("bounds", "counts", "sum")
+
+    def __init__(self, bounds: tuple[float, ...]) -> None:
+        self.bounds = bounds
+        self.counts = [0] * (len(bounds) + 1)  # the last one is +Inf
+        self.sum = 0.0
+
+    def observe(self, value: float) -> None:
+        self.counts[bisect_left(self.bounds, value)] += 1  # le: a value on a bound counts in it
+        self.sum += value
+
+    def family(self, name: str, documentation: str) -> HistogramMetricFamily:
+        cumulative, running = [], 0
+        for bound, count in zip((*map(floatToGoString, self.bounds), "+Inf"), self.counts,
+                                strict=True):
+            running += count
+            cumulative.append((bound, float(running)))
+        return HistogramMetricFamily(name, documentation, buckets=cumulative,
+                                     sum_value=self.sum)
+
+
+class LatencyMetrics(Collector):
+    """The latency figures for Prometheus, in a registry of their own (the collision monitor
+    adds its counters there too). The command and tick paths only bump counts; the metric
+    families are built when ``/metrics`` is scraped."""
 
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
-        self.exec_s = Histogram("arbiterd_command_exec_seconds", "receipt -> driver write",
-                                buckets=EXEC_BUCKETS, registry=self.registry)
-        self.transit_s = Histogram("arbiterd_command_transit_seconds", "client send -> "
-                                   "receipt (clock-dependent)", buckets=TRANSIT_BUCKETS,
-                                   registry=self.registry)
-        self.clock_skew = Counter("arbiterd_command_transit_negative", "stamped commands "
-                                  "received before they were sent (clock skew)",
-                                  registry=self.registry)
-        self.commands = Counter("arbiterd_commands", "applied commands", ["source"],
-                                registry=self.registry)
-        self.tick_late_s = Histogram("arbiterd_tick_lateness_seconds", "control tick start "
-                                     "after its deadline", buckets=TICK_BUCKETS,
-                                     registry=self.registry)
-        self._per_kind: dict[str, Any] = {}
+        self.exec_s = Buckets(EXEC_BUCKETS)
+        self.transit_s = Buckets(TRANSIT_BUCKETS)
+        self.tick_late_s = Buckets(TICK_BUCKETS)
+        self.clock_skew = 0
+        self.commands: dict[str, int] = {}  # by kind of source: ``ws:17`` counts as ``ws``
+        self._kinds: dict[str, str] = {}
+        self.registry.register(self)
 
     def count(self, source: str) -> None:
         """One applied command from ``source`` (labelled by kind: ``ws:17`` counts as ``ws``)."""
-        child = self._per_kind.get(source)
-        if child is None:
-            child = self._per_kind[source] = self.commands.labels(_source_kind(source))
-        child.inc()
+        kind = self._kinds.get(source)
+        if kind is None:
+            if len(self._kinds) >= 4 * MAX_SOURCES:
+                self._kinds.clear()
+            kind = self._kinds[source] = _source_kind(source)
+        self.commands[kind] = self.commands.get(kind, 0) + 1
+
+    def collect(self) -> Iterator[Metric]:
+        yield self.exec_s.family("arbiterd_command_exec_seconds", "receipt -> driver write")
+        yield self.transit_s.family("arbiterd_command_transit_seconds",
+                                    "client send -> receipt (clock-dependent)")
+        yield CounterMetricFamily("arbiterd_command_transit_negative", "stamped commands "
+                                  "received before they were sent (clock skew)",
+                                  value=self.clock_skew)
+        commands = CounterMetricFamily("arbiterd_commands", "applied commands",
+                                       labels=["source"])
+        for kind, count in sorted(self.commands.items()):
+            commands.add_metric([kind], count)
+        yield commands
+        yield self.tick_late_s.family("arbiterd_tick_lateness_seconds",
+                                      "control tick start after its deadline")
 
 
 def summarize(samples: Iterable[float]) -> dict[str, Any]:
@@ -71,13 +113,18 @@ class SourceCounts:
         self.max_sources = max_sources
         self.idle_s = idle_s
         self.clock = clock
-        self._counts: OrderedDict[str, tuple[int, float]] = OrderedDict()
+        self._counts: OrderedDict[str, list[Any]] = OrderedDict()  # [count, last seen]
         self.dropped = 0
 
     def add(self, source: str) -> None:
         now = self.clock()
-        count, _ = self._counts.pop(source, (0, now))
-        self._counts[source] = (count + 1, now)
+        entry = self._counts.get(source)
+        if entry is None:
+            self._counts[source] = [1, now]
+        else:
+            entry[0] += 1
+            entry[1] = now
+            self._counts.move_to_end(source)
         self._expire(now)
 
     def _expire(self, now: float) -> None:
@@ -127,7 +174,7 @@ class LatencyTracker:
             transit = wall_recv_ms - t_sent_ms
             self.transit_ms.append(transit)
             if transit < 0:
-                self.metrics.clock_skew.inc()
+                self.metrics.clock_skew += 1
             else:
                 self.metrics.transit_s.observe(transit / 1e3)
         return LatencyReport(cmd_id, t_sent_ms, wall_recv_ms, wall_exec_ms, exec_ms, source)

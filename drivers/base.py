@@ -116,6 +116,9 @@ class MotorDriver(ABC):
 
     def clamp(self, speed: float) -> float:
         """Refuse a non-finite speed; clamp a finite one to ``±max_wheel_speed``."""
+        limit = self.max_wheel_speed
+        if type(speed) is float and speed - speed == 0.0:  # finite float: the common case
+            return limit if speed > limit else -limit if speed < -limit else speed
         if isinstance(speed, bool) or not isinstance(speed, int | float):
             raise InvalidCommand(f"wheel speed must be a number, got {type(speed).__name__}")
         if not math.isfinite(speed):

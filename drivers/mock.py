@@ -6,14 +6,13 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 from base.options import Options
 from drivers.base import EncoderReading, MotorDriver, option
 
 
-@dataclass(frozen=True)
-class RecordedCommand:
+class RecordedCommand(NamedTuple):
     """One write the mock driver saw: monotonic time and wheel speeds in rad/s."""
 
     t_mono: float

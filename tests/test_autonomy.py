@@ -11,10 +11,20 @@ import aiohttp
 import numpy as np
 import pytest
 
+from daemon.autonomy.component import RESUME_AFTER_STALL_S, AutonomyComponent
 from daemon.autonomy.component import STATE as AUTONOMY_STATE
 from daemon.autonomy.sectors import Sectors
 from daemon.autonomy.wander import Perception, Wander, WanderSettings
+from daemon.bus import Bus
+from daemon.component import Plugs
+from daemon.config import build_driver, load_config
+from daemon.control.clock import VirtualClock
 from daemon.control.commands import Twist
+from daemon.control.loop import ControlLoop
+from daemon.control.supervisor import StallSupervisor
+from daemon.latency import LatencyTracker
+from daemon.telemetry import SCAN
+from sensors.scan import LaserScan
 from tests.support.in_process_daemon import InProcessDaemon
 from tests.support.wait import eventually
 
@@ -190,3 +200,95 @@ async def test_autonomy_state_is_published_on_change(robot: InProcessDaemon) -> 
     await eventually(lambda: any(s["state"] == "CRUISE" for s in states), "a CRUISE state")
     await request(robot, "POST", "/api/autonomy", {"mode": "off"})
     assert states[-1]["mode"] == "off"
+
+
+# -- a stall stop holds wander still; it goes on by itself (lockstep: simulated time) ------------
+
+class SteppedWander:
+    """The control loop and the autonomy on a virtual clock, ticked by hand, with the stall
+    supervisor on the same clock and an open room on the bus every 0.1 s."""
+
+    def __init__(self) -> None:
+        config = load_config(None, env={})
+        config.update("driver", {"type": "mock"})
+        self.clock = VirtualClock()
+        self.bus = Bus()
+        self.driver = build_driver(config, "mock")
+        self.control = ControlLoop(config, self.driver, self.bus, LatencyTracker(),
+                                   clock=self.clock)
+        self.control.supervisor = StallSupervisor(self.driver, 0.2, clock=self.clock)
+        self.autonomy = AutonomyComponent(config, Plugs(self.control, self.bus), lidar=True,
+                                          seed=1)
+        self.t = 0.0
+        self._next_scan = 0.0
+
+    def open_room(self) -> LaserScan:
+        rays = 360
+        return LaserScan(0.0, "laser", -math.pi, math.pi, 2 * math.pi / rays, 0.0, 0.1, 0.1,
+                         12.0, np.full(rays, 5.0, dtype=np.float32),
+                         np.zeros(rays, dtype=np.float32))
+
+    async def run(self, seconds: float) -> None:
+        """Tick on time (each tick pets the supervisor, as the real tick does)."""
+        period = self.control.period_s
+        for _ in range(round(seconds / period)):
+            self.t += period
+            self.clock.set(self.t)
+            if self.t >= self._next_scan:
+                self.bus.publish(SCAN, self.open_room())
+                self._next_scan = self.t + 0.1
+            self.control.supervisor.beat()
+            await self.control.tick(self.t)
+
+    def stall(self, seconds: float) -> None:
+        """The event loop blocked for ``seconds``: no tick; the supervisor's thread looks."""
+        self.t += seconds
+        self.clock.set(self.t)
+        self.control.supervisor.check()
+
+    def moving(self) -> bool:
+        return self.driver.last_command != (0.0, 0.0)
+
+
+async def test_wander_stopped_only_by_a_stall_goes_on_once_the_tick_is_healthy() -> None:
+    robot = SteppedWander()
+    await robot.control.start(realtime=False)
+    try:
+        robot.autonomy.set_mode("wander", "test")
+        await robot.run(1.0)
+        assert robot.moving() and robot.autonomy.wander.state == "CRUISE"
+
+        robot.stall(0.3)
+        assert robot.control.supervisor.stall_stops == 1 and not robot.moving()
+
+        await robot.run(1.0)  # the tick is back: the behaviour holds still, still in wander
+        assert robot.autonomy.mode == "wander" and not robot.moving()
+        assert robot.autonomy.wander.state == "STOPPED"
+        assert "stall" in robot.autonomy.wander.reason
+
+        robot.stall(0.3)  # another stall during the wait: the wait starts over
+        await robot.run(RESUME_AFTER_STALL_S - 0.2)
+        assert robot.autonomy.mode == "wander" and not robot.moving()
+
+        await robot.run(0.5)  # healthy for longer than RESUME_AFTER_STALL_S: it goes on
+        assert robot.autonomy.mode == "wander" and robot.moving()
+        assert robot.autonomy.wander.state == "CRUISE"
+        assert robot.control.supervisor.stall_stops == 2
+    finally:
+        await robot.control.stop()
+
+
+async def test_after_a_stall_and_an_estop_wander_waits_to_be_asked_again() -> None:
+    robot = SteppedWander()
+    await robot.control.start(realtime=False)
+    try:
+        robot.autonomy.set_mode("wander", "test")
+        await robot.run(1.0)
+        robot.stall(0.3)
+        await robot.run(0.2)
+        await robot.control.engage_estop("test")
+        robot.control.release_estop()
+        await robot.run(RESUME_AFTER_STALL_S + 0.5)
+        assert robot.autonomy.mode == "off" and not robot.moving()
+    finally:
+        await robot.control.stop()

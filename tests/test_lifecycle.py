@@ -1,6 +1,7 @@
 # Supervised lifecycle against a real notify socket: READY, WATCHDOG, stall, SIGTERM, STOPPING.
 from __future__ import annotations
 
+import gc
 import signal
 import socket
 import threading
@@ -8,6 +9,7 @@ import time
 from pathlib import Path
 
 from tests.support.daemon_subprocess import DaemonSubprocess
+from tests.support.in_process_daemon import in_process_daemon
 from tests.support.wait import wait_for
 
 
@@ -102,3 +104,12 @@ def test_no_watchdog_pings_without_watchdog_usec(tmp_path: Path) -> None:
             assert "WATCHDOG=1" not in notify.lines()
     finally:
         notify.close()
+
+
+async def test_the_start_up_heap_is_frozen_while_the_daemon_runs(tmp_path: Path) -> None:
+    """Full collections must not walk what start-up built (35-70 ms pauses of the tick):
+    it is frozen once the daemon is ready, and given back to the collector when it stops."""
+    async with in_process_daemon(tmp_path) as robot:
+        assert robot.daemon.state != "startup"
+        assert gc.get_freeze_count() > 10_000
+    assert gc.get_freeze_count() == 0

@@ -41,6 +41,11 @@ SECTORS = 48
 TIGHT_EXTRA_M = 0.05
 #: a scan older than this stops the behaviour (s)
 SCAN_TIMEOUT_S = 0.5
+#: after a stall stop the behaviour holds still until the control tick has run on time for
+#: this long, then goes on by itself (s); an e-stop or a driver fault switches it off instead
+RESUME_AFTER_STALL_S = 2.0
+#: two ticks further apart than this many periods are no healthy tick
+HEALTHY_GAP_PERIODS = 2.0
 
 
 def wander_settings(config: Config) -> WanderSettings:
@@ -55,9 +60,10 @@ class AutonomyComponent(BaseComponent):
 
     Its commands go through the arbiter (lowest priority) and so through the collision
     monitor and the limiter like any client's. A command from any other source switches the
-    mode off at once; so do an e-stop, a driver fault or a stall once they clear (the robot
-    waits to be asked again). Reports in ``GET /api/autonomy`` and on the bus
-    (``autonomy_state``, on change and once a second).
+    mode off at once; so do an e-stop or a driver fault once they clear (the robot waits to be
+    asked again). A stall stop alone (the event loop was blocked) only holds it still: it goes
+    on by itself once the tick has been healthy for ``RESUME_AFTER_STALL_S``. Reports in
+    ``GET /api/autonomy`` and on the bus (``autonomy_state``, on change and once a second).
     """
 
     name = "autonomy"
@@ -85,7 +91,11 @@ class AutonomyComponent(BaseComponent):
         self.scan_time: float | None = None
         self._next_decision = -math.inf
         self._invalidations = control.invalidations
+        self._stall_invalidations = control.stall_invalidations
         self._latched = False
+        #: after a stall stop: when the tick has been healthy long enough to move again
+        self._resume_at: float | None = None
+        self._last_tick: float | None = None
         self._published_state = ""
         plugs.add_tick_source(self._tick)
         plugs.on_command(self._on_command)
@@ -116,7 +126,9 @@ class AutonomyComponent(BaseComponent):
         self.mode = mode
         if mode == "wander":
             self._invalidations = self.control.invalidations
+            self._stall_invalidations = self.control.stall_invalidations
             self._latched = False
+            self._resume_at = None
             self._next_decision = now
             self.wander.start(now, self.control.odometry.theta)
         else:
@@ -159,19 +171,32 @@ class AutonomyComponent(BaseComponent):
     def _blocked(self, now: float) -> str | None:
         control = self.control
         if control.invalidations != self._invalidations:
+            stalls = control.stall_invalidations - self._stall_invalidations
+            if control.invalidations - self._invalidations > stalls:
+                self._latched = True  # an e-stop, a fault, a reconnect: ask again to resume
+            else:
+                self._resume_at = now + RESUME_AFTER_STALL_S  # only stalls: wait, go on
             self._invalidations = control.invalidations
-            self._latched = True
+            self._stall_invalidations = control.stall_invalidations
         if control.arbiter.estop_engaged:
             return "e-stop engaged"
         if control.fault:
             return f"driver fault: {control.fault}"
         if self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S:
             return "no fresh lidar scan"
+        if self._resume_at is not None:
+            if now < self._resume_at:
+                return "stall stop: waiting for the control tick to stay on time"
+            self._resume_at = None
         return None
 
     # -- the tick ------------------------------------------------------------------------------
 
     def _tick(self, now: float) -> None:
+        last, self._last_tick = self._last_tick, now
+        if self._resume_at is not None and last is not None \
+                and now - last > HEALTHY_GAP_PERIODS * self.control.period_s:
+            self._resume_at = now + RESUME_AFTER_STALL_S  # a late tick: the wait starts over
         if self.mode == "off" or now < self._next_decision:
             return
         self._next_decision = now + self.period - 1e-9

@@ -46,14 +46,18 @@ def ms_result(suite: str, name: str, value_ms: float, note: str = "") -> BenchRe
 
 
 def run_quietly(main: Coroutine[Any, Any, T]) -> T:
-    """Run a suite's coroutine with the daemon's own log quiet (errors only)."""
-    arbiterd_log = logging.getLogger("arbiterd")
-    level = arbiterd_log.level
-    arbiterd_log.setLevel(logging.ERROR)
+    """Run a suite's coroutine with the daemon's own log quiet (errors only; the missing
+    lidar of ``bench_daemon(serve_scan=True)`` is not even an error here)."""
+    loggers = {logging.getLogger("arbiterd"): logging.ERROR,
+               logging.getLogger("sensors"): logging.CRITICAL}
+    levels = {log: log.level for log in loggers}
+    for log, quiet in loggers.items():
+        log.setLevel(quiet)
     try:
         return asyncio.run(main)
     finally:
-        arbiterd_log.setLevel(level)
+        for log, level in levels.items():
+            log.setLevel(level)
 
 
 def free_port() -> int:
@@ -65,19 +69,25 @@ def free_port() -> int:
 
 
 @contextlib.asynccontextmanager
-async def bench_daemon(workdir: Path, extra_toml: str = "") -> AsyncIterator[tuple[Any, str]]:
+async def bench_daemon(workdir: Path, extra_toml: str = "", *,
+                       serve_scan: bool = False) -> AsyncIterator[tuple[Any, str]]:
     """The daemon in this process on the mock driver, HTTP off: (daemon, rosbridge URL).
 
     No simulated world, so the figures are the bridge's, not the world's; ``extra_toml`` is
-    appended to its configuration file in ``workdir``."""
+    appended to its configuration file in ``workdir``. ``serve_scan``: the lidar component
+    is there, so the topic table has ``/scan``, on a port that does not exist (it retries with
+    back-off; the suite publishes the scans on the bus itself) and with the collision monitor
+    off, so that the figures stay the bridge's."""
     from daemon.app import Daemon
     from daemon.config import load_config
 
     ws_port = free_port()
     config_path = workdir / "bench.toml"
+    lidar = (f'[lidar]\nenabled = true\nport = "{workdir / "no-lidar"}"\n'
+             '[collision_monitor]\nenabled = false\n') if serve_scan else ""
     config_path.write_text(f'[http]\nenabled = false\nport = {free_port()}\n'
                            f'[rosbridge]\nhost = "127.0.0.1"\nport = {ws_port}\n'
-                           '[driver]\ntype = "mock"\n' + extra_toml)
+                           '[driver]\ntype = "mock"\n' + lidar + extra_toml)
     daemon = Daemon(load_config(config_path))
     task = asyncio.create_task(daemon.run())
     while daemon.state == "startup":

@@ -9,6 +9,7 @@ from daemon.bus import Bus
 from daemon.config import build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
+from daemon.heap import freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 
 SUITE = "control"
@@ -24,6 +25,7 @@ async def _run(quick: bool) -> list[BenchResult]:
     latency = LatencyTracker(window=100000)
     loop = ControlLoop(config, build_driver(config, "mock"), Bus(), latency)
     await loop.start()
+    freeze_startup_heap()  # as the daemon does once it has started
     try:
         exec_ms = await _command_latency(loop, 2000 if quick else 20000)
         latency.tick_late_ms.clear()
@@ -31,6 +33,7 @@ async def _run(quick: bool) -> list[BenchResult]:
         tick = summarize(latency.tick_late_ms)
     finally:
         await loop.stop()
+        thaw()
     stats = summarize(exec_ms)
     return [
         BenchResult(SUITE, "receipt->driver write p50 (mock)", stats["p50"], "ms"),

@@ -173,7 +173,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         # the recorder present but off: _alternate switches it
         record = f'[record]\nenabled = false\ndirectory = "{Path(tmp) / "rec"}"\n'
-        async with bench_daemon(Path(tmp), record) as (daemon, url):
+        async with bench_daemon(Path(tmp), record, serve_scan=True) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
             recorder = next(c for c in daemon.components if c.name == "recorder").recorder

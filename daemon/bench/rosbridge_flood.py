@@ -126,7 +126,7 @@ async def _run(quick: bool, minutes: float) -> list[BenchResult]:
     idle: list[Window] = []
     loaded: list[Window] = []
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
-        async with bench_daemon(Path(tmp), CONFIG) as (daemon, url):
+        async with bench_daemon(Path(tmp), CONFIG, serve_scan=True) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
             for _ in range(rounds):  # idle and flood alternate: both see the same machine

@@ -15,6 +15,7 @@ from daemon.component import Plugs
 from daemon.config import Config, build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
+from daemon.heap import freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 from daemon.lockstep.runner import Lockstep
 from daemon.safety.component import SafetyComponent, monitor_settings
@@ -153,6 +154,7 @@ async def _latency_p99(count: int, *, monitor: bool) -> float:
     if monitor:
         SafetyComponent(config, Plugs(loop, bus), latency.metrics.registry)
     await loop.start()
+    freeze_startup_heap()  # as the daemon does once it has started
     feeder = asyncio.create_task(_feed_scans(bus))
     try:
         samples = []
@@ -167,6 +169,7 @@ async def _latency_p99(count: int, *, monitor: bool) -> float:
     finally:
         feeder.cancel()
         await loop.stop()
+        thaw()
     return float(summarize(samples)["p99"])
 
 

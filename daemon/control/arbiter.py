@@ -16,6 +16,8 @@ class SourceState:
     twist: Twist = ZERO
     t_recv: float = 0.0
     active: bool = False
+    #: the decision following this command (made once per command, not once per step)
+    decision: Decision | None = None
 
     def is_live(self, now: float) -> bool:
         return self.active and (self.timeout_s <= 0 or now - self.t_recv <= self.timeout_s)
@@ -29,6 +31,10 @@ class Decision:
     source: str | None
     emergency: bool
     reason: str
+
+
+IDLE = Decision(ZERO, None, False, "idle")
+DEADMAN = Decision(ZERO, None, True, "deadman: no valid command")
 
 
 class Arbiter:
@@ -47,6 +53,7 @@ class Arbiter:
         self.estop_final = False
         self._generation = 0
         self._last_source: str | None = None
+        self._estop = Decision(ZERO, None, True, "e-stop: ")
 
     def submit(self, source: str, twist: Twist, now: float, priority: int = 10,
                timeout_s: float | None = None) -> None:
@@ -56,7 +63,7 @@ class Arbiter:
                                 self.default_timeout_s if timeout_s is None else timeout_s)
             self.sources[source] = state
         state.priority = priority
-        state.twist, state.t_recv, state.active = twist, now, True
+        state.twist, state.t_recv, state.active, state.decision = twist, now, True, None
 
     def drop(self, source: str) -> None:
         """Forget a source (its client disconnected)."""
@@ -73,6 +80,7 @@ class Arbiter:
             self.estop_reason = reason
         self.estop_engaged = True
         self.estop_final = self.estop_final or final
+        self._estop = Decision(ZERO, None, True, f"e-stop: {self.estop_reason}")
         self.invalidate_all()
 
     def release_estop(self) -> bool:
@@ -85,15 +93,18 @@ class Arbiter:
 
     def decide(self, now: float) -> Decision:
         if self.estop_engaged:
-            return Decision(ZERO, None, True, f"e-stop: {self.estop_reason}")
-        live = [s for s in self.sources.values() if s.is_live(now)]
-        if not live:
-            emergency = self._last_source is not None
-            reason = "deadman: no valid command" if emergency else "idle"
-            return Decision(ZERO, None, emergency, reason)
-        best = max(live, key=lambda s: (s.priority, s.t_recv))
+            return self._estop
+        best: SourceState | None = None
+        for state in self.sources.values():  # the first of the highest (priority, t_recv)
+            if state.is_live(now) and (best is None or (state.priority, state.t_recv)
+                                       > (best.priority, best.t_recv)):
+                best = state
+        if best is None:
+            return IDLE if self._last_source is None else DEADMAN
         self._last_source = best.name
-        return Decision(best.twist, best.name, False, "command")
+        if best.decision is None:
+            best.decision = Decision(best.twist, best.name, False, "command")
+        return best.decision
 
     def idle(self) -> None:
         """The robot has stopped after a deadman brake: later silence is plain idling."""

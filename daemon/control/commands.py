@@ -43,19 +43,20 @@ def finite_number(value: Any, field: str) -> float:
 _AXIS = {"x": 0, "y": 1, "z": 2}
 
 
-def parse_vector(value: Any, field: str) -> list[float]:
-    """``{"x", "y", "z"}`` (absent = 0) as ``[x, y, z]``; plain finite floats take a fast path."""
+def parse_vector(value: Any, field: str, prefix: str = "") -> list[float]:
+    """``{"x", "y", "z"}`` (absent = 0) as ``[x, y, z]``; plain finite floats take a fast path.
+    Errors name ``prefix + field`` (joined only when there is an error)."""
     if not isinstance(value, Mapping):
-        raise CommandError(f"{field}: expected an object with x, y, z")
+        raise CommandError(f"{prefix}{field}: expected an object with x, y, z")
     out = [0.0, 0.0, 0.0]
     for key, number in value.items():
         index = _AXIS.get(key)
         if index is None:
-            raise CommandError(f"{field}.{key}: unknown field")
+            raise CommandError(f"{prefix}{field}.{key}: unknown field")
         if type(number) is float and number - number == 0.0:  # finite (inf-inf, nan are nan)
             out[index] = number
         else:
-            out[index] = finite_number(number, f"{field}.{key}")
+            out[index] = finite_number(number, f"{prefix}{field}.{key}")
     return out
 
 
@@ -70,8 +71,8 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
     for key in body:
         if key not in TWIST_FIELDS and key not in extra:
             raise CommandError(f"{prefix}{key}: unknown field")
-    lx, ly, lz = parse_vector(body.get("linear", _EMPTY), f"{prefix}linear")
-    ax, ay, az = parse_vector(body.get("angular", _EMPTY), f"{prefix}angular")
+    lx, ly, lz = parse_vector(body.get("linear", _EMPTY), "linear", prefix)
+    ax, ay, az = parse_vector(body.get("angular", _EMPTY), "angular", prefix)
     if ly or lz or ax or ay:
         field, value = next((f, v) for f, v in (("linear.y", ly), ("linear.z", lz),
                                                 ("angular.x", ax), ("angular.y", ay)) if v)

@@ -1,7 +1,7 @@
 # Differential-drive kinematics: body twist <-> wheel speeds, with calibration multipliers.
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -17,6 +17,12 @@ class DiffDrive:
     wheel_separation_multiplier: float = 1.0
     left_wheel_radius_multiplier: float = 1.0
     right_wheel_radius_multiplier: float = 1.0
+    #: (separation / 2, left radius, right radius), computed once: every control step uses them
+    _per_wheel: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_per_wheel", (self.separation / 2.0, self.left_radius,
+                                                self.right_radius))
 
     @classmethod
     def from_settings(cls, robot: RobotSettings) -> DiffDrive:
@@ -38,8 +44,9 @@ class DiffDrive:
 
     def wheel_speeds(self, linear_x: float, angular_z: float) -> tuple[float, float]:
         """Body (m/s, rad/s) -> wheels (rad/s)."""
-        half = angular_z * self.separation / 2.0
-        return (linear_x - half) / self.left_radius, (linear_x + half) / self.right_radius
+        half_separation, left_radius, right_radius = self._per_wheel
+        half = angular_z * half_separation
+        return (linear_x - half) / left_radius, (linear_x + half) / right_radius
 
     def body_twist(self, left_rad_s: float, right_rad_s: float) -> tuple[float, float]:
         """Wheels (rad/s) -> body (m/s, rad/s)."""

@@ -37,26 +37,30 @@ class AxisLimiter:
     def step(self, target: float, dt: float, emergency: bool = False) -> float:
         if dt <= 0:
             return self.velocity
-        target, _ = self.clamp_target(target)
-        rate = self._rate_limit(target, emergency)
-        wanted = (target - self.velocity) / dt
+        limits = self.limits
+        vmax = limits.max_velocity
+        target = max(-vmax, min(vmax, target))
+        velocity = self.velocity
+        rate = self._rate_limit(target, velocity, emergency)
+        wanted = (target - velocity) / dt
         accel = max(-rate, min(rate, wanted))
-        if self.limits.max_jerk > 0 and not emergency:
-            jerk_step = self.limits.max_jerk * dt
+        if limits.max_jerk > 0 and not emergency:
+            jerk_step = limits.max_jerk * dt
             accel = max(self.acceleration - jerk_step, min(self.acceleration + jerk_step, accel))
-        new = self.velocity + accel * dt
-        if (target - self.velocity) * (target - new) < 0:  # would overshoot the target
+        new = velocity + accel * dt
+        if (target - velocity) * (target - new) < 0:  # would overshoot the target
             new = target
-        self.acceleration = (new - self.velocity) / dt
+        self.acceleration = (new - velocity) / dt
         self.velocity = new
         return new
 
-    def _rate_limit(self, target: float, emergency: bool) -> float:
-        slowing = abs(target) < abs(self.velocity) or (math.copysign(1, target) != math.copysign(
-            1, self.velocity) and self.velocity != 0.0)
-        if not slowing:
-            return self.limits.max_acceleration
-        return self.limits.emergency_deceleration if emergency else self.limits.max_deceleration
+    def _rate_limit(self, target: float, velocity: float, emergency: bool) -> float:
+        """Slowing toward zero or reversing decelerates; anything else accelerates."""
+        if abs(target) < abs(velocity) or (velocity != 0.0 and math.copysign(1, target)
+                                           != math.copysign(1, velocity)):
+            return self.limits.emergency_deceleration if emergency \
+                else self.limits.max_deceleration
+        return self.limits.max_acceleration
 
     def reset(self) -> None:
         self.velocity = 0.0

@@ -31,9 +31,10 @@ from drivers import DriverError, MotorDriver
 log = logging.getLogger("arbiterd.control")
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Applied:
-    """What the event path did with one command."""
+    """What the event path did with one command (made once per command, not changed after:
+    not frozen, which would cost four times as much to make)."""
 
     accepted: bool
     source: str | None
@@ -92,6 +93,8 @@ class ControlLoop:
         self.guard_action: str | None = None
         #: times every source had to send a fresh command (fault, reconnect, stall, e-stop)
         self.invalidations = 0
+        #: ... of which because the stall supervisor had stopped the wheels
+        self.stall_invalidations = 0
         #: extra fields of /api/status supplied by other components (the simulator's truth)
         self.status_fields: HookMap[Callable[[], Any]] = HookMap()
         self.fault: str | None = None
@@ -175,7 +178,11 @@ class ControlLoop:
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
                      priority: int = 10) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
-        applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
+        refusal = self._refusal_reason()
+        if refusal:
+            applied = Applied(False, self.decision.source, self.wheels, [], None, refusal)
+        else:
+            applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
         self.bus.publish(COMMAND, CommandEvent(
             time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
             applied.accepted, applied.error or ""))
@@ -183,16 +190,14 @@ class ControlLoop:
 
     async def _apply(self, source: str, twist: Twist, t_recv: float, cmd_id: str | int | None,
                      t_sent_ms: float | None, priority: int) -> Applied:
-        refusal = self._refusal_reason()
-        if refusal:
-            return Applied(False, self.decision.source, self.wheels, [], None, refusal)
-        self._forget_after_stall(self.clock())  # older commands are stale, this one is fresh
-        self.arbiter.submit(source, twist, self.clock(), priority)
+        clock = self.clock
+        self._forget_after_stall(clock())  # older commands are stale, this one is fresh
+        self.arbiter.submit(source, twist, clock(), priority)
         for callback in self.on_command:
             callback(source)
         async with self._lock:
-            written = await self._step(self.clock())
-        t_exec = self.clock()
+            written = await self._step(clock())
+        t_exec = clock()
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)
@@ -288,27 +293,34 @@ class ControlLoop:
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
-        self.last_clamped = self._target_clamps(decision.twist)
-        target_v, _ = self.linear.clamp_target(decision.twist.linear_x)
-        target_w, _ = self.angular.clamp_target(decision.twist.angular_z)
+        linear, angular = self.linear, self.angular
+        target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
+        target_w, clamped_w = angular.clamp_target(decision.twist.angular_z)
+        self.last_clamped = self._target_clamps(clamped_v, clamped_w) \
+            if clamped_v or clamped_w else []
         brake = decision.emergency
         if self.guard is not None:
-            guarded = self.guard.limit(target_v, target_w, self.linear.velocity,
-                                       self.angular.velocity, now)
+            guarded = self.guard.limit(target_v, target_w, linear.velocity, angular.velocity,
+                                       now)
             target_v, target_w = guarded.linear, guarded.angular
             brake = brake or guarded.brake
             self.guard_action = guarded.action
-        v = self.linear.step(target_v, dt, brake)
-        w = self.angular.step(target_w, dt, brake)
+        v = linear.step(target_v, dt, brake)
+        w = angular.step(target_w, dt, brake)
         if decision.source is None and v == 0.0 and w == 0.0:
             self.arbiter.idle()
         left, right = self.geometry.wheel_speeds(v, w)
         left, right, scaled = scale_to_limit(left, right, self.driver.max_wheel_speed)
         if scaled:
             self._count_clamp("wheel_speed")
-        if self.fault:
+        if self.fault or not self.driver.is_open:
             return False
-        return await self._write(left, right)
+        try:  # _write, inlined: this runs for every command and every tick
+            self.wheels = await self.driver.set_wheel_speeds(left, right)
+        except DriverError as exc:
+            await self._on_fault(str(exc))
+            return False
+        return True
 
     async def _write(self, left: float, right: float) -> bool:
         if not self.driver.is_open:
@@ -320,11 +332,10 @@ class ControlLoop:
             return False
         return True
 
-    def _target_clamps(self, twist: Twist) -> list[str]:
+    def _target_clamps(self, linear: bool, angular: bool) -> list[str]:
         clamped = []
-        for name, limiter, value in (("linear.x", self.linear, twist.linear_x),
-                                     ("angular.z", self.angular, twist.angular_z)):
-            if limiter.clamp_target(value)[1]:
+        for name, was_clamped in (("linear.x", linear), ("angular.z", angular)):
+            if was_clamped:
                 clamped.append(name)
                 self._count_clamp(name)
         return clamped
@@ -367,6 +378,7 @@ class ControlLoop:
             return
         self.arbiter.invalidate_all()
         self.invalidations += 1
+        self.stall_invalidations += 1
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)

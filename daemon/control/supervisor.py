@@ -75,6 +75,8 @@ class StallSupervisor:
 
     def take_stop(self) -> bool:
         """True once after the wheels were zeroed behind the loop's back."""
+        if not self._latched:  # every step asks: no lock while nothing happened (a latch
+            return False       # set just after this read is taken at the next step)
         with self._lock:
             latched, self._latched = self._latched, False
         return latched

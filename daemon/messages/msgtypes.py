@@ -8,7 +8,7 @@ import math
 import re
 import time
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 from typing import Any
 
 from daemon.messages.definitions import MSG_TEXT
@@ -65,6 +65,11 @@ class MsgType:
 
     def field(self, name: str) -> Field | None:
         return next((f for f in self.fields if f.name == name), None)
+
+    @cached_property
+    def names(self) -> frozenset[str]:
+        """The field names (checked against every incoming message's keys)."""
+        return frozenset(f.name for f in self.fields)
 
 
 def normalize_type(name: Any, kind: str = "msg") -> str:
@@ -208,6 +213,7 @@ def check_scalar(base: str, value: Any, path: str) -> Any:
         raise bad.error(path) from None
 
 
+@cache
 @cache
 def _field_names(name: str) -> frozenset[str]:
     return frozenset(f.name for f in get_type(name).fields)

@@ -152,7 +152,7 @@ def encode(message: dict[str, Any]) -> str:
 
 def publish_frame(topic: str, msg_json: str) -> str:
     """``{"op":"publish","topic":T,"msg":...}`` around an already encoded message."""
-    return '{"op":"publish","topic":' + json.dumps(topic) + ',"msg":' + msg_json + "}"
+    return '{"op":"publish","topic":' + orjson.dumps(topic).decode() + ',"msg":' + msg_json + "}"
 
 
 def status_frame(level: str, message: str, rid: Id = None) -> str:

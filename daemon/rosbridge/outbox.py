@@ -296,6 +296,11 @@ class Outbox:
             queue.scheduled = True
             self._ready.append(queue)
 
+    def has_ready(self) -> bool:
+        """Whether :meth:`next_item` may have something now (cheap: no queue is touched)."""
+        return bool(self.replies or self._ready
+                    or (self._waiting and self._waiting[0][0] <= self._clock()))
+
     def next_item(self) -> tuple[Reply | None, TopicQueue | None, SharedMessage | None,
                                  float | None]:
         """(reply) or (queue, message) ready now, else the delay until one may be ready."""

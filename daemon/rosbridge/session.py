@@ -169,8 +169,11 @@ class ClientSession:
             # a break: the client sent less than its rate for a while (one frame let through
             # because a sleep overran is none, or a steady flood would never be closed)
             self._throttled_since = None
-        await self.handle_text(data, t_recv)
-        await self.writer.send_inline(self.transport)
+        self.writer.inline = True  # what the request queues is sent below, from here
+        try:
+            await self.handle_text(data, t_recv)
+        finally:
+            await self.writer.send_inline(self.transport)
         await asyncio.sleep(0)
         return True
 
@@ -303,7 +306,9 @@ class ClientSession:
             if topic.robot.access_for is not None:  # this message may need more (a release)
                 access.check(req.op, name, self.authority, topic.robot.access_for(msg))
             await self._deliver_inbound(req, topic.robot, type_name, msg)
-        self.graph.publish(topic, SharedMessage(name, msg), latch=name in self.latching)
+        latch = name in self.latching
+        if latch or topic.subscribers:  # nobody to hand it to: nothing to share
+            self.graph.publish(topic, SharedMessage(name, msg), latch=latch)
 
     def _publish_type(self, req: Request, topic: Topic, raw: Any) -> str:
         declared = topic.publishers.get(self)

@@ -37,9 +37,13 @@ class Writer:
         self._wakeup = asyncio.Event()
         self._idle = False
         self._next_delay: float | None = None
+        #: the reader is handling a request and sends what it queued itself (send_inline):
+        #: waking the writer task for it would only cost a task switch
+        self.inline = False
 
     def wake(self) -> None:
-        self._wakeup.set()
+        if not self.inline:
+            self._wakeup.set()
 
     async def run(self) -> None:
         """Send until the socket fails; sleep while nothing is ready."""
@@ -56,17 +60,20 @@ class Writer:
 
     async def send_inline(self, transport: asyncio.BaseTransport | None) -> None:
         """Answer from the reader while the writer sleeps and the socket takes data at once:
-        saves the hop to the writer task on the command -> report path."""
-        if not self._idle or self._sending.locked() or transport is None:
-            return
-        if getattr(transport, "get_write_buffer_size", lambda: 1)():
-            return
+        saves the hop to the writer task on the command -> report path. Ends :attr:`inline`:
+        the writer task is woken for whatever is left."""
+        self.inline = False
         try:
-            for _ in range(INLINE_SENDS):
-                if not await self._send_next():
-                    break
+            if self._idle and not self._sending.locked() and transport is not None \
+                    and not _buffered(transport):
+                for _ in range(INLINE_SENDS):
+                    if not self.outbox.has_ready() or not await self._send_next():
+                        break
         except (ConnectionError, RuntimeError) as exc:
             log.debug("rosbridge inline send failed: %s", exc)
+        finally:
+            if self.outbox.has_ready():
+                self._wakeup.set()
 
     async def _send_next(self) -> bool:
         """Send one queued reply or message; False when nothing is ready now."""
@@ -125,3 +132,7 @@ class Writer:
         await self.ws.send_bytes(data)
 
 
+def _buffered(transport: asyncio.BaseTransport) -> int:
+    """Bytes the transport still holds (1 when it cannot tell: then nothing is sent inline)."""
+    size = getattr(transport, "get_write_buffer_size", None)
+    return size() if size is not None else 1
