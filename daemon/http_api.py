@@ -10,12 +10,18 @@ import struct
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any, BinaryIO
 
-from aiohttp import web
+from aiohttp import HttpVersion10, web
 from aiohttp.web_urldispatcher import AbstractRoute
 
 from base.config import Config
 from daemon.component import ComponentSpec, DaemonContext, Route
-from daemon.http_conn import AcceptErrorFilter, CappedRunner, LogLimiter, bad_request_log, one_line
+from daemon.http_conn import (
+    AcceptErrorFilter,
+    CappedRunner,
+    LogLimiter,
+    bad_request_log,
+    one_line,
+)
 from daemon.http_settings import HttpSettings
 from daemon.listen import Listener, as_port_error
 from daemon.messages.convert import to_json
@@ -101,6 +107,13 @@ def _http_exception(request: web.Request, exc: web.HTTPException) -> web.Respons
     return error_response(exc.status, exc.reason, None)
 
 
+async def _answer_headers(request: web.Request, response: web.StreamResponse) -> None:
+    """Every answer: no content sniffing; API answers (and every error) are not cached."""
+    response.headers.setdefault("X-Content-Type-Options", "nosniff")
+    if request.path.startswith("/api/") or request.path == "/metrics" or response.status >= 400:
+        response.headers.setdefault("Cache-Control", "no-store")
+
+
 def _log_bad_request(request: web.Request, status: int, message: str) -> None:
     bad_request_log(logging.WARNING, "bad HTTP request from %s: %s %s -> %d %s",
                     request.remote, request.method, request.path[:100], status, message)
@@ -119,6 +132,9 @@ class Guard:
 
     @web.middleware
     async def middleware(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        if request.version < HttpVersion10:  # no headers, no Host: nothing to check
+            raise ApiError(400, "malformed HTTP request", "HTTP/0.9 is not supported: send "
+                           "HTTP/1.0 or HTTP/1.1")
         if getattr(request.protocol, "priority_only", False) and (
                 request.method, request.path) not in PRIORITY_ROUTES:
             request.protocol.force_close()
@@ -183,6 +199,9 @@ async def read_body(request: web.Request, max_bytes: int, timeout_s: float) -> b
     except TimeoutError:
         raise ApiError(408, f"body not received within {timeout_s:g} s",
                        f"got {size} bytes; [http] body_timeout_s sets the limit") from None
+    except ConnectionError:  # the client went away mid-body: one line, no traceback
+        raise ApiError(400, "body cut off", f"the client closed the connection after {size} "
+                       "bytes") from None
     except web.RequestPayloadError as exc:
         raise ApiError(400, "body cannot be read", one_line(str(exc))) from None
     return b"".join(chunks)
@@ -285,6 +304,7 @@ class HttpServer:
         self.guard = Guard(security)
         self.app = web.Application(middlewares=[_errors, self.guard.middleware],
                                    client_max_size=self.max_body_bytes)
+        self.app.on_response_prepare.append(_answer_headers)
         self._runner: CappedRunner | None = None
         self._accept_errors: AcceptErrorFilter | None = None
         self.bound_port: int | None = None

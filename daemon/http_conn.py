@@ -51,8 +51,13 @@ class LogLimiter:
 bad_request_log = LogLimiter(log, "bad-request")
 
 
+#: on every answer of the API (and its errors): no content sniffing, nothing cached
+API_HEADERS = {"X-Content-Type-Options": "nosniff", "Cache-Control": "no-store"}
+
+
 def error_body(status: int, message: str, detail: Any = None) -> web.Response:
-    return web.json_response({"error": message, "detail": detail}, status=status)
+    return web.json_response({"error": message, "detail": detail}, status=status,
+                             headers=API_HEADERS)
 
 
 class JsonRequestHandler(RequestHandler):

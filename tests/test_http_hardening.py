@@ -225,6 +225,7 @@ MALFORMED = {
     "two Host headers": f"GET /api/health HTTP/1.1\r\n{H}Host: evil.example\r\n\r\n",
     "HTTP/2 preface": "PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n",
     "TLS ClientHello": "\x16\x03\x01\x00\xa5\x01\x00\x00\xa1\x03\x03" + "\x07" * 40,
+    "HTTP/0.9 request line": "GET /api/health\r\n\r\n",  # was answered 200
 }
 
 
@@ -256,6 +257,26 @@ def test_bad_requests_are_logged_as_rate_limited_lines_without_traceback(
     assert "Traceback" not in log
     bad = [line for line in log.splitlines() if "bad HTTP request" in line]
     assert 1 <= len(bad) <= 5, bad
+
+
+def test_a_body_cut_off_by_the_client_is_one_line_without_traceback(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    proc = daemon_subprocess()
+    with connect(proc.http_port) as sock:  # 22 of the 100 bytes it announces, then gone
+        sock.sendall(request("POST", "/api/cmd_vel", proc.http_port, b'{"linear": {"x": 0.1}}',
+                             headers={"Content-Length": "100"}))
+    wait_for(lambda: "cut off" in proc.log(), "the cut-off body's log line")
+    assert exchange(proc.http_port, request("GET", "/api/health", 0)).status == 200
+    log = proc.log()
+    assert "Traceback" not in log and "ConnectionResetError" not in log, log[-2000:]
+
+
+@pytest.mark.parametrize("path", ["/api/health", "/api/nothing", "/api/cmd_vel"])
+def test_api_answers_say_nosniff_and_no_store(robot_proc: DaemonSubprocess, path: str) -> None:
+    answer = exchange(robot_proc.http_port, request("GET", path, 0))
+    assert answer.headers.get("x-content-type-options") == "nosniff", answer.headers
+    assert answer.headers.get("cache-control") == "no-store", answer.headers
+    assert answer.status in (200, 404, 405)
 
 
 def test_405_names_the_allowed_methods_and_get_answers_head(

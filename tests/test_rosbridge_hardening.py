@@ -8,6 +8,7 @@ import itertools
 import json
 import logging
 import math
+import os
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -395,6 +396,56 @@ async def test_tokenless_clients_cannot_take_over_services_or_publish(tmp_path: 
         assert bridge(robot).graph.services["/plan"].provider.authority.may_drive
         await owner.call("/rosapi/get_time", rid="after")
         assert owner.published("/chatter") == []
+
+
+def ws_frame(text: str, masked: bool) -> bytes:
+    """One final text frame as a client writes it (masked) or must not (unmasked)."""
+    payload = text.encode()
+    head = bytes([0x81])
+    mask_bit = 0x80 if masked else 0
+    if len(payload) < 126:
+        head += bytes([mask_bit | len(payload)])
+    else:
+        head += bytes([mask_bit | 126]) + len(payload).to_bytes(2, "big")
+    if not masked:
+        return head + payload
+    key = os.urandom(4)
+    return head + key + bytes(b ^ key[i % 4] for i, b in enumerate(payload))
+
+
+async def raw_session(robot: InProcessDaemon, frames: bytes) -> bytes:
+    """Upgrade on a raw socket, send ``frames`` (with the upgrade request, and again after
+    the 101), and collect what comes back until the server closes or 3 s pass."""
+    host, port = "127.0.0.1", int(robot.ws_url.rsplit(":", 1)[1].strip("/"))
+    reader, writer = await asyncio.open_connection(host, port)
+    key = base64.b64encode(os.urandom(16)).decode()
+    writer.write(f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: "
+                 f"Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
+                 .encode() + frames)
+    data = b""
+    with contextlib.suppress(TimeoutError, ConnectionError):
+        async with asyncio.timeout(3.0):
+            while chunk := await reader.read(65536):
+                data += chunk
+    writer.close()
+    return data
+
+
+async def test_unmasked_frames_from_a_client_close_the_connection(
+        robot: InProcessDaemon) -> None:
+    """RFC 6455 5.1: a server must close the connection on an unmasked client frame; aiohttp
+    accepted them, and the request in it was answered."""
+    call = json.dumps({"op": "call_service", "service": "/rosapi/get_time", "id": "t"})
+    answered = await raw_session(robot, ws_frame(call, masked=True))
+    assert b"service_response" in answered
+    for frames in (ws_frame(call, masked=False),
+                   ws_frame(call, masked=True) + ws_frame("x" * 300, masked=False)):
+        data = await raw_session(robot, frames)
+        assert b" 101 " in data.split(b"\r\n", 1)[0]
+        body = data.split(b"\r\n\r\n", 1)[1]
+        close = body.rfind(b"\x88")
+        assert close >= 0 and body[close + 2:close + 4] == (1002).to_bytes(2, "big"), body
+    assert b'"id":"t"' not in (await raw_session(robot, ws_frame(call, masked=False)))
 
 
 async def test_host_and_origin_are_checked_on_the_websocket(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ from daemon.listen import Listener, as_port_error
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
+from daemon.rosbridge.maskgate import MaskGate
 from daemon.rosbridge.outbox import SharedMessage
 from daemon.rosbridge.session import ClientSession
 from daemon.rosbridge.settings import RosbridgeSettings
@@ -148,6 +149,7 @@ class RosbridgeServer(BaseComponent):
             max_msg_size=self.limits.message_bytes(authority.may_drive))
         if not ws.can_prepare(request).ok:
             return web.Response(status=426, text="rosbridge v2: connect with a WebSocket\n")
+        _refuse_unmasked(request, ws)
         await ws.prepare(request)
         self.connections += 1
         client_id = self.connections
@@ -227,6 +229,19 @@ class RosbridgeServer(BaseComponent):
                 self.graph.fan_out(topic, SharedMessage(topic.name, message, convert))
 
         return on_message
+
+
+def _refuse_unmasked(request: web.Request, ws: web.WebSocketResponse) -> None:
+    """Put a :class:`MaskGate` in front of the frame parser aiohttp installs at the upgrade
+    (before any frame, even one sent along with the upgrade request, reaches it)."""
+    protocol: Any = request.protocol
+    install = protocol.set_parser
+
+    def set_parser(parser: Any, data_received_cb: Any = None) -> None:
+        install(MaskGate(parser, lambda exc: ws._reader.set_exception(exc)),  # type: ignore
+                data_received_cb)
+
+    protocol.set_parser = set_parser
 
 
 def listens(config: Config) -> list[Listener]:
