@@ -15,9 +15,10 @@ from tests.support.http_raw import (
     child_nofile,
     closed_by_peer,
     connect,
+    drip_is_refused,
     exchange,
-    quiet_for,
     request,
+    stalled_download,
 )
 from tests.support.rosbridge import TOKEN, WITH_TOKEN
 from tests.support.wait import wait_for
@@ -107,17 +108,10 @@ def test_slow_upgrade_headers_on_the_rosbridge_port_are_cut_off(
         assert closed_by_peer(idle, 10)
     with connect(proc.ws_port) as slow:
         slow.sendall(upgrade_request(proc.ws_port)[:30])
-        assert wait_for(lambda: _drip_is_refused(slow), "the slow client to be cut off")
+        assert wait_for(lambda: drip_is_refused(slow), "the slow client to be cut off")
     assert upgrade_status(proc.ws_port) == 101  # a prompt client still gets in
 
 
-def _drip_is_refused(sock: socket.socket) -> bool:
-    """Send one more header byte; true once the server has closed the connection."""
-    try:
-        sock.sendall(b"X")
-    except OSError:
-        return True
-    return not quiet_for(sock, 0.1) and closed_by_peer(sock, 0.1)
 
 
 # -- the HTTP port -----------------------------------------------------------------------------
@@ -125,17 +119,6 @@ def _drip_is_refused(sock: socket.socket) -> bool:
 RECORDING = "arbiterd-big.mcap"
 
 
-def stalled_download(port: int) -> socket.socket:
-    """A client (read access, no token) that asks for a 256 MB recording, reads the first
-    bytes of the answer and then nothing."""
-    sock = socket.socket()
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: a small window
-    sock.settimeout(5)
-    sock.connect((LOCAL, port))
-    sock.sendall(request("GET", f"/api/recordings/{RECORDING}", port))
-    head = sock.recv(1024)
-    assert head.startswith(b"HTTP/1.1 200"), head[:200]
-    return sock
 
 
 def test_stalled_downloads_leave_health_and_the_estop_a_way_in(
@@ -154,7 +137,7 @@ def test_stalled_downloads_leave_health_and_the_estop_a_way_in(
     try:
         for _ in range(20):
             try:
-                downloads.append(stalled_download(proc.http_port))
+                downloads.append(stalled_download(proc.http_port, RECORDING))
             except (OSError, AssertionError):
                 continue  # over the cap: refused; the point is what health sees now
         assert len(downloads) >= 16

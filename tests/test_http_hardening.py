@@ -15,6 +15,7 @@ from tests.support.http_raw import (
     child_nofile,
     closed_by_peer,
     connect,
+    drip_is_refused,
     exchange,
     quiet_for,
     read_answer,
@@ -302,19 +303,12 @@ def test_idle_and_slow_header_connections_are_closed(
         assert closed_by_peer(idle, 10)
     with connect(proc.http_port) as slow:
         slow.sendall(b"GET /api/health HTTP/1.1\r\n")
-        closed = wait_for(lambda: _drip_is_refused(slow), "the slow client to be cut off")
+        closed = wait_for(lambda: drip_is_refused(slow), "the slow client to be cut off")
         assert closed
     answer = exchange(proc.http_port, b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
     assert answer.status == 200  # keep-alive answered; the next idle period closes it too
 
 
-def _drip_is_refused(sock: socket.socket) -> bool:
-    """Send one more header byte; true once the server has closed the connection."""
-    try:
-        sock.sendall(b"X")
-    except OSError:
-        return True
-    return not quiet_for(sock, 0.1) and closed_by_peer(sock, 0.1)
 
 
 def test_1100_idle_connections_do_not_take_the_descriptors(

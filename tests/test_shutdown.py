@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import signal
-import socket
 import subprocess
 import time
 from collections.abc import AsyncIterator
@@ -22,7 +21,7 @@ from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.deploy import SYSTEMD_DIR, unit_values
-from tests.support.http_raw import LOCAL, request
+from tests.support.http_raw import LOCAL, stalled_download
 from tests.support.in_process_daemon import in_process_daemon
 from tests.support.rosbridge import TOKEN, WITH_TOKEN, Client, connect
 from tests.support.wait import eventually
@@ -37,17 +36,6 @@ def stop_timeout_s() -> float:
     return float(values[-1])
 
 
-def stalled_download(port: int) -> socket.socket:
-    """A tokenless client that asks for a (sparse, 256 MB) recording, reads the answer's
-    first bytes, and never reads again: the server's handler stays blocked on the socket."""
-    sock = socket.socket()
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: a small window
-    sock.settimeout(5)
-    sock.connect((LOCAL, port))
-    sock.sendall(request("GET", f"/api/recordings/{RECORDING}", port))
-    head = sock.recv(1024)
-    assert head.startswith(b"HTTP/1.1 200"), head[:200]
-    return sock
 
 
 async def refused(client: Client, topic: str, msg: dict[str, object]) -> str | None:
@@ -73,7 +61,7 @@ async def test_sigterm_with_a_stalled_download_exits_in_time_and_nothing_moves(
     proc = DaemonSubprocess(tmp_path, WITH_TOKEN + f'[record]\ndirectory = "{recordings}"\n')
     with proc:
         assert proc.proc is not None
-        downloader = stalled_download(proc.http_port)
+        downloader = stalled_download(proc.http_port, RECORDING)
         url = f"ws://{LOCAL}:{proc.ws_port}/?token={TOKEN}"
         async with connect(url) as client:
             await client.send(op="advertise", topic="/estop", type="std_msgs/msg/Bool")

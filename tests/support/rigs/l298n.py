@@ -25,9 +25,11 @@ class MockPinBridge:
 
     def __init__(self, factory: Any, wiring: Wiring, motors: MotorPair,
                  poll_s: float = 0.002) -> None:
-        self.factory, self.wiring, self.motors, self.poll_s = factory, wiring, motors, poll_s
+        assert wiring.left is not None and wiring.right is not None, "an L298N on both sides"
+        self.factory, self.motors, self.poll_s = factory, motors, poll_s
+        self.wiring, self.left, self.right = wiring, wiring.left, wiring.right
         self._counts = list(motors.counts())
-        for side in (wiring.left, wiring.right):  # create every pin up front, in this thread
+        for side in (self.left, self.right):  # create every pin up front, in this thread
             for gpio in side.pins():
                 factory.pin(gpio)
         for _, pins in wiring.encoders():
@@ -40,7 +42,7 @@ class MockPinBridge:
         return float(self.factory.pin(gpio).state)
 
     def duties(self) -> tuple[float, float]:
-        return self.wiring.left.duty(self.level), self.wiring.right.duty(self.level)
+        return self.left.duty(self.level), self.right.duty(self.level)
 
     def start(self) -> MockPinBridge:
         self._thread.start()
