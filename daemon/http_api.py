@@ -23,7 +23,7 @@ from daemon.http_conn import (
     one_line,
 )
 from daemon.http_settings import HttpSettings
-from daemon.listen import Listener, as_port_error
+from daemon.listen import Listener, start_listening
 from daemon.messages.convert import to_json
 from daemon.security import Security
 from daemon.topics import ACCESS_LEVELS, Access, Topic
@@ -369,15 +369,8 @@ class HttpServer:
                                     reserved=self.reserved_connections, access_log=None,
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s,
                                     shutdown_timeout=SHUTDOWN_GRACE_S)
-        await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
-        try:
-            await site.start()
-        except OSError as exc:
-            raise as_port_error(Listener("http", self.host, self.port), exc) from exc
-        server = getattr(site, "_server", None)
-        sockets = getattr(server, "sockets", None) or []
-        self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
+        self.bound_port = await start_listening(self._runner,
+                                                 Listener("http", self.host, self.port))
         log.info("HTTP API on http://%s:%s", self.host, self.bound_port)
 
     async def stop(self) -> None:

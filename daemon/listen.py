@@ -7,6 +7,8 @@ import socket
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from aiohttp import web
+
 from base.ports import listeners
 
 #: `arbiterd run` exits with this when a port it must listen on is taken (sysexits EX_TEMPFAIL:
@@ -59,6 +61,22 @@ def in_use_message(taken: Sequence[Listener]) -> str:
 def as_port_error(listener: Listener, exc: OSError) -> OSError:
     """``exc`` from binding ``listener``, as :class:`PortInUse` when the port is taken."""
     return PortInUse([listener]) if exc.errno == errno.EADDRINUSE else exc
+
+
+async def start_listening(runner: web.AppRunner, listener: Listener) -> int:
+    """Set ``runner`` up and listen at the listener's address; the port it bound. A taken port
+    is a :class:`PortInUse` naming it (the runner cleaned up)."""
+    await runner.setup()
+    site = web.TCPSite(runner, listener.host, listener.port, reuse_address=True)
+    try:
+        await site.start()
+    except OSError as exc:
+        await runner.cleanup()
+        raise as_port_error(listener, exc) from exc
+    server = getattr(site, "_server", None)
+    sockets = getattr(server, "sockets", None) or []
+    port: int = sockets[0].getsockname()[1] if sockets else listener.port
+    return port
 
 
 def taken(all_listeners: Iterable[Listener]) -> PortInUse | None:

@@ -13,7 +13,7 @@ from aiohttp import WSCloseCode, web
 from base.config import Config
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
 from daemon.http_conn import CappedRunner
-from daemon.listen import Listener, as_port_error
+from daemon.listen import Listener, start_listening
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.graph import BridgeGraph, Topic
 from daemon.rosbridge.limits import Limits, Pacer, RateLimitedLog
@@ -84,17 +84,12 @@ class RosbridgeServer(BaseComponent):
                                     handle_signals=False,
                                     keepalive_timeout=self.handshake_timeout_s,
                                     shutdown_timeout=SHUTDOWN_GRACE_S)
-        await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         try:
-            await site.start()
-        except OSError as exc:
-            await self._runner.cleanup()
+            self.bound_port = await start_listening(
+                self._runner, Listener("rosbridge", self.host, self.port))
+        except OSError:
             self._runner = None
-            raise as_port_error(Listener("rosbridge", self.host, self.port), exc) from exc
-        server = getattr(site, "_server", None)
-        sockets = getattr(server, "sockets", None) or []
-        self.bound_port = sockets[0].getsockname()[1] if sockets else self.port
+            raise
         self._wire_bus()
         if self.idle_timeout > 0:
             self._sweeper = asyncio.create_task(self._close_idle_forever(),
