@@ -233,7 +233,7 @@ async def _tick_windows(daemon: Daemon, bridge_url: str, windows: int,
 
 
 async def _run(quick: bool) -> list[BenchResult]:
-    count, windows, window_s = (300, 4, 1.5) if quick else (2000, 6, 5.0)
+    count, windows, window_s = (300, 6, 1.0) if quick else (2000, 20, 1.5)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         async with echo_server() as echo_url, \
                 bench_daemon(Path(tmp), serve_scan=True) as (daemon, bridge_url):
