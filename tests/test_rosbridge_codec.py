@@ -29,6 +29,7 @@ from daemon.rosbridge.codec import (
 from daemon.rosbridge.limits import RateLimitedLog, TokenBucket
 from daemon.rosbridge.outbox import EVENT_QUEUE, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.telemetry import OdomSample
+from sensors.scan import LaserScan
 from tests.support.rosbridge import FakeScan
 
 
@@ -365,3 +366,13 @@ def test_rate_limited_log_counts_what_it_leaves_out(caplog: pytest.LogCaptureFix
         line(logging.INFO, "bad 5")
     assert [r.getMessage() for r in caplog.records] == [
         "bad 0", "bad 5 (4 more like it in the last 11 s)"]
+
+
+def test_a_scan_is_the_same_json_text_through_the_fast_conversion() -> None:
+    """The JSON path converts scans to numpy arrays for orjson; the text is scan_msg's."""
+    ranges = np.array([1.23456, np.inf, 0.2, np.nan, 12.0], dtype=np.float32)
+    scan = LaserScan(1700000000.25, "laser", -math.pi, math.pi, 2 * math.pi / 5, 0.0, 0.1,
+                     0.15, 12.0, ranges, np.array([47.0, 0.0, 3.5, 1.0, 2.0], dtype=np.float32))
+    assert SharedMessage("/scan", scan, scan_msg).msg_json() == encode(scan_msg(scan))
+    assert '"ranges":[1.2346,null,0.2,null,12.0]' in SharedMessage("/scan", scan,
+                                                                  scan_msg).msg_json()

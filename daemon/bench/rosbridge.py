@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import json
 import math
 import sys
@@ -198,10 +199,11 @@ def _synthetic_scan() -> Any:
 
 
 async def _publish_scans(daemon: Daemon, stop: asyncio.Event) -> None:
+    """A 10 Hz lidar: a revolution on the bus every 0.1 s, made beforehand (the lidar component
+    converts its revolutions in its reader thread; the loop only publishes them)."""
+    scan = _synthetic_scan()
     while not stop.is_set():
-        scan = _synthetic_scan()
-        scan.stamp = time.time()
-        daemon.bus.publish(SCAN, scan)
+        daemon.bus.publish(SCAN, dataclasses.replace(scan, stamp=time.time()))
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(stop.wait(), 0.1)
 
@@ -233,7 +235,7 @@ async def _tick_windows(daemon: Daemon, bridge_url: str, windows: int,
 
 
 async def _run(quick: bool) -> list[BenchResult]:
-    count, windows, window_s = (300, 4, 1.5) if quick else (2000, 6, 5.0)
+    count, windows, window_s = (300, 6, 1.0) if quick else (2000, 20, 1.5)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         async with echo_server() as echo_url, \
                 bench_daemon(Path(tmp), serve_scan=True) as (daemon, bridge_url):

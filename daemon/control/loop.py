@@ -18,7 +18,7 @@ from daemon.control.commands import Twist
 from daemon.control.guard import MotionGuard
 from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
-from daemon.control.metronome import Metronome
+from daemon.control.metronome import Metronome, TimerMetronome, metronome
 from daemon.control.odometry import Odometry, Pose2D
 from daemon.control.supervisor import StallSupervisor
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
@@ -110,7 +110,7 @@ class ControlLoop:
         self._last_step = clock()
         self._tick_task: asyncio.Task[None] | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
-        self._metronome: Metronome | None = None
+        self._metronome: Metronome | TimerMetronome | None = None
         #: zeroes the wheels from its own thread when the tick stops (the loop is blocked)
         self.supervisor = StallSupervisor(driver, self._stall_stop_s(control.stall_stop_s))
         self._ticks = 0
@@ -144,7 +144,7 @@ class ControlLoop:
         self._last_step = self.clock()
         if not realtime:
             return
-        self._metronome = Metronome(asyncio.get_running_loop(), self.period_s)
+        self._metronome = metronome(asyncio.get_running_loop(), self.period_s)
         self._metronome.start()
         self._tick_task = asyncio.create_task(self._tick_forever(), name="control-tick")
         self.supervisor.start()

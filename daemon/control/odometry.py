@@ -58,11 +58,12 @@ class Odometry:
         if self._last_wheels is None or self._last_t is None:
             self._last_wheels, self._last_t = (left_rad, right_rad), t
             return
-        dl = (left_rad - self._last_wheels[0]) * self.geometry.left_radius
-        dr = (right_rad - self._last_wheels[1]) * self.geometry.right_radius
+        geometry = self.geometry
+        dl = (left_rad - self._last_wheels[0]) * geometry.left_radius
+        dr = (right_rad - self._last_wheels[1]) * geometry.right_radius
         dt = t - self._last_t
         self._last_wheels, self._last_t = (left_rad, right_rad), t
-        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / self.geometry.separation
+        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / geometry.separation
         self._integrate(ds, dtheta)
         if dt > 0:
             self.linear, self.angular = ds / dt, dtheta / dt

@@ -43,10 +43,12 @@ class WheelGuard:
         self.trips = 0
         self._readings: deque[EncoderReading] = deque()
         self._since: list[float | None] = [None, None]
-        self._commands: deque[tuple[float, tuple[float, float]]] = deque()
         self._quiet_until = -float("inf")
         #: times the guard started afresh after the wheels were stopped behind its back
         self.restarts = 0
+        #: the wheel speeds written during the last lag_s: times, and each wheel's speeds
+        self._times: deque[float] = deque()
+        self._wheels: tuple[deque[float], deque[float]] = (deque(), deque())
 
     def update(self, reading: EncoderReading | None, commanded: tuple[float, float],
                now: float) -> str | None:
@@ -84,14 +86,19 @@ class WheelGuard:
                              (reading.right_rad - first.right_rad) / span)
 
     def _remember(self, commanded: tuple[float, float], now: float) -> None:
-        self._commands.append((now, commanded))
-        while now - self._commands[0][0] > self.settings.lag_s:
-            self._commands.popleft()
+        times, (left, right) = self._times, self._wheels
+        times.append(now)
+        left.append(commanded[0])
+        right.append(commanded[1])
+        while now - times[0] > self.settings.lag_s:
+            times.popleft()
+            left.popleft()
+            right.popleft()
 
     def _check(self, index: int, side: str, commanded: float, now: float) -> str | None:
         assert self.measured is not None
         measured = self.measured[index]
-        recent = [wheels[index] for _, wheels in self._commands]
+        recent = self._wheels[index]
         low, high = min(recent), max(recent)
         margin = self.settings.tolerance * max(abs(low), abs(high)) + self.settings.min_rad_s
         if low - margin <= measured <= high + margin:
@@ -109,7 +116,9 @@ class WheelGuard:
         self._readings.clear()
         self.measured = None
         self._since = [None, None]
-        self._commands.clear()
+        self._times.clear()
+        for wheel in self._wheels:
+            wheel.clear()
 
     def restart(self, now: float) -> None:
         """The wheels were zeroed behind the loop's back (the stall supervisor's stop): the

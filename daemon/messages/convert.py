@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -90,6 +91,31 @@ def scan_msg(scan: ScanLike) -> dict[str, Any]:
         "ranges": float_list(scan.ranges, RANGE_DECIMALS),
         "intensities": float_list(getattr(scan, "intensities", None)),
     }
+
+
+def scan_json_msg(scan: ScanLike) -> dict[str, Any]:
+    """:func:`scan_msg` for a JSON encoder only: ranges and intensities stay float64 numpy
+    arrays, which orjson writes straight from their buffers (non-finite as null): the same
+    text, ~2.5x faster than lists of Python floats, and this runs on the event loop once per
+    revolution while JSON clients subscribe to /scan."""
+    return {
+        "header": header(float(scan.stamp), getattr(scan, "frame_id", "laser")),
+        **{key: float(getattr(scan, key)) for key in (
+            "angle_min", "angle_max", "angle_increment", "time_increment", "scan_time",
+            "range_min", "range_max")},
+        "ranges": np.ascontiguousarray(np.round(_float64(scan.ranges), RANGE_DECIMALS)),
+        "intensities": np.ascontiguousarray(_float64(getattr(scan, "intensities", None))),
+    }
+
+
+def _float64(values: Any) -> np.ndarray:
+    return np.asarray(values if values is not None else [], dtype=np.float64).ravel()
+
+
+#: conversions whose result only goes to a JSON encoder, by the topic's own conversion
+JSON_CONVERT: dict[Callable[[Any], dict[str, Any]], Callable[[Any], dict[str, Any]]] = {
+    scan_msg: scan_json_msg,
+}
 
 
 def json_string_msg(payload: Any) -> dict[str, Any]:

@@ -134,7 +134,9 @@ class FlightRecorder:
         self.channels = list(channels)
         self.metadata = metadata
         self.on_open = on_open
-        self.wanted = False
+        #: set when recording is wanted or the writer stops: an idle writer sleeps until then
+        self._nudge = threading.Event()
+        self._wanted = False
         self.dropped = 0
         self.lost = 0
         self.written = 0
@@ -158,9 +160,20 @@ class FlightRecorder:
 
     # -- any thread -----------------------------------------------------------------------------
 
+    @property
+    def wanted(self) -> bool:
+        """Whether the recorder should record (the thread opens or closes its file)."""
+        return self._wanted
+
+    @wanted.setter
+    def wanted(self, wanted: bool) -> None:
+        self._wanted = wanted
+        if wanted:
+            self._nudge.set()
+
     def enqueue(self, channels: tuple[Channel, ...], source: Any) -> None:
         """Hot path: stamp and queue; never blocks, never does I/O."""
-        if not self.wanted:
+        if not self._wanted:
             return
         if len(self._queue) >= self.options.queue_size:
             self.dropped += 1
@@ -173,6 +186,7 @@ class FlightRecorder:
     def stop(self, timeout: float = 10.0) -> None:
         """Drain the queue, close the file with its summary, end the thread."""
         self._stop.set()
+        self._nudge.set()
         if self._thread.is_alive():
             self._thread.join(timeout)
 
@@ -194,7 +208,11 @@ class FlightRecorder:
     def _run(self) -> None:
         poll = min(0.1, self.options.flush_interval_s / 2)
         while True:
-            stopping = self._stop.wait(poll)
+            idle = not self._wanted and self._file is None and not self._queue
+            if idle:  # nothing to write or close: sleep until wanted (no polling while off)
+                self._nudge.wait()
+                self._nudge.clear()
+            stopping = self._stop.wait(0 if idle else poll)
             try:
                 self._cycle(time.monotonic(), stopping)
             except Exception as exc:  # never let the thread die silently

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from daemon.messages import cbor, cdr, scans
+from daemon.messages.convert import JSON_CONVERT
 from daemon.rosbridge import binary
 from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
@@ -38,7 +39,8 @@ class SharedMessage:
 
     def msg_json(self) -> str:
         if self._msg_json is None:
-            msg = self._convert(self._source) if self._convert else self._source
+            convert = self._convert  # for JSON, a faster conversion when there is one (scans)
+            msg = self._source if convert is None else convert_for_json(convert)(self._source)
             self._msg_json = encode(msg)
         return self._msg_json
 
@@ -330,3 +332,8 @@ class Outbox:
     @property
     def dropped(self) -> int:
         return self.replies_dropped + sum(q.dropped for q in self.topics.values())
+
+
+def convert_for_json(convert: Callable[[Any], dict[str, Any]]) -> Callable[[Any], dict[str, Any]]:
+    """The conversion to use when the message only becomes JSON text."""
+    return JSON_CONVERT.get(convert, convert)
