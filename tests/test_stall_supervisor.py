@@ -231,7 +231,8 @@ def stall_while_driving(daemon: DaemonSubprocess, record: Callable[[], Record],
     assert "control tick stalled" in daemon.log()
 
     fresh = time.monotonic()
-    assert daemon.post("/api/cmd_vel", {"linear": {"x": 0.3}})[0] == 200
+    status, body = daemon.post("/api/cmd_vel", {"linear": {"x": 0.3}})
+    assert status == 200, (body, daemon.get("/api/health")[1]["components"]["control"])
     wait_for(lambda: any(t > fresh and min(v) > 0.5 for t, v in record()),
              "a fresh command to drive again")
     return asked, zero_at
