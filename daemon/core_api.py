@@ -107,6 +107,8 @@ class LogRelay(logging.Handler):
         self._publishing = False
 
     def emit(self, record: logging.LogRecord) -> None:
+        if not self.bus.subscribers(LOG_RECORD):
+            return  # nobody records or serves /rosout: no copy, no hand-over
         try:
             copy = logging.makeLogRecord(record.__dict__)
             copy.msg, copy.args = record.getMessage(), None  # later changes to args don't count
