@@ -14,7 +14,7 @@ from daemon.component import Component, DaemonContext, Plugs, worst
 from daemon.components import COMPONENTS
 from daemon.config import build_driver
 from daemon.control.loop import ControlLoop
-from daemon.heap import freeze_startup_heap, thaw
+from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.http_api import HttpServer
 from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
@@ -181,6 +181,7 @@ class Daemon:
         self.ctx = self._build()
         log.info("arbiterd %s starting: mode %s, driver %s, config %s", __version__, self.mode,
                  self.driver_name, self.config.source)
+        collect_before_start()
         for component in self.components:
             try:
                 await component.start()

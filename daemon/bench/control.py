@@ -9,7 +9,7 @@ from daemon.bus import Bus
 from daemon.config import build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
-from daemon.heap import freeze_startup_heap, thaw
+from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 
 SUITE = "control"
@@ -24,6 +24,7 @@ async def _run(quick: bool) -> list[BenchResult]:
     config.update("driver", {"type": "mock"})
     latency = LatencyTracker(window=100000)
     loop = ControlLoop(config, build_driver(config, "mock"), Bus(), latency)
+    collect_before_start()
     await loop.start()
     freeze_startup_heap()  # as the daemon does once it has started
     try:

@@ -15,7 +15,7 @@ from daemon.component import Plugs
 from daemon.config import Config, build_driver, load_config
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
-from daemon.heap import freeze_startup_heap, thaw
+from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 from daemon.lockstep.runner import Lockstep
 from daemon.safety.component import SafetyComponent, monitor_settings
@@ -153,6 +153,7 @@ async def _latency_p99(count: int, *, monitor: bool) -> float:
     loop = ControlLoop(config, build_driver(config, "mock"), bus, latency)
     if monitor:
         SafetyComponent(config, Plugs(loop, bus), latency.metrics.registry)
+    collect_before_start()
     await loop.start()
     freeze_startup_heap()  # as the daemon does once it has started
     feeder = asyncio.create_task(_feed_scans(bus))

@@ -63,19 +63,24 @@ def _arc(v: Array, w: Array, px: Array, py: Array, discs: Array) -> Array:
     """Rotation about each turning centre (0, v/w): the time (= travel, the path's speed is
     one unit) until first contact, ``(K, D, N)``."""
     icr = (v / w)[:, None, None]
-    ux, uy = discs[None, :, 0:1], discs[None, :, 1:2] - icr
-    r2 = (discs[:, 2:3] ** 2)[None]
+    cx, cy, r = discs[None, :, 0:1], discs[None, :, 1:2], discs[None, :, 2:3]
+    ux, uy = cx, cy - icr
     qx, qy = px[None, None, :], py[None, None, :] - icr
-    u2, q2 = ux * ux + uy * uy, qx * qx + qy * qy
+    u, q = np.hypot(ux, uy), np.hypot(qx, qy)
     with np.errstate(divide="ignore", invalid="ignore"):
-        cos_window = (u2 + q2 - r2) / (2.0 * np.sqrt(u2 * q2))
+        # |u| - |q| without subtracting two radii that may be ~1/w (a near-straight arc)
+        gap = ((ux - qx) * (ux + qx) + (cy - py[None, None, :]) * (uy + qy)) / (u + q)
+        # the half-window of rotation angles in which the point is inside the disc, from
+        # 1 - cos(half) = (r^2 - gap^2) / (2 |u| |q|): the law of cosines, cancellation-free
+        reach = r * r - gap * gap
+        half = 2.0 * np.arcsin(np.minimum(np.sqrt(np.maximum(reach, 0.0) / (4.0 * u * q)),
+                                          1.0))
         # angle from the disc centre to the point about the turning centre, in the turn's
         # sense
         alpha = np.arctan2(ux * qy - uy * qx, ux * qx + uy * qy)
         alpha *= np.sign(w)[:, None, None]
-        half = np.arccos(np.clip(cos_window, -1.0, 1.0))
         angle = np.mod(alpha - half, TWO_PI)
         angle[(alpha > 0) & (alpha < half)] = 0.0  # inside and closing in
-        angle[~(cos_window <= 1.0)] = np.inf  # out of reach, or centred on the turning centre
+        angle[~(reach > 0) | ~(u * q > 0)] = np.inf  # out of reach, or on the turning centre
         angle /= np.abs(w)[:, None, None]
     return angle
