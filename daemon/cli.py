@@ -418,6 +418,31 @@ def cmd_record(args: argparse.Namespace) -> int:
     return record_cli.run(args, directory or Path("."))
 
 
+def cmd_map(args: argparse.Namespace) -> int:
+    from daemon.mapping import cli as map_cli
+    from daemon.mapping.settings import MappingSettings
+    from daemon.paths import listing_directory as state_listing
+
+    if args.map_command == "save":
+        try:
+            base, token = _status_url(args)
+        except ConfigError as exc:
+            return _report_config_error(exc, args)
+        except ValueError as exc:
+            print(f"arbiterd map save: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        return map_cli.run_save(args.name, base, token)
+    try:
+        config = _load(args)
+    except ConfigError as exc:
+        return _report_config_error(exc, args)
+    settings = config.get(MappingSettings)
+    directory = Path(args.dir) if args.dir else state_listing(settings.directory, "maps")
+    if args.map_command == "list":
+        return map_cli.run_list(directory, args.json)
+    return map_cli.run_build(args, settings, directory)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="arbiterd", description="ArbiterROS on-robot daemon")
     parser.add_argument("--version", action="version", version=f"arbiterd {__version__}")
@@ -473,7 +498,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate(sub)
     _add_lidar(sub)
     record_cli.add_parser(sub).set_defaults(func=cmd_record)
+    _add_map(sub)
     return parser
+
+
+def _add_map(sub: Any) -> None:
+    from daemon.mapping import cli as map_cli
+
+    map_cli.add_parser(sub).set_defaults(func=cmd_map)
 
 
 def _add_simulate(sub: Any) -> None:

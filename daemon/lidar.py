@@ -4,6 +4,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,9 +13,10 @@ from aiohttp import web
 
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.http_api import ApiError
-from daemon.messages.convert import scan_msg
-from daemon.messages.definitions import LASER_SCAN
-from daemon.telemetry import SCAN
+from daemon.messages.convert import scan_msg, tf_msg
+from daemon.messages.definitions import LASER_SCAN, TF_MESSAGE
+from daemon.settings import RobotSettings
+from daemon.telemetry import SCAN, STATIC_TRANSFORMS, Transform
 from daemon.topics import Topic, TopicOut
 from sensors.rplidar.assembler import Revolution, ScanGeometry, to_laser_scan
 from sensors.rplidar.client import open_serial
@@ -39,16 +42,24 @@ class LidarComponent(BaseComponent):
     core = False
 
     def __init__(self, bus: Any, options: LidarSettings,
-                 open_port: OpenPort = open_serial) -> None:
+                 open_port: OpenPort = open_serial, base_frame_id: str = "base_link") -> None:
         self.bus = bus
         self.options = options
+        self.base_frame_id = base_frame_id
         self.manager = LidarManager(manager_config(options), self._on_revolution, open_port)
         self.latest: LaserScan | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
+        self.bus.publish(STATIC_TRANSFORMS, (self.mount(),))
         self.manager.start()
+
+    def mount(self) -> Transform:
+        """Where the lidar sits on the robot: ``base_link -> laser`` for /tf_static."""
+        o = self.options
+        return Transform(time.time(), self.base_frame_id, o.frame_id, o.mount_x, o.mount_y,
+                         math.radians(o.mount_yaw_deg))
 
     async def stop(self) -> None:
         await asyncio.to_thread(self.manager.stop)
@@ -60,7 +71,9 @@ class LidarComponent(BaseComponent):
         return (Route("GET", "/api/scan", self.get_scan, "read"),)
 
     def topics(self) -> Sequence[Topic]:
-        return (TopicOut("/scan", LASER_SCAN, SCAN, scan_msg, "per revolution"),)
+        return (TopicOut("/scan", LASER_SCAN, SCAN, scan_msg, "per revolution"),
+                TopicOut("/tf_static", TF_MESSAGE, STATIC_TRANSFORMS, tf_msg, "once",
+                         latched=True))
 
     def info(self) -> dict[str, Any]:
         s = self.manager.state
@@ -99,7 +112,8 @@ def create(ctx: DaemonContext) -> LidarComponent | None:
     options = ctx.settings(LidarSettings)
     if not options.enabled:
         return None
-    component = LidarComponent(ctx.bus, options)
+    component = LidarComponent(ctx.bus, options,
+                               base_frame_id=ctx.settings(RobotSettings).base_frame_id)
     ctx.add_robot_info("lidar", component.info)
     return component
 

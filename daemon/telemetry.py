@@ -66,6 +66,24 @@ class CommandEvent:
     error: str = ""
 
 
+@dataclass(frozen=True, slots=True)
+class Transform:
+    """One planar transform for /tf: where ``child`` is in ``parent`` at ``stamp`` (wall
+    clock, s)."""
+
+    stamp: float
+    parent: str
+    child: str
+    x: float
+    y: float
+    theta: float
+
+    @classmethod
+    def of_odometry(cls, sample: OdomSample) -> Transform:
+        return cls(sample.stamp, sample.frame_id, sample.child_frame_id, sample.x, sample.y,
+                   sample.theta)
+
+
 # -- the keys every part of the daemon shares (a component's own state keys live with it) ------
 
 #: odometry from the control tick, at ``[control] publish_rate``
@@ -74,6 +92,10 @@ ODOM: BusKey[OdomSample] = BusKey("odom")
 COMMAND: BusKey[CommandEvent] = BusKey("command")
 #: one per stamped command, after the driver write
 LATENCY_REPORT: BusKey[LatencyReport] = BusKey("latency_report")
+#: transforms for /tf, each batch from one publisher (odom -> base_link, map -> odom)
+TRANSFORMS: BusKey[tuple[Transform, ...]] = BusKey("transforms")
+#: fixed transforms for /tf_static (the lidar's mount), latest batch per publisher
+STATIC_TRANSFORMS: BusKey[tuple[Transform, ...]] = BusKey("static_transforms")
 #: one whole lidar revolution (the lidar component, or the lockstep simulator)
 SCAN: BusKey[LaserScan] = BusKey("scan")
 #: ``/api/health``'s body, once a second

@@ -25,14 +25,20 @@ from daemon.recorder.paths import default_directory
 from daemon.recorder.writer import FlightRecorder, WriterOptions, recordings
 from daemon.telemetry import ODOM as ODOM_KEY
 from daemon.telemetry import SCAN as SCAN_KEY
-from daemon.telemetry import OdomSample
+from daemon.telemetry import OdomSample, Transform
 from daemon.topics import TopicOut
 from sensors.scan import LaserScan
 from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
+
+def odometry_tf(sample: OdomSample) -> dict[str, Any]:
+    """/tf from the odometry sample itself: one bus message, two channels."""
+    return tf_msg((Transform.of_odometry(sample),))
+
+
 CHANNELS = channels_by_bus([TopicOut("/odom", ODOMETRY, ODOM_KEY, odometry_msg, "20 Hz"),
-                            TopicOut("/tf", TF_MESSAGE, ODOM_KEY, tf_msg, "20 Hz"),
+                            TopicOut("/tf", TF_MESSAGE, ODOM_KEY, odometry_tf, "20 Hz"),
                             TopicOut("/scan", LASER_SCAN, SCAN_KEY, scan_msg, "10 Hz")])
 ODOM = tuple(CHANNELS["odom"])
 SCAN = tuple(CHANNELS["scan"])

@@ -20,7 +20,7 @@ from daemon.messages.definitions import LASER_SCAN, LOG, ODOMETRY, TF_MESSAGE
 from daemon.messages.msgtypes import default_message, full_text, known_types
 from daemon.rosbridge import binary
 from daemon.rosbridge.outbox import SharedMessage, SubscribeOptions, TopicQueue
-from daemon.telemetry import OdomSample
+from daemon.telemetry import OdomSample, Transform
 from sensors.scan import LaserScan
 from tests.support.compare import close_to
 
@@ -82,7 +82,8 @@ def test_odometry_round_trips_with_its_covariances() -> None:
 
 
 def test_tf_message_round_trips() -> None:
-    decoded = decode(TF_MESSAGE, cdr.encode(TF_MESSAGE, tf_msg(odom_sample())))
+    message = tf_msg((Transform.of_odometry(odom_sample()),))
+    decoded = decode(TF_MESSAGE, cdr.encode(TF_MESSAGE, message))
     (transform,) = decoded.transforms
     assert transform.child_frame_id == "base_link"
     assert transform.transform.translation.x == 1.25

@@ -8,7 +8,7 @@ from typing import Any
 import orjson
 from aiohttp import web
 
-from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.control.commands import (
     STAMP_FIELDS,
     CommandError,
@@ -34,7 +34,7 @@ from daemon.messages.definitions import (
 from daemon.security import Security, hide_paths
 from daemon.settings import ControlSettings
 from daemon.telemetry import COMMAND as COMMAND_KEY
-from daemon.telemetry import LATENCY_REPORT, ODOM
+from daemon.telemetry import LATENCY_REPORT, ODOM, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 
 
@@ -47,7 +47,7 @@ class ControlComponent(BaseComponent):
     core = True
 
     def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings,
-                 security: Security | None = None) -> None:
+                 security: Security | None = None, plugs: Plugs | None = None) -> None:
         self.control = control
         self.settings = settings
         self.security = security or Security("")
@@ -55,6 +55,10 @@ class ControlComponent(BaseComponent):
         self.read_json_body = http.read_json_body
         self.authorize = http.guard.authorize
         self.latches = LatchLimit()
+        if settings.enable_odom_tf and plugs is not None:
+            bus = plugs.bus
+            plugs.subscribe(ODOM, lambda sample: bus.publish(
+                TRANSFORMS, (Transform.of_odometry(sample),)))
 
     async def start(self) -> None:
         await self.control.start()
@@ -86,9 +90,10 @@ class ControlComponent(BaseComponent):
                      state=False),
             TopicOut("/commands", COMMAND, COMMAND_KEY, command_msg, "per command",
                      bridge=False, state=False),
+            # odom -> base_link at the odometry rate ([control] enable_odom_tf), and what other
+            # components add (the mapper's map -> odom)
+            TopicOut("/tf", TF_MESSAGE, TRANSFORMS, tf_msg, "20 Hz", state=False),
         ]
-        if self.settings.enable_odom_tf:
-            topics.append(TopicOut("/tf", TF_MESSAGE, ODOM, tf_msg, "20 Hz"))
         return topics
 
     # -- topics ------------------------------------------------------------------------------
@@ -222,7 +227,8 @@ class ControlComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> ControlComponent:
-    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings), ctx.security)
+    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings), ctx.security,
+                            ctx.plugs)
 
 
 COMPONENT = ComponentSpec("control", create, ControlSettings)

@@ -31,6 +31,11 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--csv", help="stream the run metrics to this CSV file")
     p.add_argument("--config", help="take [robot], [limits], [control], [collision_monitor], "
                    "[autonomy] and [sim] from this config file (default: built-in defaults)")
+    p.add_argument("--mapping", action="store_true", help="run the mapper on the simulated "
+                   "lidar and report its pose error and map quality against the true world, "
+                   "beside odometry alone")
+    p.add_argument("--map-out", metavar="PATH", help="with --mapping: save the map as "
+                   "PATH.yaml + PATH.pgm")
     p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
                    "change to stderr")
     return p
@@ -48,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     try:
         config = _config(args)
-        runner = Lockstep(config, script=script, autonomy=args.autonomy)
+        runner = Lockstep(config, script=script, autonomy=args.autonomy,
+                          mapping=args.mapping, map_out=args.map_out)
     except ConfigError as exc:
         for problem in exc.problems:
             print(f"arbiterd simulate: {problem}", file=sys.stderr)
@@ -93,8 +99,25 @@ def format_report(r: dict[str, Any]) -> str:
         lines.append(f"  collision monitor   {acts}")
     else:
         lines.append("  collision monitor   disabled")
+    if "mapping" in r:
+        lines += _mapping_lines(r["mapping"])
     for mark in r["marks"]:
         lines.append(f"  at {mark['t']:7.2f} s {mark['label']:<10} x {mark['x']:.2f} y "
                      f"{mark['y']:.2f} v {mark['v']:.2f} clearance {mark['clearance_m']:.3f} m "
                      f"safety {mark['safety']}")
     return "\n".join(lines)
+
+
+def _mapping_lines(m: dict[str, Any]) -> list[str]:
+    pose, odom = m["pose_error"], m["odometry_error"]
+    lines = [f"  mapping             {m['revolutions']} revolutions",
+             f"    pose error        RMS {pose['rms_m']:.3f} m / {pose['rms_deg']:.2f} deg, max "
+             f"{pose['max_m']:.3f} m / {pose['max_deg']:.2f} deg",
+             f"    odometry alone    RMS {odom['rms_m']:.3f} m / {odom['rms_deg']:.2f} deg, max "
+             f"{odom['max_m']:.3f} m / {odom['max_deg']:.2f} deg"]
+    if "map" in m:
+        lines.append(f"    map               precision {m['map']['precision']:.3f}, recall "
+                     f"{m['map']['recall']:.3f} at one cell ({m['map']['width']} x "
+                     f"{m['map']['height']} cells)" +
+                     (f" -> {m['map']['file']}" if "file" in m["map"] else ""))
+    return lines

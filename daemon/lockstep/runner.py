@@ -19,6 +19,7 @@ from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
+from daemon.lockstep.mapping import MappingProbe
 from daemon.lockstep.script import Step
 from daemon.safety.component import SafetyComponent, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
@@ -66,7 +67,8 @@ class Lockstep:
     """
 
     def __init__(self, config: Config, *, script: Sequence[Step] = (),
-                 autonomy: str | None = None) -> None:
+                 autonomy: str | None = None, mapping: bool = False,
+                 map_out: str | None = None) -> None:
         self.config = config
         self._simulated_lidar(config)
         self.clock = VirtualClock()
@@ -95,6 +97,10 @@ class Lockstep:
         self.min_clearance = math.inf
         self._clearance_bound = -math.inf
         self._since_clearance = 0.0
+        self.truth_at_cast: dict[float, tuple[float, float, float]] = {}
+        self.map_out = map_out
+        self.mapping = MappingProbe(config, self.plugs, points, self.clock, self.world.world,
+                                    self.truth_at_cast) if mapping else None
 
     @staticmethod
     def _simulated_lidar(config: Config) -> None:
@@ -109,6 +115,8 @@ class Lockstep:
     async def run(self, seconds: float) -> dict[str, Any]:
         start = time.perf_counter()
         await self.control.start(realtime=False)
+        if self.mapping is not None:
+            await self.mapping.start()
         if self.start_mode:
             self.autonomy.set_mode(self.start_mode, "--autonomy")
         dt = self.world.config.physics_dt
@@ -173,6 +181,9 @@ class Lockstep:
             feed.delivered += 1
             self.bus.publish(SCAN, scan)
         if not feed.stalled and t + 1e-9 >= feed.next_cast:
+            if self.mapping is not None:
+                state = self.world.physics.state
+                self.truth_at_cast[t] = (state.x, state.y, state.theta)
             feed.pending.append((t + feed.period, self._cast(t)))
             feed.next_cast = t + feed.period
 
@@ -243,6 +254,7 @@ class Lockstep:
                       "theta": round(state.theta, 4),
                       "clearance_m": round(self.truth_clearance(), 4)},
             "marks": self.marks,
+            **({"mapping": self.mapping.report(self.map_out)} if self.mapping else {}),
             "wall_s": round(wall_s, 3),
             "realtime_factor": round(seconds / wall_s, 1) if wall_s > 0 else None,
         }

@@ -10,7 +10,7 @@ import numpy as np
 import orjson
 
 from daemon.messages.msgtypes import stamp
-from daemon.telemetry import CommandEvent, LatencyReport, OdomSample
+from daemon.telemetry import CommandEvent, LatencyReport, OdomSample, Transform
 
 
 class ScanLike(Protocol):
@@ -58,13 +58,13 @@ def odometry_msg(sample: OdomSample) -> dict[str, Any]:
     }
 
 
-def tf_msg(sample: OdomSample) -> dict[str, Any]:
+def tf_msg(transforms: tuple[Transform, ...]) -> dict[str, Any]:
     return {"transforms": [{
-        "header": header(sample.stamp, sample.frame_id),
-        "child_frame_id": sample.child_frame_id,
-        "transform": {"translation": {"x": sample.x, "y": sample.y, "z": 0.0},
-                      "rotation": quaternion_z(sample.theta)},
-    }]}
+        "header": header(t.stamp, t.parent),
+        "child_frame_id": t.child,
+        "transform": {"translation": {"x": t.x, "y": t.y, "z": 0.0},
+                      "rotation": quaternion_z(t.theta)},
+    } for t in transforms]}
 
 
 RANGE_DECIMALS = 4  # 0.1 mm: finer than any RPLIDAR reports; halves the JSON work per scan

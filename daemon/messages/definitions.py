@@ -76,6 +76,30 @@ MSG_TEXT: dict[str, str] = {
         "string child_frame_id\n"
         "geometry_msgs/PoseWithCovariance pose\n"
         "geometry_msgs/TwistWithCovariance twist\n"),
+    "geometry_msgs/msg/PoseStamped": (
+        "std_msgs/Header header\n"
+        "Pose pose\n"),
+    "geometry_msgs/msg/PoseWithCovarianceStamped": (
+        "std_msgs/Header header\n"
+        "PoseWithCovariance pose\n"),
+    "geometry_msgs/msg/PointStamped": (
+        "std_msgs/Header header\n"
+        "Point point\n"),
+    "nav_msgs/msg/MapMetaData": (
+        "# The grid's size and where its cell (0, 0) lies.\n"
+        "builtin_interfaces/Time map_load_time\n"
+        "float32 resolution\n"
+        "uint32 width\n"
+        "uint32 height\n"
+        "geometry_msgs/Pose origin\n"),
+    "nav_msgs/msg/OccupancyGrid": (
+        "# A 2D grid map: row-major from the origin, -1 unknown, 0..100 occupied.\n"
+        "std_msgs/Header header\n"
+        "MapMetaData info\n"
+        "int8[] data\n"),
+    "nav_msgs/msg/Path": (
+        "std_msgs/Header header\n"
+        "geometry_msgs/PoseStamped[] poses\n"),
     "sensor_msgs/msg/LaserScan": (
         "# One revolution of a planar laser range finder.\n"
         "std_msgs/Header header\n"
@@ -147,3 +171,8 @@ LOG = "rcl_interfaces/msg/Log"
 COMMAND = "arbiterd_msgs/msg/Command"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 FLOAT64 = "std_msgs/msg/Float64"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+POINT_STAMPED = "geometry_msgs/msg/PointStamped"
+OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
+PATH = "nav_msgs/msg/Path"

@@ -5,18 +5,14 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
+from daemon import paths
+
+SERVICE_DIRECTORY = paths.SERVICE_STATE / "recordings"
+
 
 def default_directory(env: Mapping[str, str] | None = None) -> Path:
     """recordings/ in systemd's StateDirectory when there is one, else in the XDG state dir."""
-    env = os.environ if env is None else env
-    state = env.get("STATE_DIRECTORY", "").split(":")[0]
-    if state:
-        return Path(state) / "recordings"
-    xdg = env.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(xdg) / "arbiterd" / "recordings"
-
-
-SERVICE_DIRECTORY = Path("/var/lib/arbiterd/recordings")  # StateDirectory=arbiterd of the unit
+    return paths.state_directory("recordings", env)
 
 
 def record_directory(options: Mapping[str, object]) -> Path:
