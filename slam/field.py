@@ -1,0 +1,97 @@
+# Truncated Euclidean distance field of a set of occupied points, with smooth lookups for matching.
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from slam.grid import OccupancyGrid
+
+SEARCH_PAD = 48  # cells of zero likelihood around a field: the widest search reach it serves
+
+
+class DistanceField:
+    """Distance (m, truncated at ``max_distance``) from each cell centre to the nearest occupied
+    cell, over a window that covers the points plus ``margin``; cell (0, 0)'s lower-left corner
+    is at (origin_x, origin_y). Lookups outside read ``max_distance`` with zero gradient."""
+
+    def __init__(self, occupied: np.ndarray, origin_x: float, origin_y: float,
+                 resolution: float, max_distance: float) -> None:
+        self.resolution = resolution
+        self.origin_x, self.origin_y = origin_x, origin_y
+        self.max_distance = max_distance
+        self.height, self.width = occupied.shape
+        if occupied.any():
+            dist = ndimage.distance_transform_edt(~occupied) * resolution
+        else:
+            dist = np.full(occupied.shape, max_distance)
+        self.distance = np.minimum(dist, max_distance).astype(np.float32)
+        self._likelihood: dict[float, np.ndarray] = {}
+
+    @classmethod
+    def from_points(cls, world_xy: np.ndarray, resolution: float, margin: float,
+                    max_distance: float) -> DistanceField:
+        """The field of world points (N, 2) on a window around them."""
+        points = np.asarray(world_xy, dtype=np.float64).reshape(-1, 2)
+        if len(points) == 0:
+            points = np.zeros((1, 2))
+        low = points.min(axis=0) - margin
+        size = np.ceil((points.max(axis=0) + margin - low) / resolution).astype(int) + 1
+        occupied = np.zeros((size[1], size[0]), dtype=bool)
+        cells = np.floor((points - low) / resolution).astype(np.int64)
+        occupied[cells[:, 1], cells[:, 0]] = True
+        return cls(occupied, float(low[0]), float(low[1]), resolution, max_distance)
+
+    @classmethod
+    def from_grid(cls, grid: OccupancyGrid, max_distance: float,
+                  threshold: int = 65) -> DistanceField:
+        """The field of a grid's occupied cells (a fixed map for localisation)."""
+        occupied = grid.occupancy() >= threshold
+        return cls(occupied, grid.origin_x, grid.origin_y, grid.resolution, max_distance)
+
+    @property
+    def cells(self) -> int:
+        return self.width * self.height
+
+    def lookup(self, world_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear distance and its gradient (d, dd/dx, dd/dy) at world points (N, 2)."""
+        u = (world_xy[:, 0] - self.origin_x) / self.resolution - 0.5
+        v = (world_xy[:, 1] - self.origin_y) / self.resolution - 0.5
+        c0, r0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - c0, v - r0
+        inside = (c0 >= 0) & (c0 < self.width - 1) & (r0 >= 0) & (r0 < self.height - 1)
+        c0, r0 = np.where(inside, c0, 0), np.where(inside, r0, 0)
+        d = self.distance
+        d00, d01 = d[r0, c0], d[r0, c0 + 1]
+        d10, d11 = d[r0 + 1, c0], d[r0 + 1, c0 + 1]
+        value = (d00 * (1 - fu) + d01 * fu) * (1 - fv) + (d10 * (1 - fu) + d11 * fu) * fv
+        grad_x = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) / self.resolution
+        grad_y = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) / self.resolution
+        value = np.where(inside, value, self.max_distance)
+        return value, np.where(inside, grad_x, 0.0), np.where(inside, grad_y, 0.0)
+
+    def likelihood(self, sigma: float) -> np.ndarray:
+        """exp(-d² / 2 sigma²) per cell, float32, inside a border of SEARCH_PAD zero cells on
+        every side (so searches index it without bounds checks); cached per sigma."""
+        key = round(sigma, 6)
+        if key not in self._likelihood:
+            scale = np.float32(-1.0 / (2 * sigma * sigma))
+            padded = np.zeros((self.height + 2 * SEARCH_PAD, self.width + 2 * SEARCH_PAD),
+                              dtype=np.float32)
+            inner = padded[SEARCH_PAD:-SEARCH_PAD, SEARCH_PAD:-SEARCH_PAD]
+            np.exp(self.distance * self.distance * scale, out=inner)
+            self._likelihood[key] = padded
+        return self._likelihood[key]
+
+    def score(self, world_xy: np.ndarray, sigma: float) -> float:
+        """Mean likelihood of the points under the bilinear distance: 0 (nothing fits) .. 1."""
+        if len(world_xy) == 0:
+            return 0.0
+        d, _, _ = self.lookup(world_xy)
+        return float(np.mean(np.exp(-(d.astype(np.float64) ** 2) / (2 * sigma * sigma))))
+
+    def contains(self, x: float, y: float) -> bool:
+        col = math.floor((x - self.origin_x) / self.resolution)
+        row = math.floor((y - self.origin_y) / self.resolution)
+        return 0 <= col < self.width and 0 <= row < self.height

@@ -1,0 +1,405 @@
+# The mapper: scan-to-submap matching, key scans in a pose graph with loop closure, a rendered grid.
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from slam.field import DistanceField
+from slam.graph import PoseGraph
+from slam.grid import OccupancyGrid
+from slam.matcher import Match, SearchWindow, match
+from slam.pose import Pose2, between, compose, inverse, transform_points
+
+IDENTITY: Pose2 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    """Tunables of the mapper (lengths in m, angles in rad).
+
+    resolution: cell size of the occupancy grid.
+    match_resolution: cell size of the distance fields scans are matched against (map mode).
+    max_range: returns farther than this are dropped (neither free space nor obstacle).
+    mode: "map" builds a map; "localize" tracks the pose in the fixed grid given to Mapper.
+    loop_closure: look for and close loops (map mode).
+    max_cells: bound on the grid's area (see OccupancyGrid).
+    key_distance, key_angle: a scan becomes a key scan (graph node, integrated into the grid)
+        once the pose moved this far or turned this much since the last key scan.
+    submap_keys: how many recent key scans form the submap each scan is matched against.
+    track_window: the correlative search around the odometry prediction (± m, ± rad).
+    min_score: a match scoring below this (0..1) is refused and odometry is used instead.
+    score_sigma: width (m) of the likelihood that turns point distances into the score.
+    field_max_distance: distance fields are truncated here (m); the refinement's reach.
+    loop_min_travel: a loop candidate lies at least this far back along the path (m).
+    loop_search_radius: ... and within this distance of the current pose estimate (m).
+    loop_window: correlative search half-widths (m, rad) for a loop closure.
+    loop_submap_keys: key scans on each side of the candidate that form its submap.
+    loop_min_score: strict acceptance score of a loop closure.
+    loop_every: try a loop closure at most every this many key scans.
+    optimize_every: optimise the graph automatically once this many key scans passed since the
+        first unapplied loop closure (0: never; the caller runs Mapper.optimize()).
+    odometry_sigmas, match_sigmas, loop_sigmas: standard deviations (x, y, theta) of graph
+        edges from odometry alone, from scan matching, and from a loop closure.
+    relocalize_window: localize mode, the wide search after set_pose or when lost (± m, ± rad).
+    lost_after: localize mode, consecutive refused matches before tracking is declared lost.
+    max_trajectory: per-scan trajectory entries kept (oldest dropped first).
+    """
+
+    resolution: float = 0.05
+    match_resolution: float = 0.05
+    max_range: float = 12.0
+    mode: str = "map"
+    loop_closure: bool = True
+    max_cells: int = 4_000_000
+    key_distance: float = 0.3
+    key_angle: float = math.radians(12)
+    submap_keys: int = 30
+    track_window: tuple[float, float] = (0.2, math.radians(6))
+    min_score: float = 0.3
+    score_sigma: float = 0.05
+    field_max_distance: float = 0.5
+    loop_min_travel: float = 10.0
+    loop_search_radius: float = 4.0
+    loop_window: tuple[float, float] = (1.5, math.radians(15))
+    loop_submap_keys: int = 12
+    loop_min_score: float = 0.55
+    loop_every: int = 2
+    optimize_every: int = 5
+    odometry_sigmas: tuple[float, float, float] = (0.2, 0.2, math.radians(5))
+    match_sigmas: tuple[float, float, float] = (0.03, 0.03, math.radians(0.5))
+    loop_sigmas: tuple[float, float, float] = (0.05, 0.05, math.radians(1))
+    relocalize_window: tuple[float, float] = (1.0, math.radians(30))
+    lost_after: int = 5
+    max_trajectory: int = 1_000_000
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """What the mapper made of one scan (see the module's API notes)."""
+
+    pose: Pose2
+    map_to_odom: Pose2
+    matched: bool
+    score: float
+    covariance: tuple[float, ...]
+    lost: bool
+
+
+@dataclass
+class KeyScan:
+    """A graph node's scan: points in the base frame, the odometry pose and the stamp."""
+
+    points: np.ndarray
+    odom: Pose2
+    stamp: float
+    travelled: float  # path length (m) from the first key scan
+
+
+@dataclass
+class Counters:
+    scans: int = 0
+    matched: int = 0
+    loop_attempts: int = 0
+    loop_closures: int = 0
+    optimizations: int = 0
+    last_score: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def windows(linear: float, angular: float, resolution: float) -> tuple[SearchWindow, ...]:
+    """Coarse-to-fine correlative searches covering ± linear m and ± angular rad."""
+    coarse_step = max(resolution, min(0.1, linear / 4))
+    coarse_turn = max(math.radians(0.5), min(math.radians(2), angular / 6))
+    steps = [SearchWindow(linear, angular, coarse_step, coarse_turn, max(0.1, coarse_step))]
+    if coarse_step > resolution or coarse_turn > math.radians(0.5):
+        steps.append(SearchWindow(coarse_step, coarse_turn, resolution, math.radians(0.5),
+                                  max(0.05, resolution)))
+    return tuple(steps)
+
+
+class Mapper:
+    """Online 2D SLAM (map mode) or localisation in a fixed grid (localize mode).
+
+    Not thread-safe: one caller at a time (add_scan, set_pose, optimize, grid). The grid is
+    re-rendered from the key scans on first access after a graph optimisation (about 1 ms a
+    key scan); call ``grid`` off the control path."""
+
+    def __init__(self, config: MapperConfig, grid: OccupancyGrid | None = None,
+                 initial_pose: Pose2 = IDENTITY) -> None:
+        if config.mode not in ("map", "localize"):
+            raise ValueError(f"mode must be 'map' or 'localize', got {config.mode!r}")
+        if config.mode == "localize" and grid is None:
+            raise ValueError("localize mode needs a grid (a loaded map)")
+        self.config = config
+        self._grid = grid if grid is not None else OccupancyGrid(config.resolution,
+                                                                config.max_cells)
+        self._grid_stale = False
+        self._pose = initial_pose
+        self._last_odom: Pose2 | None = None
+        self._graph = PoseGraph()
+        self._keys: list[KeyScan] = []
+        self._rel_to_key = IDENTITY
+        self._submap: DistanceField | None = None
+        self._pending_loops = 0
+        self._last_loop_key = -10**9
+        self._trajectory: list[tuple[float, int, Pose2]] = []
+        self._counts = Counters()
+        self._lost = False
+        self._refused_in_a_row = 0
+        self._wide_search = config.mode == "localize"
+        self._fixed = (DistanceField.from_grid(self._grid, config.field_max_distance)
+                       if config.mode == "localize" else None)
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def grid(self) -> OccupancyGrid:
+        """The current map, re-rendered from the key scans after a graph optimisation."""
+        if self._grid_stale:
+            self._render_grid()
+        return self._grid
+
+    @property
+    def trajectory(self) -> list[tuple[float, Pose2]]:
+        """(stamp, corrected pose) per scan, with the latest graph poses."""
+        out = []
+        for stamp, key, rel in self._trajectory:
+            out.append((stamp, compose(self._graph.pose(key), rel) if key >= 0 else rel))
+        return out
+
+    def set_pose(self, pose: Pose2, odom_pose: Pose2 | None = None) -> None:
+        """(Re)initialise the pose; the next scans search widely around it (localize mode)."""
+        self._pose = pose
+        if odom_pose is not None:
+            self._last_odom = odom_pose
+        self._wide_search = True
+        self._refused_in_a_row = 0
+
+    def add_scan(self, odom_pose: Pose2, points_xy: np.ndarray, stamp: float) -> ScanResult:
+        """One revolution: odometry pose of the base, points (N, 2) in the base frame."""
+        points = self._usable(points_xy)
+        predicted = self._predict(odom_pose)
+        self._last_odom = odom_pose
+        self._counts.scans += 1
+        if self.config.mode == "localize":
+            result = self._localize(predicted, points)
+            self._record(stamp, -1, result.pose)
+        else:
+            result = self._map(predicted, points, odom_pose, stamp)
+        self._pose = result.pose
+        return result
+
+    def optimize(self) -> None:
+        """Optimise the pose graph now (sparse Gauss-Newton, node 0 fixed) and re-place the
+        current pose; the grid is re-rendered on next access. Cost grows with the graph:
+        tens of ms for thousands of key scans on a 2-core x86."""
+        if self._graph.node_count < 2:
+            return
+        self._graph.optimize()
+        self._pending_loops = 0
+        self._counts.optimizations += 1
+        self._pose = compose(self._graph.pose(len(self._keys) - 1), self._rel_to_key)
+        self._submap = None
+        self._grid_stale = True
+
+    def health(self) -> dict[str, Any]:
+        c = self._counts
+        return {
+            "mode": self.config.mode,
+            "scans": c.scans,
+            "matched_ratio": c.matched / c.scans if c.scans else 0.0,
+            "key_scans": len(self._keys),
+            "loop_attempts": c.loop_attempts,
+            "loop_closures": c.loop_closures,
+            "optimizations": c.optimizations,
+            "pending_loop_closures": self._pending_loops,
+            "last_score": c.last_score,
+            "lost": self._lost,
+            "grid_width": self._grid.width,
+            "grid_height": self._grid.height,
+            "grid_cells": self._grid.width * self._grid.height,
+            "grid_bytes": self._grid.nbytes,
+            "dropped_points": self._grid.dropped_points,
+        }
+
+    # ------------------------------------------------------------------ shared steps
+
+    def _usable(self, points_xy: np.ndarray) -> np.ndarray:
+        points = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+        keep = np.isfinite(points).all(axis=1)
+        keep &= np.hypot(points[:, 0], points[:, 1]) <= self.config.max_range
+        return points[keep]
+
+    def _predict(self, odom_pose: Pose2) -> Pose2:
+        if self._last_odom is None:
+            return self._pose
+        return compose(self._pose, between(self._last_odom, odom_pose))
+
+    def _record(self, stamp: float, key: int, rel: Pose2) -> None:
+        self._trajectory.append((stamp, key, rel))
+        if len(self._trajectory) > self.config.max_trajectory:
+            del self._trajectory[: len(self._trajectory) // 10]
+
+    def _result(self, pose: Pose2, odom_pose: Pose2, found: Match | None) -> ScanResult:
+        matched = found is not None
+        self._counts.matched += matched
+        score = found.score if found is not None else 0.0
+        self._counts.last_score = score
+        return ScanResult(pose, compose(pose, inverse(odom_pose)), matched, score,
+                          self._covariance(found), self._lost)
+
+    def _covariance(self, found: Match | None) -> tuple[float, ...]:
+        if found is None:
+            sx, sy, st = self.config.odometry_sigmas
+            return tuple(np.diag([sx * sx, sy * sy, st * st]).reshape(-1).tolist())
+        sx, sy, st = self.config.match_sigmas
+        floor = np.diag([sx * sx, sy * sy, st * st])
+        try:
+            cov = np.linalg.inv(found.information) * self.config.score_sigma ** 2
+        except np.linalg.LinAlgError:
+            cov = floor * 100
+        if not np.all(np.isfinite(cov)):
+            cov = floor * 100
+        cov = np.clip(cov, -1.0, 1.0) + floor
+        return tuple(cov.reshape(-1).tolist())
+
+    # ------------------------------------------------------------------ localize mode
+
+    def _localize(self, predicted: Pose2, points: np.ndarray) -> ScanResult:
+        assert self._fixed is not None
+        cfg = self.config
+        if self._wide_search:
+            lin, ang = cfg.relocalize_window
+        else:
+            lin, ang = cfg.track_window
+        found = match(self._fixed, points, predicted, windows(lin, ang, cfg.resolution),
+                      cfg.score_sigma) if len(points) >= 10 else None
+        threshold = cfg.min_score * (1.5 if self._wide_search else 1.0)
+        if found is not None and found.score >= threshold:
+            self._refused_in_a_row = 0
+            self._lost = False
+            self._wide_search = False
+            return self._result(found.pose, self._last_odom or IDENTITY, found)
+        self._refused_in_a_row += 1
+        if self._refused_in_a_row >= cfg.lost_after:
+            self._lost = True
+            self._wide_search = True
+        result = self._result(predicted, self._last_odom or IDENTITY, None)
+        return ScanResult(result.pose, result.map_to_odom, False,
+                          found.score if found is not None else 0.0, result.covariance,
+                          self._lost)
+
+    # ------------------------------------------------------------------ map mode
+
+    def _map(self, predicted: Pose2, points: np.ndarray, odom_pose: Pose2,
+             stamp: float) -> ScanResult:
+        if not self._keys:
+            self._add_key(self._pose, points, odom_pose, stamp, None)
+            self._record(stamp, 0, IDENTITY)
+            return self._result(self._pose, odom_pose, None)
+        found = self._track(predicted, points)
+        pose = found.pose if found is not None else predicted
+        last = len(self._keys) - 1
+        rel = between(self._graph.pose(last), pose)
+        if math.hypot(rel[0], rel[1]) >= self.config.key_distance or \
+                abs(rel[2]) >= self.config.key_angle:
+            self._add_key(pose, points, odom_pose, stamp, found)
+            self._record(stamp, len(self._keys) - 1, IDENTITY)
+            pose = compose(self._graph.pose(len(self._keys) - 1), self._rel_to_key)
+        else:
+            self._rel_to_key = rel
+            self._record(stamp, last, rel)
+        return self._result(pose, odom_pose, found)
+
+    def _track(self, predicted: Pose2, points: np.ndarray) -> Match | None:
+        if len(points) < 10:
+            return None
+        if self._submap is None:
+            self._submap = self._field_of(range(max(0, len(self._keys) - self.config.submap_keys),
+                                                len(self._keys)))
+        lin, ang = self.config.track_window
+        found = match(self._submap, points, predicted,
+                      windows(lin, ang, self.config.match_resolution),
+                      self.config.score_sigma)
+        return found if found.score >= self.config.min_score else None
+
+    def _field_of(self, keys: range | list[int]) -> DistanceField:
+        world = [transform_points(self._graph.pose(k), self._keys[k].points) for k in keys]
+        points = np.vstack(world) if world else np.zeros((0, 2))
+        return DistanceField.from_points(points, self.config.match_resolution,
+                                         self.config.field_max_distance + 0.5,
+                                         self.config.field_max_distance)
+
+    def _add_key(self, pose: Pose2, points: np.ndarray, odom_pose: Pose2, stamp: float,
+                 found: Match | None) -> None:
+        travelled = 0.0
+        if self._keys:
+            prev = self._graph.pose(len(self._keys) - 1)
+            travelled = self._keys[-1].travelled + math.hypot(pose[0] - prev[0],
+                                                              pose[1] - prev[1])
+        index = self._graph.add_node(pose)
+        self._keys.append(KeyScan(points.astype(np.float32), odom_pose, stamp, travelled))
+        self._rel_to_key = IDENTITY
+        if index > 0:
+            sigmas = self.config.match_sigmas if found is not None else self.config.odometry_sigmas
+            self._graph.add_edge(index - 1, index, between(self._graph.pose(index - 1), pose),
+                                 sigmas)
+        if not self._grid_stale:
+            self._grid.integrate(pose, points)
+        self._submap = None
+        if self.config.loop_closure:
+            self._close_loop(index)
+        self._maybe_optimize(index)
+
+    def _maybe_optimize(self, index: int) -> None:
+        every = self.config.optimize_every
+        if self._pending_loops and every > 0 and index - self._last_loop_key >= every:
+            self.optimize()
+
+    def _close_loop(self, index: int) -> None:
+        cfg = self.config
+        if index - self._last_loop_key < cfg.loop_every or len(self._keys[index].points) < 20:
+            return
+        candidate = self._loop_candidate(index)
+        if candidate is None:
+            return
+        self._counts.loop_attempts += 1
+        here = self._keys[index].travelled
+        lo = max(0, candidate - cfg.loop_submap_keys)
+        hi = min(index, candidate + cfg.loop_submap_keys + 1)
+        near = [k for k in range(lo, hi) if here - self._keys[k].travelled >= cfg.loop_min_travel]
+        submap = self._field_of(near)
+        pose = self._graph.pose(index)
+        found = match(submap, self._keys[index].points.astype(np.float64), pose,
+                      windows(cfg.loop_window[0], cfg.loop_window[1], cfg.match_resolution),
+                      cfg.score_sigma)
+        if found.score < cfg.loop_min_score:
+            return
+        self._graph.add_edge(candidate, index, between(self._graph.pose(candidate), found.pose),
+                             cfg.loop_sigmas, robust=True)
+        self._counts.loop_closures += 1
+        self._pending_loops += 1
+        self._last_loop_key = index
+
+    def _loop_candidate(self, index: int) -> int | None:
+        """The key scan nearest to key ``index`` among those far enough back along the path."""
+        cfg = self.config
+        here = self._keys[index].travelled
+        old = [k for k in range(index) if here - self._keys[k].travelled >= cfg.loop_min_travel]
+        if not old:
+            return None
+        positions = self._graph.poses[old, :2]
+        gaps = np.hypot(*(positions - self._graph.poses[index, :2]).T)
+        best = int(np.argmin(gaps))
+        return old[best] if gaps[best] <= cfg.loop_search_radius else None
+
+    def _render_grid(self) -> None:
+        grid = OccupancyGrid(self.config.resolution, self.config.max_cells)
+        for k, key in enumerate(self._keys):
+            grid.integrate(self._graph.pose(k), key.points)
+        grid.version = self._grid.version + 1
+        self._grid = grid
+        self._grid_stale = False
