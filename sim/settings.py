@@ -45,6 +45,13 @@ SIM_OPTIONS: Options = {
                          minval=0.0),
     "wheel_slip": Option(float, 0.0, "fraction of wheel travel lost at the ground",
                          minval=0.0, below=1.0),
+    "lidar_dropout": Option(float, 0.0, "fraction of lidar returns that go missing (seeded)",
+                            minval=0.0, below=1.0),
+    "wheel_radius_error": Option(float, 0.0, "calibration error: the true wheel radius is "
+                                 "[robot] wheel_radius x (1 + this)", minval=-0.5, maxval=0.5),
+    "wheel_separation_error": Option(float, 0.0, "calibration error: the true wheel "
+                                     "separation is [robot] wheel_separation x (1 + this)",
+                                     minval=-0.5, maxval=0.5),
     "motor_time_constant": Option(float, 0.05, "first-order wheel motor time constant (s)",
                                   minval=0.0, maxval=5.0),
     "motor_max_speed": Option(float, 40.0, "wheel motor saturation speed (rad/s)",
@@ -83,6 +90,8 @@ class SimConfig:
     range_min: float = 0.1
     range_max: float = 10.0
     noise: NoiseConfig = field(default_factory=NoiseConfig)
+    wheel_radius_error: float = 0.0
+    wheel_separation_error: float = 0.0
     motor_time_constant: float = 0.05
     motor_max_speed: float = 40.0
     metrics_csv: str = ""
@@ -100,7 +109,8 @@ class SimConfig:
         values["miswire"] = tuple(values["miswire"])
         noise = NoiseConfig(enabled=values.pop("noise"), lidar_sigma=values.pop("lidar_noise"),
                             odom_sigma=values.pop("odom_noise"),
-                            wheel_slip=values.pop("wheel_slip"), seed=values["seed"])
+                            wheel_slip=values.pop("wheel_slip"), seed=values["seed"],
+                            lidar_dropout=values.pop("lidar_dropout"))
         return cls(start_pose=Pose(x, y, theta), noise=noise, **values)
 
     @classmethod
@@ -113,8 +123,15 @@ class SimConfig:
         return 1.0 / self.physics_rate
 
     def exact(self) -> SimConfig:
-        """The same settings with every noise source switched off."""
+        """The same settings with every noise source switched off (the calibration errors
+        are the robot's geometry, not noise: they stay)."""
         return replace(self, noise=replace(self.noise, enabled=False))
+
+    def true_geometry(self, wheel_radius: float, wheel_separation: float) -> tuple[float, float]:
+        """The simulated robot's true wheel radius and separation (m) for the configured
+        ones: each off by its calibration error."""
+        return (wheel_radius * (1.0 + self.wheel_radius_error),
+                wheel_separation * (1.0 + self.wheel_separation_error))
 
 
 def _validated(section: Mapping[str, Any]) -> dict[str, Any]:
@@ -164,6 +181,9 @@ class SimSettings(SectionSettings, section="sim", options=SIM_OPTIONS):
     lidar_noise: float
     odom_noise: float
     wheel_slip: float
+    lidar_dropout: float
+    wheel_radius_error: float
+    wheel_separation_error: float
     motor_time_constant: float
     motor_max_speed: float
     metrics_csv: str

@@ -61,7 +61,11 @@ class SimWorld:
     real time, or :meth:`start` a thread that steps it in real time for the daemon. The
     emulators share :attr:`motors` (a :class:`MotorPair` with ``clock=None``): they command
     and read it, the world advances it. ``wheel_sign`` is -1 when the emulated hardware turns
-    the wheels backwards to drive forwards. With ``internal_scans`` the world also casts a
+    the wheels backwards to drive forwards. ``wheel_radius`` and ``wheel_separation`` are
+    the configured ones (:attr:`configured`); the physics moves the robot with the true ones
+    (:attr:`geometry`: off by ``[sim] wheel_radius_error`` / ``wheel_separation_error``), and
+    the encoders count true wheel turns, so odometry made with the configured geometry drifts
+    as on a miscalibrated base. With ``internal_scans`` the world also casts a
     full scan at ``lidar_rate`` into :attr:`latest_scan` (tests and benchmarks; the daemon's
     lidar asks :meth:`scan_ranges` instead). Every public method is thread-safe.
     """
@@ -76,7 +80,10 @@ class SimWorld:
         self.world = world or build_world(self.config)
         self.motors = motors or make_motors(self.config.motor_max_speed,
                                             self.config.motor_time_constant)
-        self.geometry = RobotGeometry(wheel_radius, wheel_separation,
+        #: the geometry the daemon is configured with ([robot]); :attr:`geometry` is the truth
+        self.configured = RobotGeometry(wheel_radius, wheel_separation,
+                                        self.config.footprint_radius)
+        self.geometry = RobotGeometry(*self.config.true_geometry(wheel_radius, wheel_separation),
                                       self.config.footprint_radius)
         self.noise = Noise(self.config.noise)
         self.physics = DiffDrivePhysics(self.world, self.motors, self.geometry, self.noise,
@@ -134,10 +141,11 @@ class SimWorld:
             self.step()
 
     def command_twist(self, v: float, w: float) -> None:
-        """Set the wheel motors' targets for a body twist (tests and benchmarks; the daemon
-        commands the motors through a driver and an emulator instead)."""
-        half = w * self.geometry.wheel_separation / 2.0
-        sign, radius = self.physics.wheel_sign, self.geometry.wheel_radius
+        """Set the wheel motors' targets for a body twist with the configured geometry, as a
+        driver would (tests and benchmarks; the daemon commands the motors through a driver
+        and an emulator instead)."""
+        half = w * self.configured.wheel_separation / 2.0
+        sign, radius = self.physics.wheel_sign, self.configured.wheel_radius
         self.motors.set_targets(sign * (v - half) / radius, sign * (v + half) / radius)
 
     # -- real time ------------------------------------------------------------------------
