@@ -5,7 +5,7 @@ from daemon import console, core_api, http_api, lidar, simulator
 from daemon.autonomy import component as autonomy
 from daemon.component import ComponentSpec
 from daemon.control import api as control
-# from daemon.mapping import component as mapping
+from daemon.mapping import component as mapping
 from daemon.recorder import component as recorder
 from daemon.rosbridge import server as rosbridge
 from daemon.safety import component as collision_monitor
@@ -19,7 +19,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     lidar.COMPONENT,
     collision_monitor.COMPONENT,
     autonomy.COMPONENT,
-    # mapping.COMPONENT,
+    mapping.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
     console.COMPONENT,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from daemon.mapping.mapfile import MapData, MapFileError, load_map, saved_maps, save_map
+from daemon.mapping.mapfile import MapData, MapFileError, load_map, save_map, saved_maps
 
 
 def sample_grid() -> MapData:
@@ -26,7 +26,7 @@ def independent_read(yaml_path: Path) -> tuple[dict[str, object], np.ndarray]:
     meta = yaml.safe_load(yaml_path.read_text())
     data = (yaml_path.parent / meta["image"]).read_bytes()
     fields = data.split(maxsplit=4) if not data.split(b"\n")[1].startswith(b"#") else \
-        [data.split(b"\n")[0]] + data.split(b"\n", 2)[2].split(maxsplit=3)
+        [data.split(b"\n")[0], *data.split(b"\n", 2)[2].split(maxsplit=3)]
     magic, width, height, maxval, pixels = fields
     assert magic == b"P5" and int(maxval) == 255
     grey = np.frombuffer(pixels[:int(width) * int(height)], np.uint8).reshape(

@@ -17,7 +17,13 @@ from daemon.mapping.runner import snapshot_of
 from daemon.mapping.settings import MappingSettings
 from daemon.settings import RobotSettings
 from sensors.scan import ScanPoints
-from sim.mapping_truth import PoseErrors, map_precision_recall, truth_occupancy
+from sim.mapping_truth import (
+    PoseErrors,
+    map_precision_recall,
+    truth_occupancy,
+    visible_walls,
+    world_grid,
+)
 from sim.world import World
 from slam.pose import Pose2, between
 
@@ -39,9 +45,10 @@ class MappingProbe:
             base_frame_id=robot.base_frame_id, odom_frame_id=robot.odom_frame_id)
         self.world = world
         start = world.start
-        self.start: Pose2 = (start.x, start.y, start.theta)
+        self.start_pose: Pose2 = (start.x, start.y, start.theta)
         self.truth_at_cast = truth_at_cast
         self.mapped, self.odometry = PoseErrors(), PoseErrors()
+        self.true_poses: list[Pose2] = []
         plugs.subscribe(MAP_POSE, self._score)
 
     async def start(self) -> None:
@@ -52,7 +59,8 @@ class MappingProbe:
         odom = self.component.last_odom
         if truth is None or odom is None:
             return
-        true_in_start = between(self.start, truth)
+        true_in_start = between(self.start_pose, truth)
+        self.true_poses.append(truth)
         self.mapped.add(message.result.pose, true_in_start)
         self.odometry.add(odom, true_in_start)
 
@@ -63,43 +71,34 @@ class MappingProbe:
         return snapshot.grid if snapshot is not None else None
 
     def map_quality(self, grid: MapData) -> tuple[float, float]:
-        """Precision and recall of the map's walls against the world's, at one cell."""
+        """Precision and recall of the map's walls against the world's at one cell; recall
+        over the walls a lidar saw from the true poses of the run's revolutions."""
         rows, cols = np.nonzero(grid.occupancy >= OCCUPIED)
         if not len(rows):
             return 0.0, 0.0
         res = grid.resolution
         xs = grid.origin_x + (cols + 0.5) * res
         ys = grid.origin_y + (rows + 0.5) * res
-        c, s = math.cos(self.start[2]), math.sin(self.start[2])
-        wx, wy = self.start[0] + c * xs - s * ys, self.start[1] + s * xs + c * ys
-        x0, y0 = self.world_bounds()
-        width = int(math.ceil((x0[1] - x0[0]) / res)) + 1
-        height = int(math.ceil((y0[1] - y0[0]) / res)) + 1
-        estimated = np.zeros((height, width), dtype=bool)
-        ci = np.floor((wx - x0[0]) / res).astype(int)
-        ri = np.floor((wy - y0[0]) / res).astype(int)
-        inside = (ci >= 0) & (ci < width) & (ri >= 0) & (ri < height)
+        c, s = math.cos(self.start_pose[2]), math.sin(self.start_pose[2])
+        wx, wy = self.start_pose[0] + c * xs - s * ys, self.start_pose[1] + s * xs + c * ys
+        spec = world_grid(self.world, res, margin=1.0)
+        estimated = np.zeros((spec.height, spec.width), dtype=bool)
+        ci = np.floor((wx - spec.origin_x) / res).astype(int)
+        ri = np.floor((wy - spec.origin_y) / res).astype(int)
+        inside = (ci >= 0) & (ci < spec.width) & (ri >= 0) & (ri < spec.height)
         estimated[ri[inside], ci[inside]] = True
-        truth = truth_occupancy(self.world, res, x0[0], y0[0], width, height)
-        precision, recall = map_precision_recall(estimated, truth, 1)
+        area = (res, spec.origin_x, spec.origin_y, spec.width, spec.height)
+        truth = truth_occupancy(self.world, *area)
+        seen = visible_walls(self.world, self.true_poses[::5], *area,
+                             range_max=self.settings.max_range_m)
+        precision, recall = map_precision_recall(estimated, truth, 1, observed=seen)
         # a wall the map puts beyond the world's bounds is a false one too
         return precision * inside.sum() / len(inside), recall
 
-    def world_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        seg, circ = self.world.segment_array, self.world.circle_array
-        xs = [seg[:, 0], seg[:, 2]] if len(seg) else []
-        ys = [seg[:, 1], seg[:, 3]] if len(seg) else []
-        if len(circ):
-            xs += [circ[:, 0] - circ[:, 2], circ[:, 0] + circ[:, 2]]
-            ys += [circ[:, 1] - circ[:, 2], circ[:, 1] + circ[:, 2]]
-        x, y = np.concatenate(xs), np.concatenate(ys)
-        return (float(x.min()) - 0.5, float(x.max()) + 0.5), \
-            (float(y.min()) - 0.5, float(y.max()) + 0.5)
-
     def report(self, map_out: str | None = None) -> dict[str, Any]:
         out: dict[str, Any] = {"revolutions": self.component.counters.scans,
-                               "pose_error": self.mapped.summary(),
-                               "odometry_error": self.odometry.summary()}
+                               "pose_error": summary(self.mapped),
+                               "odometry_error": summary(self.odometry)}
         grid = self.grid()
         if grid is not None:
             precision, recall = self.map_quality(grid)
@@ -112,3 +111,8 @@ class MappingProbe:
                 out["map"]["file"] = str(yml)
         return out
 
+
+def summary(errors: PoseErrors) -> dict[str, float]:
+    return {"rms_m": round(errors.rms_m, 4), "max_m": round(errors.max_m, 4),
+            "rms_deg": round(errors.rms_deg, 3), "max_deg": round(errors.max_deg, 3),
+            "count": errors.count}

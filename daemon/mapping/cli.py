@@ -10,7 +10,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from daemon.mapping.mapfile import saved_maps, save_map
+from daemon.mapping.mapfile import save_map, saved_maps
 from daemon.mapping.settings import MappingSettings, map_name_error
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2

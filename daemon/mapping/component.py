@@ -19,8 +19,7 @@ from daemon.bus import BusKey
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.http_api import ApiError, json_response, read_json_object
 from daemon.mapping import messages
-from daemon.mapping.mapfile import MapData, MapFileError, load_map, pgm_bytes, save_map, \
-    saved_maps
+from daemon.mapping.mapfile import MapData, MapFileError, load_map, pgm_bytes, save_map, saved_maps
 from daemon.mapping.runner import (
     InlineRunner,
     MapperRunner,
@@ -234,7 +233,7 @@ class MappingComponent(BaseComponent):
     def _apply(self, result: ScanResult, stamp: float) -> None:
         self.counters.scans += 1
         self.last = result
-        map_frame, odom_frame, base_frame = self.frames
+        map_frame, odom_frame, _base_frame = self.frames
         self.bus.publish(TRANSFORMS, (Transform(stamp, map_frame, odom_frame,
                                                 *result.map_to_odom),))
         self.bus.publish(MAP_POSE, messages.MapPose(stamp, map_frame, result))
