@@ -1,17 +1,22 @@
-# Coverage of the free area: which grid cells of the world the robot's centre has visited.
+# Coverage of the reachable free area: which cells of the world the robot's centre visited.
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
+from sim.mapping_truth import dilate, reachable_free_cells, world_grid
 from sim.world import World
+
+#: Cell size (m) of the flood fill that decides which cell centres the robot can reach.
+REACH_RESOLUTION = 0.05
 
 
 class Coverage:
     """A grid of ``cell`` m squares over the world's bounding box. A cell is *free* when the
-    robot could stand at its centre (clearance above ``radius``); coverage is the share of
-    free cells whose area the robot's centre has entered."""
+    robot could stand at its centre (clearance above ``radius``) and get there from the start
+    (a closed room, a shelf's inside or the block a corridor loops round is not free);
+    coverage is the share of free cells whose area the robot's centre has entered."""
 
     def __init__(self, world: World, radius: float, cell: float = 0.5) -> None:
         points = np.concatenate([world.segment_array[:, 0:2], world.segment_array[:, 2:4],
@@ -24,7 +29,7 @@ class Coverage:
         centres = [(self.x0 + (i + 0.5) * cell, self.y0 + (j + 0.5) * cell)
                    for j in range(self.ny) for i in range(self.nx)]
         self.free = np.array([world.clearance(x, y) > radius for x, y in centres],
-                             dtype=bool)
+                             dtype=bool) & _reachable(world, radius, centres)
         self.visited = np.zeros(self.nx * self.ny, dtype=bool)
         self._last = -1
 
@@ -47,3 +52,16 @@ class Coverage:
     @property
     def fraction(self) -> float:
         return self.visited_free / self.free_cells if self.free_cells else 0.0
+
+
+def _reachable(world: World, radius: float,
+               centres: list[tuple[float, float]]) -> np.ndarray:
+    """Whether each point lies in or next to a cell the robot can reach from the start (flood
+    fill; "next to" so that a point the footprint just fits on is not lost to the grid)."""
+    grid = world_grid(world, REACH_RESOLUTION)
+    reached = dilate(reachable_free_cells(world, REACH_RESOLUTION, radius, grid=grid), 1)
+    out = np.zeros(len(centres), dtype=bool)
+    for index, (x, y) in enumerate(centres):
+        row, col = grid.cell_of(x, y)
+        out[index] = 0 <= row < grid.height and 0 <= col < grid.width and reached[row, col]
+    return out

@@ -10,14 +10,27 @@ from base.options import Option, Options, defaults
 from drivers.registry import DRIVERS
 from sim.motor_model import MISWIRES
 from sim.noise import NoiseConfig
-from sim.world import Pose
+from sim.world import Pose, WorldError, builtin_worlds, world_path
+
+
+def world_file_error(value: str) -> str | None:
+    """Why ``[sim] world_file`` names no world (a file is only read when the world is built)."""
+    try:
+        if value:
+            world_path(value)
+    except WorldError as exc:
+        return str(exc)
+    return None
+
 
 SIM_OPTIONS: Options = {
     "driver": Option(str, "serial", "which emulator --sim wires to the real driver",
                      choices=tuple(DRIVERS)),
     "seed": Option(int, 1, "seed of the obstacle placement and of every noise stream",
                    minval=0),
-    "world_file": Option(str, "", "world file (.toml or .json) to load; '' = generated arena"),
+    "world_file": Option(str, "", "world file (.toml or .json) to load, or the name of a "
+                         f"built-in world ({', '.join(builtin_worlds())}); '' = generated arena",
+                         check=world_file_error),
     "arena_size": Option(float, 16.0, "side of the generated square arena (m)", above=2.0,
                          maxval=1000.0),
     "obstacles": Option(int, 8, "number of circular obstacles in the generated arena",

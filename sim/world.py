@@ -13,6 +13,11 @@ import numpy as np
 
 T = TypeVar("T")
 
+#: Where the built-in worlds live (package data): ``<name>.toml``, selected by ``name``.
+WORLDS_DIR = Path(__file__).parent / "worlds"
+#: What a world file's name ends in; a world name without one of these is a built-in world.
+WORLD_SUFFIXES = (".toml", ".json")
+
 
 class WorldError(ValueError):
     """A world that cannot be built or a world file that cannot be read; names the field."""
@@ -151,9 +156,26 @@ def _fits(x: float, y: float, r: float, placed: Sequence[Circle], start: Pose,
 
 # -- world files ------------------------------------------------------------------------------
 
+def builtin_worlds() -> tuple[str, ...]:
+    """The names of the built-in worlds (``apartment``, ``loop``, ``warehouse``, ...)."""
+    return tuple(sorted(path.stem for path in WORLDS_DIR.glob("*.toml")))
+
+
+def world_path(name: str | Path) -> Path:
+    """The file of a world: a path ending in ``.toml`` or ``.json`` as it is, any other
+    value the built-in world of that name; an unknown name raises :class:`WorldError`."""
+    if isinstance(name, Path) or str(name).lower().endswith(WORLD_SUFFIXES):
+        return Path(name)
+    if name not in builtin_worlds():
+        raise WorldError(f"unknown world {name!r}: a built-in world is one of "
+                         f"{', '.join(builtin_worlds())}, a world file ends in .toml or .json")
+    return WORLDS_DIR / f"{name}.toml"
+
+
 def load_world(path: str | Path) -> World:
-    """Read a world from a ``.toml`` or ``.json`` file (format in docs/simulator.md)."""
-    return load_document(path, "world file", WorldError, world_from_dict)
+    """Read a world from a ``.toml`` or ``.json`` file (format in docs/simulator.md), or
+    the built-in world of that name (:func:`world_path`)."""
+    return load_document(world_path(path), "world file", WorldError, world_from_dict)
 
 
 def load_document(path: str | Path, what: str, error: type[ValueError],

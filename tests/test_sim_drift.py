@@ -132,19 +132,21 @@ def test_bad_values_are_refused_naming_the_key(key: str, value: Any, words: str)
 
 # -- the same drift in `arbiterd simulate` (the lockstep runner and the daemon's odometry) -----
 
-def lockstep(tmp_path: Path, sim: Mapping[str, Any], steps: list[Step]) -> Lockstep:
+def lockstep(tmp_path: Path, sim: Mapping[str, Any], steps: list[Step],
+             robot: Mapping[str, Any]) -> Lockstep:
     world = tmp_path / "open.toml"
     world.write_text("[arena]\nwidth = 30.0\nheight = 30.0\n")
     config = load_config(None, sim=True, env={})
     config.update("sim", {"world_file": str(world), **sim})
+    config.update("robot", dict(robot))
     return Lockstep(config, script=steps)
 
 
-async def drive(tmp_path: Path, sim: Mapping[str, Any], v: float, w: float,
-                seconds: float) -> tuple[Any, Any]:
+async def drive(tmp_path: Path, sim: Mapping[str, Any], v: float, w: float, seconds: float,
+                robot: Mapping[str, Any] | None = None) -> tuple[Any, Any]:
     twist = {"linear": {"x": v}, "angular": {"z": w}}
     steps = [Step(0.0, "cmd_vel", parse_twist(twist)), Step(seconds, "stop", True)]
-    runner = lockstep(tmp_path, sim, steps)
+    runner = lockstep(tmp_path, sim, steps, robot or {})
     await runner.run(seconds + 2.0)
     return runner.control.odometry.pose, runner.world.ground_truth()
 
@@ -161,6 +163,16 @@ async def test_lockstep_separation_error_drifts_the_heading_on_turns(tmp_path: P
                               0.0, 0.5, 3.0)
     assert odom.theta > 1.0
     assert heading_error(truth.theta, odom.theta / 1.05) < 1e-3
+
+
+async def test_the_robot_calibration_multipliers_cancel_the_drift(tmp_path: Path) -> None:
+    sim = {"noise": False, "wheel_radius_error": 0.02, "wheel_separation_error": 0.03}
+    robot = {"left_wheel_radius_multiplier": 1.02, "right_wheel_radius_multiplier": 1.02,
+             "wheel_separation_multiplier": 1.03}
+    odom, truth = await drive(tmp_path, sim, 0.4, 0.5, 6.0, robot)
+    assert math.hypot(odom.x - truth.x, odom.y - truth.y) < 1e-3
+    assert math.hypot(odom.x, odom.y) > 1.0 and odom.theta > 2.0  # it did drive an arc
+    assert heading_error(odom.theta, truth.theta) < 1e-3
 
 
 async def test_lockstep_drift_is_seeded_and_reproducible(tmp_path: Path) -> None:

@@ -24,7 +24,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         "lockstep virtual time, faster than real time; print the run metrics")
     p.add_argument("--seconds", type=float, required=True, help="simulated seconds to run")
     p.add_argument("--seed", type=int, help="[sim] seed: obstacle placement, noise, wander")
-    p.add_argument("--world", help="world file (.toml or .json) instead of the seeded arena")
+    p.add_argument("--world", help="world file (.toml or .json) or built-in world name "
+                   "(apartment, warehouse, loop) instead of the seeded arena")
     p.add_argument("--autonomy", choices=("wander",), help="start the wander behaviour")
     p.add_argument("--script", help="timed commands and events to replay (.toml or .json)")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
