@@ -15,7 +15,7 @@ PROG="install.sh"
 
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
-DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench}"
+DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test}"
 NODE_TEST_DIRS=(tests/interop tests/console)   # npm ci in each (lock files committed)
 WITH_BROWSER=0   # test mode: Debian's chromium for the web console's browser tests
 DRY_RUN="${ARBITERD_DRY_RUN:-0}"
@@ -75,6 +75,8 @@ missing_test_packages() {
         || missing+=(openssh-client)
     command -v rsync >/dev/null 2>&1 || missing+=(rsync)
     command -v systemd-analyze >/dev/null 2>&1 || missing+=(systemd)
+    # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md)
+    [[ -e /usr/include/dds/dds.h ]] || missing+=(cyclonedds-dev)
     if [[ "${WITH_BROWSER}" == 1 ]]; then
         [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
     fi
@@ -146,9 +148,25 @@ dev_step_venv() {
     fi
     venv_bootstrap "${DEV_VENV}/bin/python"
     report_status "installing arbiterd (editable)${extras:+ with extras [${extras}]}"
-    run "${DEV_VENV}/bin/python" -m pip install -q --disable-pip-version-check \
+    run env CYCLONEDDS_HOME="$(cyclonedds_home "${DEV_VENV}")" \
+        "${DEV_VENV}/bin/python" -m pip install -q --disable-pip-version-check \
         -e "${SRCDIR}${extras:+[${extras}]}"
     [[ "${DRY_RUN}" == 1 ]] || printf '%s\n%s\n' "${want}" "${extras}" >"${stamp}"
+}
+
+# cyclonedds_home VENV: a folder the cyclonedds binding's build finds Debian's Cyclone DDS in
+# (it wants include/, bin/ and lib/libddsc.so under one folder; Debian splits them by
+# multiarch), made inside VENV; prints its path.
+cyclonedds_home() {
+    local home="$1/cyclonedds-home" multiarch
+    multiarch="$(gcc -print-multiarch 2>/dev/null || dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || true)"
+    if [[ "${DRY_RUN}" != 1 && -n "${multiarch}" && -e "/usr/lib/${multiarch}/libddsc.so" ]]; then
+        mkdir -p "${home}"
+        ln -sfn /usr/include "${home}/include"
+        ln -sfn /usr/bin "${home}/bin"
+        ln -sfn "/usr/lib/${multiarch}" "${home}/lib"
+    fi
+    printf '%s\n' "${home}"
 }
 
 # venv_has_extras HAVE WANT: every comma-separated extra of WANT is in HAVE.

@@ -7,6 +7,7 @@ from daemon.component import ComponentSpec
 from daemon.control import api as control
 from daemon.mapping import component as mapping
 from daemon.recorder import component as recorder
+from daemon.ros2 import component as ros2
 from daemon.rosbridge import server as rosbridge
 from daemon.safety import component as collision_monitor
 
@@ -22,6 +23,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     mapping.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
+    ros2.COMPONENT,
     console.COMPONENT,
     core_api.COMPONENT,
     http_api.COMPONENT,

@@ -63,6 +63,9 @@ class Inbound:
     t_recv: float
     #: the sender's network address (limits per peer)
     peer: str
+    #: the arbiter priority and deadman of its command source (None: the daemon's default)
+    priority: int = 10
+    timeout_s: float | None = None
 
 
 InboundHandler = Callable[[Inbound], Awaitable[Refusal | None]]

@@ -137,6 +137,8 @@ SUITES: dict[str, Suite] = {
                              "under hostile clients, RSS while fuzzing"),
     "safety": Suite("daemon.bench.safety", "`arbiterd simulate` speed, collision-monitor cost "
                     "and command latency"),
+    "ros2": Suite("daemon.bench.ros2", "CPU of the ROS 2 face (DDS) beside the daemon without "
+                  "it, /scan latency to an rclpy node"),
     "foxglove": Suite("daemon.bench.foxglove", "scan frames (JSON, cbor, cbor-raw); tick "
                       "lateness with the flight recorder off and on"),
 }

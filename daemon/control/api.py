@@ -127,7 +127,9 @@ class ControlComponent(BaseComponent):
     async def _submit(self, message: Inbound, twist: Twist, cmd_id: str | int | None = None,
                       t_sent: float | None = None) -> Refusal | None:
         applied = await self.control.submit(message.source, twist, t_recv=message.t_recv,
-                                            cmd_id=cmd_id, t_sent_ms=t_sent)
+                                            cmd_id=cmd_id, t_sent_ms=t_sent,
+                                            priority=message.priority,
+                                            timeout_s=message.timeout_s)
         if applied.accepted:
             return None
         return Refusal(f"command refused: {applied.error or 'command not applied'}",

@@ -176,23 +176,26 @@ class ControlLoop:
 
     async def submit(self, source: str, twist: Twist, *, t_recv: float,
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
-                     priority: int = 10) -> Applied:
-        """Take a validated command and apply it at once (``t_recv`` = monotonic receipt)."""
+                     priority: int = 10, timeout_s: float | None = None) -> Applied:
+        """Take a validated command and apply it at once (``t_recv`` = monotonic receipt;
+        ``timeout_s``: the source's deadman, None for ``cmd_vel_timeout``)."""
         refusal = self._refusal_reason()
         if refusal:
             applied = Applied(False, self.decision.source, self.wheels, [], None, refusal)
         else:
-            applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority)
+            applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority,
+                                        timeout_s)
         self.bus.publish(COMMAND, CommandEvent(
             time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
             applied.accepted, applied.error or ""))
         return applied
 
     async def _apply(self, source: str, twist: Twist, t_recv: float, cmd_id: str | int | None,
-                     t_sent_ms: float | None, priority: int) -> Applied:
+                     t_sent_ms: float | None, priority: int,
+                     timeout_s: float | None = None) -> Applied:
         clock = self.clock
         self._forget_after_stall(clock())  # older commands are stale, this one is fresh
-        self.arbiter.submit(source, twist, clock(), priority)
+        self.arbiter.submit(source, twist, clock(), priority, timeout_s)
         for callback in self.on_command:
             callback(source)
         async with self._lock:

@@ -1,0 +1,107 @@
+# ROS 2 face benchmark: its CPU beside the same daemon without it, and /scan latency to rclpy.
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from daemon.bench import BenchResult, free_port, percentile_ms
+from daemon.bench.process import _cpu_seconds
+
+SUITE = "ros2"
+DOMAIN = 57
+CPU_TARGET_PCT = 1.0
+SIM = "[sim]\nlidar_rays = 720\nlidar_rate = 10.0\n"
+
+
+def run(quick: bool) -> list[BenchResult]:
+    """Two `arbiterd run --sim` (720-ray /scan at 10 Hz), one with [ros2] on and one rclpy
+    subscriber of /scan and /odom (the Jazzy wheels of the extra have no tf2_msgs for /tf),
+    one with it off, measured over the same windows."""
+    try:
+        import rclpy  # noqa: F401
+    except ImportError:
+        return [BenchResult(SUITE, "skipped", 0.0, "", note="rclpy is not installed (the "
+                            "ros2-test extra, x86_64 Linux only)")]
+    os.environ.update(ROS_DOMAIN_ID=str(DOMAIN), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    with tempfile.TemporaryDirectory(prefix="arbiterd-bench-ros2-") as tmp:
+        on = _start(Path(tmp) / "on", f"[ros2]\nenabled = true\ndomain_id = {DOMAIN}\n"
+                    "discovery = \"localhost\"\n")
+        off = _start(Path(tmp) / "off", "")
+        try:
+            return _measure(on, off, 3 if quick else 6, 5.0)
+        finally:
+            for proc in (on, off):
+                proc.terminate()
+                proc.wait(15)
+
+
+def _start(workdir: Path, extra: str) -> subprocess.Popen[bytes]:
+    workdir.mkdir(parents=True)
+    config = workdir / "arbiterd.toml"
+    config.write_text(f"[http]\nhost = \"127.0.0.1\"\nport = {free_port()}\n"
+                      f"[rosbridge]\nhost = \"127.0.0.1\"\nport = {free_port()}\n" + SIM + extra)
+    return subprocess.Popen([sys.executable, "-m", "daemon.cli", "run", "--sim", "--config",
+                             str(config)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+def _measure(on: subprocess.Popen[bytes], off: subprocess.Popen[bytes], windows: int,
+             window_s: float) -> list[BenchResult]:
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import LaserScan
+
+    rclpy.init()
+    node = rclpy.create_node("bench_probe")
+    latencies: list[float] = []
+    rays: list[int] = []
+
+    def on_scan(msg: LaserScan) -> None:
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        latencies.append(time.time() - stamp)
+        rays.append(len(msg.ranges))
+
+    node.create_subscription(LaserScan, "/scan", on_scan, qos_profile_sensor_data)
+    node.create_subscription(Odometry, "/odom", lambda m: None, 10)
+    try:
+        _spin(node, lambda: len(rays) >= 10, 30.0)
+        latencies.clear()
+        extra: list[float] = []
+        for _ in range(windows):
+            a0, b0, t0 = _cpu_seconds(on.pid), _cpu_seconds(off.pid), time.monotonic()
+            _spin(node, lambda: False, window_s)
+            a1, b1, t1 = _cpu_seconds(on.pid), _cpu_seconds(off.pid), time.monotonic()
+            extra.append(100.0 * ((a1 - a0) - (b1 - b0)) / (t1 - t0))
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    return _results(extra, latencies, rays)
+
+
+def _spin(node: Any, done: Any, seconds: float) -> None:
+    import rclpy
+
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and not done():
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
+def _results(extra: list[float], latencies: list[float], rays: list[int]) -> list[BenchResult]:
+    cpu = statistics.median(extra)
+    note = f"{rays[-1] if rays else 0}-ray /scan at 10 Hz and /odom to one rclpy node"
+    return [
+        BenchResult(SUITE, "DDS face CPU (on minus off)", round(cpu, 2), "% of a core",
+                    f"<= {CPU_TARGET_PCT:g}", cpu <= CPU_TARGET_PCT, note),
+        BenchResult(SUITE, "/scan stamp -> rclpy callback, median",
+                    round(percentile_ms(latencies, 50), 2), "ms",
+                    note=f"{len(latencies)} scans; from the revolution's stamp"),
+        BenchResult(SUITE, "/scan stamp -> rclpy callback, p99",
+                    round(percentile_ms(latencies, 99), 2), "ms"),
+    ]

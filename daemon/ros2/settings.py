@@ -1,0 +1,78 @@
+# [ros2]: the ROS 2 face's switch, graph identity, topic selection, QoS and command opt-in.
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from base.config import SectionSettings
+from base.options import Option, Options
+
+DISTROS = ("humble", "jazzy", "kilted")
+DISCOVERY = ("auto", "localhost", "subnet")
+_NODE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*/?$")
+_TOPIC = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
+
+
+def _node_name(value: object) -> str | None:
+    return None if _NODE_NAME.match(str(value)) else "a ROS node name: letters, digits, _"
+
+
+def _namespace(value: object) -> str | None:
+    return None if _NAMESPACE.match(str(value)) else "a ROS namespace such as '' or '/robot1'"
+
+
+def _topics(value: object) -> str | None:
+    bad = [t for t in value if not _TOPIC.match(str(t))] if isinstance(value, list) else []
+    return f"{bad[0]!r} is not an absolute ROS topic name such as '/scan'" if bad else None
+
+
+ROS2_OPTIONS: Options = {
+    "enabled": Option(bool, False, "join the ROS 2 graph over DDS as a node of its own (needs "
+                      "the ros2 extra: cyclonedds; docs/ros2.md)"),
+    "domain_id": Option(int, -1, "ROS domain id (-1: ROS_DOMAIN_ID from the environment, "
+                        "else 0)", minval=-1, maxval=232),
+    "namespace": Option(str, "", "node namespace; it prefixes every topic ('' or '/robot1')",
+                        check=_namespace),
+    "node_name": Option(str, "arbiterd", "the node name other ROS 2 nodes see",
+                        check=_node_name),
+    "distro": Option(str, "jazzy", "the ROS 2 release of the other nodes (layout of the node "
+                     "announcement; kilted: no type information)", choices=DISTROS),
+    "discovery": Option(str, "auto", "who finds the node: localhost (this machine only), "
+                        "subnet (the network), auto (ROS_AUTOMATIC_DISCOVERY_RANGE / "
+                        "ROS_LOCALHOST_ONLY from the environment, else subnet)",
+                        choices=DISCOVERY),
+    "topics": Option(list, [], "topics served (published and accepted); [] = every topic of "
+                     "the topic table", item=str, check=_topics),
+    "best_effort": Option(list, ["/scan"], "published best effort (sensor data QoS); the "
+                          "others reliable", item=str, check=_topics),
+    "transient_local": Option(list, ["/tf_static", "/map"], "published transient local (a "
+                              "late subscriber gets the latest)", item=str, check=_topics),
+    "depth": Option(int, 10, "history depth (keep last) of each topic", minval=1, maxval=1000),
+    "allow_commands": Option(bool, False, "accept commands (/cmd_vel, ...) from DDS: anyone "
+                             "who reaches the DDS domain may then drive the robot"),
+    "command_priority": Option(int, 10, "arbiter priority of DDS commands (rosbridge and "
+                               "HTTP clients: 10)", minval=0, maxval=100),
+    "command_timeout": Option(float, 0.0, "deadman of DDS commands, s (0: [control] "
+                              "cmd_vel_timeout)", minval=0.0, maxval=10.0),
+    "queue": Option(int, 64, "samples waiting for the DDS writer thread; beyond it the oldest "
+                    "is dropped", minval=4, maxval=10000),
+}
+
+
+@dataclass(frozen=True)
+class Ros2Settings(SectionSettings, section="ros2", options=ROS2_OPTIONS):
+    enabled: bool
+    domain_id: int
+    namespace: str
+    node_name: str
+    distro: str
+    discovery: str
+    topics: list[str]
+    best_effort: list[str]
+    transient_local: list[str]
+    depth: int
+    allow_commands: bool
+    command_priority: int
+    command_timeout: float
+    queue: int
