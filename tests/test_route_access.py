@@ -20,11 +20,16 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
           '[control]\nallow_fault_injection = true\n')
 
 
+def locked_toml(tmp_path: Path) -> str:
+    """LOCKED with every optional component on (its maps in the test's own folder)."""
+    return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n'
+
+
 @pytest.fixture
 async def locked(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
     """Token configured, reads need it too, every optional route registered (sim, lidar,
-    fault injection)."""
-    async with in_process_daemon(tmp_path, LOCKED) as robot:
+    fault injection, mapping)."""
+    async with in_process_daemon(tmp_path, locked_toml(tmp_path)) as robot:
         yield robot
 
 
@@ -108,7 +113,7 @@ async def test_the_three_formerly_open_routes_need_the_token(locked: InProcessDa
 
 
 async def test_open_health_is_the_documented_exception(tmp_path: Path) -> None:
-    config = LOCKED.replace("read_requires_token = true\n",
+    config = locked_toml(tmp_path).replace("read_requires_token = true\n",
                             "read_requires_token = true\nopen_health = true\n")
     async with in_process_daemon(tmp_path, config) as robot:
         opened = {(m, p) for m, p, a in routes(robot) if a == "open"}
