@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from slam.grid import OccupancyGrid
 
-SEARCH_PAD = 48  # cells of zero likelihood around a field: the widest search reach it serves
+SEARCH_PAD = 80  # zero-likelihood border cells around a field; searches reach at most half of it
 
 
 class DistanceField:
