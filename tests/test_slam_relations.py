@@ -1,6 +1,7 @@
 # The Freiburg relation metric on hand-made trajectories: zero on exact poses, known on perturbed.
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -14,7 +15,7 @@ TRUTH: list[tuple[float, Pose2]] = [(float(i), (0.5 * i, 0.1 * i * i, 0.2 * i)) 
 
 def relations_of(truth: list[tuple[float, Pose2]]) -> list[Relation]:
     out = []
-    for (t1, p1), (t2, p2) in zip(truth, truth[1:], strict=False):
+    for (t1, p1), (t2, p2) in itertools.pairwise(truth):
         x, y, yaw = between(p1, p2)
         out.append(Relation(t1, t2, x, y, yaw))
     return out
