@@ -76,7 +76,7 @@ def test_from_occupancy_round_trips_exactly() -> None:
 
 
 def test_from_occupancy_refuses_bad_values() -> None:
-    with pytest.raises(ValueError, match="-1 or 0..100"):
+    with pytest.raises(ValueError, match=r"-1 or 0\.\.100"):
         OccupancyGrid.from_occupancy(np.full((3, 3), 101), 0.05, 0.0, 0.0)
 
 
