@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from slam.grid import OccupancyGrid
 
-SEARCH_PAD = 48  # cells of zero likelihood around a field: the widest search reach it serves
+SEARCH_PAD = 80  # zero-likelihood border cells around a field; searches reach at most half of it
 
 
 class DistanceField:
@@ -17,15 +17,26 @@ class DistanceField:
     is at (origin_x, origin_y). Lookups outside read ``max_distance`` with zero gradient."""
 
     def __init__(self, occupied: np.ndarray, origin_x: float, origin_y: float,
-                 resolution: float, max_distance: float) -> None:
+                 resolution: float, max_distance: float,
+                 exact_xy: np.ndarray | None = None) -> None:
+        """``exact_xy`` (2, H, W): where in its cell each occupied cell's point really is
+        (world m); distances are then measured to those points rather than to cell centres,
+        which keeps the field free of the half-cell quantisation bias."""
         self.resolution = resolution
         self.origin_x, self.origin_y = origin_x, origin_y
         self.max_distance = max_distance
         self.height, self.width = occupied.shape
-        if occupied.any():
+        if not occupied.any():
+            dist = np.full(occupied.shape, max_distance)
+        elif exact_xy is None:
             dist = ndimage.distance_transform_edt(~occupied) * resolution
         else:
-            dist = np.full(occupied.shape, max_distance)
+            rows, cols = ndimage.distance_transform_edt(~occupied, return_distances=False,
+                                                        return_indices=True)
+            cx = origin_x + (np.arange(self.width) + 0.5) * resolution
+            cy = origin_y + (np.arange(self.height) + 0.5) * resolution
+            dist = np.hypot(exact_xy[0][rows, cols] - cx[None, :],
+                            exact_xy[1][rows, cols] - cy[:, None])
         self.distance = np.minimum(dist, max_distance).astype(np.float32)
         self._likelihood: dict[float, np.ndarray] = {}
 
@@ -38,10 +49,13 @@ class DistanceField:
             points = np.zeros((1, 2))
         low = points.min(axis=0) - margin
         size = np.ceil((points.max(axis=0) + margin - low) / resolution).astype(int) + 1
-        occupied = np.zeros((size[1], size[0]), dtype=bool)
         cells = np.floor((points - low) / resolution).astype(np.int64)
-        occupied[cells[:, 1], cells[:, 0]] = True
-        return cls(occupied, float(low[0]), float(low[1]), resolution, max_distance)
+        flat = cells[:, 1] * size[0] + cells[:, 0]
+        count = np.bincount(flat, minlength=size[0] * size[1]).reshape(size[1], size[0])
+        occupied = count > 0
+        exact = np.stack([np.bincount(flat, points[:, k], size[0] * size[1]).reshape(
+            size[1], size[0]) / np.maximum(count, 1) for k in (0, 1)])
+        return cls(occupied, float(low[0]), float(low[1]), resolution, max_distance, exact)
 
     @classmethod
     def from_grid(cls, grid: OccupancyGrid, max_distance: float,

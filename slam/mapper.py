@@ -29,6 +29,8 @@ class MapperConfig:
     key_distance, key_angle: a scan becomes a key scan (graph node, integrated into the grid)
         once the pose moved this far or turned this much since the last key scan.
     submap_keys: how many recent key scans form the submap each scan is matched against.
+    submap_every: the submap's distance field is rebuilt every this many key scans (and after
+        every graph optimisation); in between, scans match the slightly older submap.
     track_window: the correlative search around the odometry prediction (± m, ± rad).
     min_score: a match scoring below this (0..1) is refused and odometry is used instead.
     score_sigma: width (m) of the likelihood that turns point distances into the score.
@@ -57,6 +59,7 @@ class MapperConfig:
     key_distance: float = 0.3
     key_angle: float = math.radians(12)
     submap_keys: int = 30
+    submap_every: int = 3
     track_window: tuple[float, float] = (0.2, math.radians(6))
     min_score: float = 0.3
     score_sigma: float = 0.05
@@ -145,6 +148,8 @@ class Mapper:
         self._submap: DistanceField | None = None
         self._pending_loops = 0
         self._last_loop_key = -10**9
+        self._first_pending_key = 0
+        self._submap_age = 0
         self._trajectory: list[tuple[float, int, Pose2]] = []
         self._counts = Counters()
         self._lost = False
@@ -318,6 +323,7 @@ class Mapper:
         if len(points) < 10:
             return None
         if self._submap is None:
+            self._submap_age = 0
             self._submap = self._field_of(range(max(0, len(self._keys) - self.config.submap_keys),
                                                 len(self._keys)))
         lin, ang = self.config.track_window
@@ -349,14 +355,16 @@ class Mapper:
                                  sigmas)
         if not self._grid_stale:
             self._grid.integrate(pose, points)
-        self._submap = None
+        self._submap_age += 1
+        if self._submap_age >= self.config.submap_every:
+            self._submap = None
         if self.config.loop_closure:
             self._close_loop(index)
         self._maybe_optimize(index)
 
     def _maybe_optimize(self, index: int) -> None:
         every = self.config.optimize_every
-        if self._pending_loops and every > 0 and index - self._last_loop_key >= every:
+        if self._pending_loops and every > 0 and index - self._first_pending_key >= every:
             self.optimize()
 
     def _close_loop(self, index: int) -> None:
@@ -381,6 +389,8 @@ class Mapper:
         self._graph.add_edge(candidate, index, between(self._graph.pose(candidate), found.pose),
                              cfg.loop_sigmas, robust=True)
         self._counts.loop_closures += 1
+        if not self._pending_loops:
+            self._first_pending_key = index
         self._pending_loops += 1
         self._last_loop_key = index
 

@@ -44,7 +44,9 @@ def correlative_search(field: DistanceField, points: np.ndarray, center: Pose2,
     like = field.likelihood(window.sigma).reshape(-1)
     padded_w, padded_h = field.width + 2 * SEARCH_PAD, field.height + 2 * SEARCH_PAD
     cell_step = max(1, round(window.linear_step / field.resolution))
-    reach = min(round(window.linear / (cell_step * field.resolution)), SEARCH_PAD // cell_step)
+    reach = min(round(window.linear / (cell_step * field.resolution)),
+                SEARCH_PAD // 2 // cell_step)
+    most = reach * cell_step  # the largest shift in cells
     offsets = np.arange(-reach, reach + 1) * cell_step
     shifts = (offsets[:, None] * padded_w + offsets[None, :]).reshape(-1)  # (dy, dx) flattened
     turns = round(window.angular / window.angular_step) if window.angular_step > 0 else 0
@@ -57,8 +59,10 @@ def correlative_search(field: DistanceField, points: np.ndarray, center: Pose2,
         world = transform_points((center[0], center[1], theta), points)
         col = np.floor((world[:, 0] - field.origin_x) / field.resolution).astype(np.int64)
         row = np.floor((world[:, 1] - field.origin_y) / field.resolution).astype(np.int64)
-        col = np.clip(col + SEARCH_PAD, 0, padded_w - 1)
-        row = np.clip(row + SEARCH_PAD, 0, padded_h - 1)
+        col, row = col + SEARCH_PAD, row + SEARCH_PAD
+        # points that no shift brings into the field read a cell whose every shift is border
+        near = (col >= most) & (col < padded_w - most) & (row >= most) & (row < padded_h - most)
+        col, row = np.where(near, col, most), np.where(near, row, most)
         scores = like[(row * padded_w + col)[None, :] + shifts[:, None]].mean(axis=1)
         ranked = scores * (1.0 - 0.05 * (spread + (k / max(1, turns)) ** 2))
         i = int(np.argmax(ranked))

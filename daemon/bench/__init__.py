@@ -141,6 +141,8 @@ SUITES: dict[str, Suite] = {
                   "it, /scan latency to an rclpy node"),
     "foxglove": Suite("daemon.bench.foxglove", "scan frames (JSON, cbor, cbor-raw); tick "
                       "lateness with the flight recorder off and on"),
+    "slam": Suite("daemon.bench.slam", "the mapper over the Freiburg logs: relation errors "
+                  "beside Cartographer and odometry, speed vs real time"),
 }
 
 
