@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import base64
+import signal
 from pathlib import Path
 from typing import Any
 
 import aiohttp
 import numpy as np
+import pytest
 import yaml
 
+from tests.support.daemon_subprocess import StartDaemonSubprocess
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.support.rosbridge import connect
-from tests.support.wait import eventually
+from tests.support.wait import eventually, wait_for
 
 MAPPING = '[mapping]\nenabled = true\npublish_period_s = 0.5\ndirectory = "{maps}"\n'
 
@@ -137,3 +140,32 @@ async def test_an_initial_pose_in_another_frame_is_refused(tmp_path: Path) -> No
                               "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}})
         status = await client.op("status", id="p")
         assert status["level"] == "error" and "frame_id is 'odom'" in status["msg"]
+
+
+def children_of(pid: int) -> set[int]:
+    found = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        text = (task / "children").read_text() if (task / "children").exists() else ""
+        found |= {int(child) for child in text.split()}
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state != "Z"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_the_mapper_process_ends_with_the_daemon(daemon_subprocess: StartDaemonSubprocess,
+                                                  tmp_path: Path, sig: int) -> None:
+    daemon = daemon_subprocess(mapping_toml(tmp_path), args=("--sim",))
+    wait_for(lambda: daemon.get("/api/health")[1]["components"]["mapping"]["revolutions"] > 0,
+             "the mapper's first revolution", within_s=30)
+    assert daemon.proc is not None
+    workers = children_of(daemon.proc.pid)
+    assert workers, "the mapper runs in a process of its own"
+    daemon.stop(sig)
+    wait_for(lambda: not any(alive(pid) for pid in workers), "the mapper process to end")

@@ -46,8 +46,15 @@ MAP: BusKey[messages.MapMessage] = BusKey("map")
 MAP_POSE: BusKey[messages.MapPose] = BusKey("map_pose")
 #: odometry poses kept to place a revolution at its own time (s)
 HISTORY_S = 2.0
-#: a revolution that waited longer than this behind a busy mapper is dropped (s)
-MAX_QUEUE_AGE_S = 1.0
+#: revolutions that may wait behind a busy mapper (a key scan or a loop closure takes a few
+#: revolutions' time now and then); beyond this the oldest is dropped
+QUEUE_LENGTH = 20
+#: a revolution that waited longer than this is dropped (s)
+MAX_QUEUE_AGE_S = 2.0
+
+
+#: one revolution for the mapper: odometry pose, points (robot frame), stamp, control time
+Job = tuple[Pose2, np.ndarray, float, float]
 
 
 @dataclass
@@ -91,7 +98,7 @@ class MappingComponent(BaseComponent):
         self.map_name = settings.map if settings.mode == "localize" else ""
         self.problem = ""
         self._busy = False
-        self._pending: tuple[Pose2, np.ndarray, float, float] | None = None
+        self._pending: deque[Job] = deque()
         self._next_map_at = -math.inf
         self._tasks: set[asyncio.Task[Any]] = set()
         plugs.on_tick(self._on_tick)
@@ -112,6 +119,14 @@ class MappingComponent(BaseComponent):
             if grid is None:
                 return
         self.runner = self._runner(grid, self._initial_pose())
+        if not self.inline:  # the worker's start-up (its imports) before the first revolution
+            self._spawn(self._warm_up(self.runner))
+
+    async def _warm_up(self, runner: MapperRunner) -> None:
+        try:
+            await runner.health()
+        except Exception as exc:
+            self._fail(exc)
 
     def _runner(self, grid: MapData | None, pose: Pose2) -> MapperRunner:
         config = self.mapper_config()
@@ -191,9 +206,10 @@ class MappingComponent(BaseComponent):
             self._apply(self.runner.mapper.add_scan(*job[:3]), job[2])
             return
         if self._busy:
-            if self._pending is not None:
+            if len(self._pending) >= QUEUE_LENGTH:
+                self._pending.popleft()
                 self.counters.skipped_busy += 1
-            self._pending = job
+            self._pending.append(job)
             return
         self._spawn(self._match(job))
 
@@ -202,8 +218,9 @@ class MappingComponent(BaseComponent):
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    async def _match(self, job: tuple[Pose2, np.ndarray, float, float]) -> None:
+    async def _match(self, first: Job) -> None:
         self._busy = True
+        job: Job | None = first
         try:
             while job is not None and self.runner is not None:
                 odom, points, stamp, _ = job
@@ -217,12 +234,13 @@ class MappingComponent(BaseComponent):
         finally:
             self._busy = False
 
-    def _take_pending(self) -> Any:
-        job, self._pending = self._pending, None
-        if job is not None and self.clock() - job[3] > MAX_QUEUE_AGE_S:
+    def _take_pending(self) -> Job | None:
+        while self._pending:
+            job = self._pending.popleft()
+            if self.clock() - job[3] <= MAX_QUEUE_AGE_S:
+                return job
             self.counters.skipped_busy += 1
-            return None
-        return job
+        return None
 
     def _fail(self, exc: BaseException) -> None:
         self.counters.failed += 1

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import multiprocessing
+import os
+import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -94,7 +97,17 @@ _WORKER: Mapper | None = None
 
 def _worker_start(config: MapperConfig, grid: MapData | None, pose: Pose2) -> None:
     global _WORKER
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="parent-watch",
+                     daemon=True).start()
     _WORKER = new_mapper(config, grid, pose)
+
+
+def _exit_with_parent(parent: int, every_s: float = 0.5) -> None:
+    """The worker ends when the daemon does, however it ended (SIGKILL included): no
+    orphan keeps a core busy."""
+    while os.getppid() == parent:
+        time.sleep(every_s)
+    os._exit(0)
 
 
 def _worker() -> Mapper:
