@@ -143,6 +143,9 @@ SUITES: dict[str, Suite] = {
                       "lateness with the flight recorder off and on"),
     "slam": Suite("daemon.bench.slam", "the mapper over the Freiburg logs: relation errors "
                   "beside Cartographer and odometry, speed vs real time"),
+    "mapping-sim": Suite("daemon.bench.mapping_sim", "the mapper in `arbiterd simulate`: pose "
+                         "error and map quality against the true world, beside odometry, "
+                         "apartment / warehouse / loop with a drifting base"),
 }
 
 
