@@ -11,6 +11,9 @@ from sim.world import World
 DEFAULT_RAYS = 360
 DEFAULT_RANGE_MIN = 0.1
 DEFAULT_RANGE_MAX = 10.0
+#: a wall's free end is seen as a disc this wide (m): a real wall has a thickness, and a
+#: zero-thickness segment met end-on would hide from every ray (a ray along it is degenerate)
+END_CAP_RADIUS = 0.005
 
 
 def ray_angles(count: int = DEFAULT_RAYS) -> np.ndarray:
@@ -47,7 +50,7 @@ class RayCaster:
         self.range_min = range_min
         self.range_max = range_max
         self._directions = np.stack([np.cos(self.angles), np.sin(self.angles)])  # 2 x rays
-        seg, cir = world.segment_array, world.circle_array
+        seg, cir = world.segment_array, np.concatenate([world.circle_array, _end_caps(world)])
         a, e = seg[:, 0:2], seg[:, 2:4] - seg[:, 0:2]
         self._n_seg = len(seg)
         # rows (world frame) whose products with a ray direction d are dxe, axd and d·c;
@@ -116,3 +119,15 @@ def _circle_hits(along: np.ndarray, offset: np.ndarray) -> np.ndarray:
     t = along - root
     t[~(t > 0)] = np.inf
     return np.asarray(t.min(axis=0))
+
+
+def _end_caps(world: World) -> np.ndarray:
+    """A small disc at every wall end no other wall shares: ``(N, 3)`` circles."""
+    seg = world.segment_array
+    if not len(seg):
+        return np.zeros((0, 3))
+    ends = np.concatenate([seg[:, 0:2], seg[:, 2:4]])
+    keys = np.round(ends / 1e-6).astype(np.int64)
+    _, index, counts = np.unique(keys, axis=0, return_index=True, return_counts=True)
+    free = ends[index[counts == 1]]
+    return np.column_stack([free, np.full(len(free), END_CAP_RADIUS)])

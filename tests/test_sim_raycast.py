@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.raycast import RayCaster, cast, ray_angles
+from sim.raycast import END_CAP_RADIUS, RayCaster, cast, ray_angles
 from sim.world import Circle, Segment, World, arena_walls, generated_world
 
 ARENA = World(arena_walls(16.0, 16.0), ())
@@ -132,3 +132,19 @@ def test_empty_world_and_bad_limits() -> None:
     assert cast(no_circles, 0.0, 0.0, 0.0, np.array([0.0]))[0] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="range_min < range_max"):
         RayCaster(ARENA, ray_angles(), 5.0, 1.0)
+
+
+def test_a_thin_wall_met_end_on_is_seen() -> None:
+    # a zero-thickness wall pointing at the robot: the ray along it would be degenerate, and
+    # the rays beside it miss; a real wall has a thickness, and the lidar sees its end
+    wall = World((Segment(1.0, 0.0, 3.0, 0.0),), ())
+    ahead = cast(wall, 0.0, 0.0, 0.0, ray_angles(360))
+    assert ahead[0] == pytest.approx(1.0 - END_CAP_RADIUS, abs=1e-9)
+    assert np.isinf(ahead[1:]).all()
+    side = cast(wall, 2.0, -1.0, math.pi / 2, np.array([0.0]))  # side-on: the wall itself
+    assert side[0] == pytest.approx(1.0)
+
+
+def test_corners_where_walls_meet_get_no_end_cap() -> None:
+    ranges = cast(ARENA, 0.0, 0.0, 0.0, np.array([45.0]) * DEG, range_max=20.0)
+    assert ranges[0] == pytest.approx(8.0 * math.sqrt(2.0))
