@@ -97,6 +97,11 @@ def _spin(node: Any, done: Any, seconds: float) -> None:
 def _results(extra: list[float], latencies: list[float], rays: list[int]) -> list[BenchResult]:
     cpu = statistics.median(extra)
     note = f"{rays[-1] if rays else 0}-ray /scan at 10 Hz and /odom to one rclpy node"
+    if not rays:  # discovery failed: the CPU figure would be of a face with no reader
+        return [BenchResult(SUITE, "no /scan reached the rclpy node", 0.0, "", "scans", False,
+                            "discovery failed; loopback-only discovery needs a network "
+                            "namespace with only lo up: unshare -n sh -c 'ip link set lo up "
+                            "&& arbiterd bench --only ros2' (docs/ros2.md)")]
     return [
         BenchResult(SUITE, "DDS face CPU (on minus off)", round(cpu, 2), "% of a core",
                     f"<= {CPU_TARGET_PCT:g}", cpu <= CPU_TARGET_PCT, note),
