@@ -22,7 +22,8 @@ if TYPE_CHECKING:
 # so no path can reach another file (there is no directory walk).
 PAGE = "index.html"
 ASSETS = ("console.css", "icon.svg", "app.js", "api.js", "bridge.js", "drive.js",
-          "joystick.js", "view.js", "hud.js", "health.js", "token.js", "robot.js", "log.js")
+          "joystick.js", "view.js", "hud.js", "health.js", "token.js", "robot.js", "log.js",
+          "map.js")
 FILES = (PAGE, *ASSETS)
 
 

@@ -1,6 +1,6 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls [--shots DIR]
-//        [--token T] [--seconds S]
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls|mapping
+//        [--shots DIR] [--token T] [--seconds S] [--map-name NAME]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { readFile } from "node:fs/promises";
 import { chromium } from "playwright-core";
@@ -429,6 +429,86 @@ async function controlsScenario(browser) {
   await phone.context.close();
 }
 
+// The mapping component: the map drawn under the scan, Save map (a refused name, then a good
+// one), and, after the test switches the robot to localisation, a drag that sets the pose.
+async function mappingScenario(browser) {
+  const name = option("--map-name");
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  const until = (what, predicate, arg, ms = 20000) => page.waitForFunction(predicate, arg,
+    { timeout: ms }).catch((e) => { throw new Error(`${what}: ${e.message}`); });
+  const mapping = async () => (await getJson("/api/health")).components.mapping;
+
+  await holdKey(page, "w", 800); // the robot maps as it drives
+  await until("a map with occupied cells drawn in the map frame", () => {
+    const view = document.getElementById("view");
+    return Number(view.dataset.mapOccupied) > 0 &&
+      / · map frame/.test(document.getElementById("view-info").textContent);
+  });
+  // the next frame has the map in it: count the canvas's pixels of the occupied colour
+  const drawn = await page.evaluate(() => new Promise((resolve) => {
+    requestAnimationFrame(() => requestAnimationFrame(() => {
+      const view = document.getElementById("view");
+      const { data } = view.getContext("2d").getImageData(0, 0, view.width, view.height);
+      let occupied = 0;
+      let free = 0;
+      for (let i = 0; i < data.length; i += 4) {
+        if (data[i] === 45 && data[i + 1] === 55 && data[i + 2] === 72) occupied++;
+        if (data[i] === 255 && data[i + 1] === 255 && data[i + 2] === 255) free++;
+      }
+      resolve({ occupied, free, version: Number(view.dataset.mapVersion),
+        cells: Number(view.dataset.mapOccupied), pixels: view.width * view.height });
+    }));
+  }));
+  if (shots) await page.screenshot({ path: `${shots}/console-map.png` });
+  report("map", { ...drawn, saveShown: await page.isVisible("#map-save"),
+    hintShown: await page.isVisible("#map-hint"), health: await mapping() });
+
+  const saveAs = async (answer) => {
+    page.once("dialog", (dialog) => dialog.accept(answer));
+    await page.evaluate(() => { document.getElementById("map-message").textContent = ""; });
+    await page.click("#map-save");
+    await until("the save's answer", () =>
+      document.getElementById("map-message").textContent !== "" &&
+      !/…$/.test(document.getElementById("map-message").textContent));
+    return { text: await text(page, "#map-message"),
+      kind: await page.$eval("#map-message", (e) => e.dataset.kind) };
+  };
+  report("save", { refused: await saveAs("no spaces/here"), saved: await saveAs(name) });
+  report("saved", {}); // the test switches the robot to localisation in the saved map now
+
+  await until("the pose tool (localisation mode)", () =>
+    document.getElementById("view").dataset.poseTool === "true", null, 30000);
+  let before = await mapping(); // a revolution matched in the loaded map: its pose
+  for (const t0 = Date.now(); !(before.mode === "localize" && before.pose); before = await mapping()) {
+    if (Date.now() - t0 > 10000) throw new Error("timed out: a pose in the loaded map");
+    await sleep(50);
+  }
+  const [x, y, deg] = before.pose;
+  const target = { x: x + 0.2, y: y - 0.1, theta: ((deg + 15) * Math.PI) / 180 };
+  const [a, b, c, d, e, f] = (await page.$eval("#view", (v) => v.dataset.transform))
+    .split(",").map(Number);
+  const box = await page.locator("#view").boundingBox();
+  const dpr = await page.evaluate(() => window.devicePixelRatio || 1);
+  const screen = (p) => ({ x: box.x + (a * p.x + c * p.y + e) / dpr,
+    y: box.y + (b * p.x + d * p.y + f) / dpr });
+  const from = screen(target);
+  const to = screen({ x: target.x + Math.cos(target.theta), y: target.y + Math.sin(target.theta) });
+  const request = page.waitForRequest((r) => r.url().endsWith("/api/pose") &&
+    r.method() === "POST", { timeout: 10000 });
+  await page.mouse.move(from.x, from.y);
+  await page.mouse.down();
+  await page.mouse.move(to.x, to.y, { steps: 8 });
+  await page.mouse.up();
+  const sent = (await request).postDataJSON();
+  await until("the pose's answer", () =>
+    /^pose set to/.test(document.getElementById("map-message").textContent));
+  report("pose", { target, sent, before, message: await text(page, "#map-message"),
+    hintShown: await page.isVisible("#map-hint"), errors: [...errors] });
+  await context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
@@ -437,6 +517,7 @@ try {
   else if (scenario === "reconnect") await reconnectScenario(browser);
   else if (scenario === "fault") await faultScenario(browser);
   else if (scenario === "controls") await controlsScenario(browser);
+  else if (scenario === "mapping") await mappingScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

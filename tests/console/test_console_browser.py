@@ -253,3 +253,73 @@ def test_console_controls_beyond_driving(tmp_path: Path) -> None:
     phone = steps["controlsPhone"]
     assert phone["hint"] is False and phone["errors"] == [], phone
     _keep_shots(shots, "console-controls-laptop.png", "console-controls-phone.png")
+
+
+def test_console_draws_the_map_saves_it_and_sets_the_pose(tmp_path: Path) -> None:
+    """[mapping] on: the console draws the grid under the scan in the map frame, its Save map
+    button writes a map that GET /api/maps lists (and shows a refusal's text), and in
+    localisation mode a drag on the view sends the pose that health then reports."""
+    _require_browser()
+    assert NODE is not None
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    toml = SIM + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        _wait_healthy(daemon)
+        client = subprocess.Popen([NODE, str(HERE / "console_client.mjs"),
+                                   daemon.base_url + "/", "mapping", "--shots", str(shots),
+                                   "--map-name", "console-map"], cwd=HERE,
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        steps: Steps = {}
+        listed: list[str] = []
+        try:
+            assert client.stdout is not None
+            for line in client.stdout:
+                if not line.startswith("{"):
+                    continue
+                record = json.loads(line)
+                steps[record["step"]] = record
+                if record["step"] == "saved":  # localise in the map the button saved
+                    listed = [m["name"] for m in daemon.get("/api/maps")[1]["maps"]]
+                    x, y, deg = daemon.get("/api/health")[1]["components"]["mapping"]["pose"]
+                    status, body = daemon.post("/api/map/load", {  # a new mapper process
+                        "name": "console-map", "pose": {"x": x, "y": y, "heading_deg": deg}},
+                        timeout=30)
+                    assert status == 200 and body["mode"] == "localize", body
+        finally:
+            client.kill()
+        assert client.wait(10) == 0 and "done" in steps, (steps.get("fail"), daemon.log())
+        sent = steps["pose"]["sent"]
+        revolutions = steps["pose"]["before"]["revolutions"]
+
+        def reported() -> dict[str, Any] | None:
+            mapping = daemon.get("/api/health")[1]["components"]["mapping"]
+            return mapping if mapping["revolutions"] > revolutions + 2 else None
+
+        after = wait_for(reported, "revolutions matched after the dragged pose", within_s=10,
+                          interval_s=0.1)
+        log = daemon.log()
+        assert daemon.stop() == 0
+    drawn = steps["map"]
+    assert drawn["cells"] > 20 and drawn["version"] > 0, drawn
+    assert drawn["occupied"] > 50, drawn  # the walls' cells, where the scan is not on them
+    assert drawn["free"] > drawn["occupied"], drawn  # the free space the lidar saw, light
+    assert drawn["saveShown"] is True and drawn["hintShown"] is False, drawn
+    save = steps["save"]
+    assert save["refused"]["kind"] == "error" and "is not a map name" in save["refused"]["text"]
+    assert save["saved"] == {"kind": "info", "text": save["saved"]["text"]}, save
+    assert save["saved"]["text"].startswith("map saved: console-map.yaml + console-map.pgm")
+    assert "console-map" in listed and (tmp_path / "maps" / "console-map.pgm").is_file()
+    pose = steps["pose"]
+    target = pose["target"]  # where the test pressed, and the heading it dragged towards
+    assert math.hypot(sent["x"] - target["x"], sent["y"] - target["y"]) < 0.03, pose
+    assert abs(math.remainder(sent["theta"] - target["theta"], math.tau)) < math.radians(3)
+    assert pose["message"].startswith("pose set to") and pose["hintShown"] is True, pose
+    # the browser's own line for the refused name's 422 is expected; nothing else
+    assert [e for e in pose["errors"] if "status of 422" not in e] == [], log
+    assert (f"pose in the map set to ({sent['x']:.2f} m, {sent['y']:.2f} m, "
+            f"{math.degrees(sent['theta']):.0f} deg)") in log
+    x, y, deg = after["pose"]  # matched from the sent pose: it stays near it (0.22 m off truth)
+    assert math.hypot(x - sent["x"], y - sent["y"]) < 0.35, (after, sent)
+    assert abs(math.remainder(math.radians(deg) - sent["theta"], math.tau)) < math.radians(25)
+    _keep_shots(shots, "console-map.png")

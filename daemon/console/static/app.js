@@ -7,6 +7,7 @@ import { renderHealth, renderMotion } from "./health.js";
 import { Hud } from "./hud.js";
 import { Joystick } from "./joystick.js";
 import { LogTail } from "./log.js";
+import { MapPanel } from "./map.js";
 import { RobotPanel } from "./robot.js";
 import { TokenBox } from "./token.js";
 import { View, poseOf } from "./view.js";
@@ -49,6 +50,8 @@ const robot = new RobotPanel({
   recordState: $("record-state"), odomReset: $("odom-reset"), simReset: $("sim-reset"),
   message: $("robot-message"), recordings: $("recordings"), refresh: $("recordings-refresh"),
 }, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });
+const mapPanel = new MapPanel({ save: $("map-save"), message: $("map-message"),
+  hint: $("map-hint") }, api, bridge, view, { onRefused: (what) => tokenProblem(what) });
 
 // -- connection, access and the banner ------------------------------------------------------
 
@@ -227,6 +230,7 @@ function healthArrived(health) {
     $("sim-reset").hidden = health.mode !== "sim";
   }
   robot.setRecorder(health.components.recorder);
+  mapPanel.health(health.components.mapping);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
   if (firstTime && state.wsPort) bridge.connect();

@@ -1,6 +1,8 @@
 // Top-down view in the odometry frame, centred on the robot: /scan on a metres grid, the
 // footprint, the odometry trail and, on the simulated robot, the ground truth beside it. Until
 // the user zooms, the view fits the latest scan (the walls of a room or of the simulated arena).
+// When the robot maps (map.js), the view is in the map frame: the occupancy grid under the scan,
+// and the odometry-frame scan, trail and robot moved by map -> odom to the robot's map pose.
 
 const TRAIL_MAX = 2000;
 const SPANS = [2, 4, 8, 12, 16, 24, 32, 48]; // zoom steps: metres across the shorter side
@@ -13,6 +15,13 @@ export function poseOf(msg) {
   const q = msg.pose.pose.orientation;
   const theta = Math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z));
   return { x: p.x, y: p.y, theta };
+}
+
+// a ∘ b: the pose b (in a's child frame) in a's parent frame
+export function compose(a, b) {
+  const c = Math.cos(a.theta);
+  const s = Math.sin(a.theta);
+  return { x: a.x + c * b.x - s * b.y, y: a.y + s * b.x + c * b.y, theta: a.theta + b.theta };
 }
 
 function cssColor(name) {
@@ -35,11 +44,92 @@ export class View {
     this.scan = null; // {xy: Float32Array in the laser frame, pose: the odometry pose then}
     this.footprint = 0.2;
     this.pending = false;
+    this.map = null; // the occupancy grid (map.js mapImage), drawn in the map frame
+    this.mapToOdom = null; // where the odometry frame is in the map; null: no map frame
+    this.poseTool = false; // dragging sets the pose in the map (localisation mode)
+    this.drag = null; // {start, end} in the map frame while dragging
+    this.onPoseDrag = () => {};
+    this.worldOf = null; // device pixel -> view-frame metres, from the last draw
     new ResizeObserver(() => this.request()).observe(canvas);
     canvas.addEventListener("wheel", (event) => {
       event.preventDefault();
       this.zoom(event.deltaY > 0 ? 1 : -1);
     }, { passive: false });
+    this.listenForPoseDrag();
+  }
+
+  // -- the map frame ----------------------------------------------------------------------------
+
+  setMap(map) {
+    this.map = map;
+    this.canvas.dataset.mapVersion = String(map.version); // what is drawn, for tests
+    this.canvas.dataset.mapOccupied = String(map.occupied);
+    this.request();
+  }
+
+  setMapToOdom(transform) {
+    this.mapToOdom = transform;
+    this.request();
+  }
+
+  legendMap(on) {
+    const key = document.querySelector(".key.map");
+    if (key) key.hidden = !on;
+  }
+
+  // The robot's pose in the view's frame: the map's when there is one.
+  shown(pose) { return this.mapToOdom ? compose(this.mapToOdom, pose) : pose; }
+
+  setPoseTool(on) {
+    if (on === this.poseTool) return;
+    this.poseTool = on;
+    this.drag = null;
+    this.canvas.dataset.poseTool = String(on);
+    this.canvas.style.touchAction = on ? "none" : "";
+    this.canvas.style.cursor = on ? "crosshair" : "";
+    this.request();
+  }
+
+  // Press where the robot is, drag towards where it faces, release: onPoseDrag({x, y, theta}).
+  listenForPoseDrag() {
+    const { canvas } = this;
+    const at = (event) => {
+      const dpr = window.devicePixelRatio || 1;
+      const rect = canvas.getBoundingClientRect();
+      const p = this.worldOf.transformPoint(new DOMPoint((event.clientX - rect.left) * dpr,
+        (event.clientY - rect.top) * dpr));
+      return { x: p.x, y: p.y };
+    };
+    canvas.addEventListener("pointerdown", (event) => {
+      if (!this.poseTool || !this.worldOf || event.button !== 0) return;
+      event.preventDefault();
+      canvas.setPointerCapture(event.pointerId);
+      const start = at(event);
+      this.drag = { start, end: start, scale: this.worldOf.a };
+      this.request();
+    });
+    canvas.addEventListener("pointermove", (event) => {
+      if (!this.drag) return;
+      this.drag.end = at(event);
+      this.request();
+    });
+    const finish = (event, send) => {
+      const { drag } = this;
+      if (!drag) return;
+      this.drag = null;
+      this.request();
+      if (!send) return;
+      const end = at(event);
+      const dx = end.x - drag.start.x;
+      const dy = end.y - drag.start.y;
+      // a click without a drag keeps the heading the robot has now
+      const still = Math.hypot(dx, dy) < 8 * Math.abs(drag.scale);
+      const theta = still ? this.shown(this.pose).theta : Math.atan2(dy, dx);
+      this.onPoseDrag({ x: drag.start.x, y: drag.start.y,
+        theta: Math.atan2(Math.sin(theta), Math.cos(theta)) });
+    };
+    canvas.addEventListener("pointerup", (event) => finish(event, true));
+    canvas.addEventListener("pointercancel", (event) => finish(event, false));
   }
 
   zoom(step) {
@@ -65,14 +155,16 @@ export class View {
     const w = canvas.clientWidth;
     const h = canvas.clientHeight;
     if (!w || !h) return;
-    const { xy, pose } = this.scan;
+    const { xy } = this.scan;
+    const pose = this.shown(this.scan.pose);
+    const here = this.shown(this.pose);
     const c = Math.cos(pose.theta);
     const s = Math.sin(pose.theta);
     let ex = 0;
     let ey = 0;
     for (let i = 0; i < xy.length; i += 2) {
-      const dx = c * xy[i] - s * xy[i + 1] + pose.x - this.pose.x;
-      const dy = s * xy[i] + c * xy[i + 1] + pose.y - this.pose.y;
+      const dx = c * xy[i] - s * xy[i + 1] + pose.x - here.x;
+      const dy = s * xy[i] + c * xy[i + 1] + pose.y - here.y;
       if (this.headingUp) {
         ex = ey = Math.max(ex, Math.hypot(dx, dy));
       } else {
@@ -133,25 +225,67 @@ export class View {
     canvas.dataset.halfHeightM = (h / scale / 2).toFixed(3);
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.clearRect(0, 0, w, h);
+    const here = this.shown(this.pose);
     ctx.translate(w / 2, h / 2);
     ctx.scale(scale, -scale);
-    if (this.headingUp) ctx.rotate(Math.PI / 2 - this.pose.theta);
-    ctx.translate(-this.pose.x, -this.pose.y);
+    if (this.headingUp) ctx.rotate(Math.PI / 2 - here.theta);
+    ctx.translate(-here.x, -here.y);
+    const m = ctx.getTransform(); // view-frame metres -> device pixels, for tests too
+    canvas.dataset.transform = [m.a, m.b, m.c, m.d, m.e, m.f].map((v) => v.toFixed(4)).join(",");
+    this.worldOf = m.inverse();
     const px = 1 / scale;
     const reach = Math.hypot(w, h) / 2 / scale + 1;
-    this.drawGrid(reach, px, dpr);
+    this.drawMap();
+    this.drawGrid(here, reach, px, dpr);
     this.drawTrail(this.truthTrail, cssColor("--truth"), 1.5 * dpr * px);
+    ctx.save();
+    if (this.mapToOdom) { // the odometry trail, where the map says it was
+      ctx.translate(this.mapToOdom.x, this.mapToOdom.y);
+      ctx.rotate(this.mapToOdom.theta);
+    }
     this.drawTrail(this.trail, cssColor("--odom"), 2 * dpr * px);
+    ctx.restore();
     this.drawScan(cssColor("--scan"), 3 * dpr * px);
     if (this.truth) this.drawRobot(this.truth, cssColor("--truth"), false, dpr * px);
-    this.drawRobot(this.pose, cssColor("--odom"), true, dpr * px);
-    this.info.textContent = `grid 1 m · ${span} m across${this.fit ? " (fit)" : ""}` +
+    this.drawRobot(here, cssColor("--odom"), true, dpr * px);
+    if (this.drag) this.drawDrag(dpr * px);
+    const frame = this.mapToOdom ? " · map frame" : "";
+    this.info.textContent = `grid 1 m · ${span} m across${this.fit ? " (fit)" : ""}${frame}` +
       (this.scan ? ` · scan ${this.scan.xy.length / 2} points` : " · no scan yet");
   }
 
-  drawGrid(reach, px, dpr) {
+  // The occupancy grid, one cell a resolution-sized square, y up from the origin.
+  drawMap() {
+    if (!this.map) return;
+    const { ctx, map } = this;
+    ctx.save();
+    ctx.imageSmoothingEnabled = false;
+    ctx.translate(map.origin.x, map.origin.y);
+    ctx.scale(map.resolution, map.resolution);
+    ctx.drawImage(map.canvas, 0, 0);
+    ctx.restore();
+  }
+
+  // The pose being dragged: a dot where it was pressed, an arrow towards the heading.
+  drawDrag(px) {
     const { ctx } = this;
-    const { x: cx, y: cy } = this.pose;
+    const { start, end } = this.drag;
+    const color = cssColor("--accent");
+    ctx.strokeStyle = color;
+    ctx.fillStyle = color;
+    ctx.lineWidth = 3 * px;
+    ctx.beginPath();
+    ctx.arc(start.x, start.y, 6 * px, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.beginPath();
+    ctx.moveTo(start.x, start.y);
+    ctx.lineTo(end.x, end.y);
+    ctx.stroke();
+  }
+
+  drawGrid(here, reach, px, dpr) {
+    const { ctx } = this;
+    const { x: cx, y: cy } = here;
     ctx.lineWidth = px * dpr;
     ctx.strokeStyle = cssColor("--line");
     ctx.beginPath();
@@ -163,19 +297,19 @@ export class View {
     }
     ctx.stroke();
     ctx.strokeStyle = cssColor("--muted");
-    ctx.beginPath(); // the odometry origin's axes
+    ctx.beginPath(); // the frame's origin and axes (odometry's, or the map's)
     ctx.moveTo(0, 0); ctx.lineTo(1, 0); ctx.moveTo(0, 0); ctx.lineTo(0, 1);
     ctx.stroke();
-    this.drawLabels(reach, dpr);
+    this.drawLabels(here, reach, dpr);
   }
 
   // Grid values (m) along the bottom and left edges; none when the view turns with the robot.
-  drawLabels(reach, dpr) {
+  drawLabels(here, reach, dpr) {
     if (this.headingUp) return;
     const { ctx, canvas } = this;
     const step = Math.max(1, Math.round(this.span / 4));
     const m = ctx.getTransform();
-    const { x: cx, y: cy } = this.pose;
+    const { x: cx, y: cy } = here;
     ctx.save();
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.fillStyle = cssColor("--muted");
@@ -204,7 +338,8 @@ export class View {
   drawScan(color, size) {
     if (!this.scan) return;
     const { ctx } = this;
-    const { xy, pose } = this.scan;
+    const { xy } = this.scan;
+    const pose = this.shown(this.scan.pose);
     const c = Math.cos(pose.theta);
     const s = Math.sin(pose.theta);
     ctx.fillStyle = color;
