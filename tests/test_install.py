@@ -523,7 +523,8 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     assert test.returncode == 0, test.stderr
     apt = next(line for line in test.stdout.splitlines() if " apt-get install " in line)
     assert {"nodejs", "npm", "openssh-client", "rsync", "systemd"} <= set(apt.split())
-    assert f"-e {REPO_DIR}\\[test\\,dev\\,bench\\]\n" in test.stdout  # printf %q
+    extras = dev_extras().replace(",", "\\,")  # printf %q
+    assert f"-e {REPO_DIR}\\[{extras}\\]\n" in test.stdout
     venv_bin = f"[dry-run] {tmp_path}/venv/bin/"
     runs = [line for line in test.stdout.splitlines() if line.startswith(venv_bin)]
     assert runs[-3:] == [venv_bin + "ruff check .", venv_bin + "mypy",  # the gates, then
@@ -535,6 +536,14 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     assert ("the arbiterd service runs on this machine and holds its HTTP and rosbridge ports; "
             "stop it first (sudo systemctl stop robot.target) or give this one other ports: "
             "./install.sh sim --http-port PORT --ws-port PORT") in on_robot.stderr
+
+
+def dev_extras() -> str:
+    """The extras ./install.sh dev installs by default (its DEV_EXTRAS)."""
+    extras = re.search(r'DEV_EXTRAS="\$\{ARBITERD_DEV_EXTRAS:-([^}]*)\}"',
+                       INSTALL_SH.read_text())
+    assert extras, "install.sh's DEV_EXTRAS"
+    return extras[1]
 
 
 @pytest.mark.parametrize("failing", ["ruff", "mypy", None])
@@ -565,11 +574,8 @@ def test_the_test_command_stops_at_a_failing_gate_before_pytest(
     (tools / "python3").symlink_to(python)
     version = subprocess.run([python, "-V"], capture_output=True, text=True, check=True)
     pyproject_hash = hashlib.sha256((src / "pyproject.toml").read_bytes()).hexdigest()
-    extras = re.search(r'DEV_EXTRAS="\$\{ARBITERD_DEV_EXTRAS:-([^}]*)\}"',
-                       INSTALL_SH.read_text())
-    assert extras, "install.sh's DEV_EXTRAS"
     (venv_bin.parent / ".arbiterd-dev-stamp").write_text(
-        f"{pyproject_hash} {version.stdout.strip()}\n{extras[1]}\n")
+        f"{pyproject_hash} {version.stdout.strip()}\n{dev_extras()}\n")
     result = subprocess.run(
         ["bash", str(src / "install.sh"), "test", "-q", "tests/x.py"], capture_output=True,
         text=True, timeout=60, check=False, cwd=tmp_path,
