@@ -214,14 +214,23 @@ def _toml_value(value: Any) -> str:
     return repr(value)
 
 
-def cmd_status(args: argparse.Namespace) -> int:
+def _daemon_address(args: argparse.Namespace, command: str) -> tuple[str, str] | int:
+    """The running daemon's base URL and token (``_status_url``), or the exit code after
+    saying why there is none."""
     try:
-        base, token = _status_url(args)
+        return _status_url(args)
     except ConfigError as exc:
         return _report_config_error(exc, args)
     except ValueError as exc:
-        print(f"arbiterd status: {exc}", file=sys.stderr)
+        print(f"arbiterd {command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    address = _daemon_address(args, "status")
+    if isinstance(address, int):
+        return address
+    base, token = address
     try:
         health = _get_json(f"{base}/api/health", token)
         latency = _get_json(f"{base}/api/latency", token)
@@ -424,14 +433,8 @@ def cmd_map(args: argparse.Namespace) -> int:
     from daemon.paths import listing_directory as state_listing
 
     if args.map_command == "save":
-        try:
-            base, token = _status_url(args)
-        except ConfigError as exc:
-            return _report_config_error(exc, args)
-        except ValueError as exc:
-            print(f"arbiterd map save: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-        return map_cli.run_save(args.name, base, token)
+        address = _daemon_address(args, "map save")
+        return address if isinstance(address, int) else map_cli.run_save(args.name, *address)
     try:
         config = _load(args)
     except ConfigError as exc:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import signal
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -169,3 +171,22 @@ def test_the_mapper_process_ends_with_the_daemon(daemon_subprocess: StartDaemonS
     assert workers, "the mapper runs in a process of its own"
     daemon.stop(sig)
     wait_for(lambda: not any(alive(pid) for pid in workers), "the mapper process to end")
+
+
+def test_map_save_and_list_from_the_command_line(daemon_subprocess: StartDaemonSubprocess,
+                                                 tmp_path: Path) -> None:
+    daemon = daemon_subprocess(mapping_toml(tmp_path), args=("--sim",))
+    wait_for(lambda: daemon.get("/api/health")[1]["components"]["mapping"]["maps_published"],
+             "the first map", within_s=30)
+    url = ("--url", daemon.base_url)
+    saved = subprocess.run([sys.executable, "-m", "daemon.cli", "map", "save", "hall", *url],
+                           capture_output=True, text=True, timeout=60, check=False)
+    assert saved.returncode == 0, saved.stderr
+    assert "saved as hall.yaml + hall.pgm" in saved.stdout
+    listed = subprocess.run([sys.executable, "-m", "daemon.cli", "map", "list", "--dir",
+                             str(tmp_path / "maps")], capture_output=True, text=True,
+                            timeout=60, check=False)
+    assert listed.returncode == 0 and listed.stdout.startswith("hall "), listed.stdout
+    refused = subprocess.run([sys.executable, "-m", "daemon.cli", "map", "save", "../x", *url],
+                             capture_output=True, text=True, timeout=60, check=False)
+    assert refused.returncode == 2 and "not a map name" in refused.stderr
