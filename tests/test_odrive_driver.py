@@ -529,8 +529,22 @@ async def test_standalone_emulator_in_another_process_over_udp_multicast(
             proc.stdin.flush()  # type: ignore[union-attr]
             return proc.stdout.readline()  # type: ignore[union-attr]
 
-        status = await asyncio.to_thread(command, "status")
-        assert "node 5 state 8" in status and "vel 1.000" in status and "vel -1.000" in status
+        async def status_shows(*parts: str) -> str:
+            """The emulator's status once it shows ``parts`` (the frames cross processes over
+            UDP: the command may still be on its way when the status is asked)."""
+            latest = ""
+
+            async def shown() -> bool:
+                nonlocal latest
+                latest = await asyncio.to_thread(command, "status")
+                return all(part in latest for part in parts)
+
+            deadline = time.monotonic() + 10.0
+            while not await shown():
+                assert time.monotonic() < deadline, f"status never showed {parts}: {latest}"
+            return latest
+
+        await status_shows("node 5 state 8", "vel 1.000", "vel -1.000")
         assert (await asyncio.to_thread(command, "heartbeat off")).startswith("ok")
         reason = await eventually(lambda: driver.fault, what="heartbeat loss across processes")
         assert "no heartbeat from ODrive node 5" in reason
@@ -538,8 +552,7 @@ async def test_standalone_emulator_in_another_process_over_udp_multicast(
         assert (await asyncio.to_thread(command, "heartbeat on")).startswith("ok")
         await driver.open()
         assert driver.fault is None
-        status = await asyncio.to_thread(command, "status")
-        assert "vel 0.000" in status
+        await status_shows("vel 0.000")
     finally:
         await driver.close()
 

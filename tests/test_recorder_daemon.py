@@ -27,8 +27,8 @@ from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 INTEROP = REPO / "tests" / "interop"
-RECORDED = {"/odom", "/tf", "/scan", "/commands", "/latency_reports", "/rosout", "/diagnostics",
-            "/odom_ground_truth", "/autonomy/state", "/collision_monitor/state"}
+RECORDED = {"/odom", "/tf", "/tf_static", "/scan", "/commands", "/latency_reports", "/rosout",
+            "/diagnostics", "/odom_ground_truth", "/autonomy/state", "/collision_monitor/state"}
 
 
 def record_toml(directory: Path, extra: str = "") -> str:

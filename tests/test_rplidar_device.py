@@ -15,6 +15,7 @@ from base.options import defaults
 from daemon.bus import Bus
 from daemon.hooks import HookMap
 from daemon.lidar import create
+from daemon.settings import ROBOT_OPTIONS
 from daemon.telemetry import SCAN
 from sensors.rplidar.assembler import Revolution
 from sensors.rplidar.client import RplidarClient, open_serial
@@ -196,7 +197,7 @@ class FakeCtx:
         lidar = defaults(LIDAR_OPTIONS) | {"enabled": enabled, "port": port,
                                           "baudrate": 115200, "scan_mode": "express",
                                           "angle_bins": 360, "frame_id": "lidar_link"}
-        self.config = Config({"lidar": lidar})
+        self.config = Config({"lidar": lidar, "robot": defaults(ROBOT_OPTIONS)})
         self.bus = Bus()
         self.robot_info: HookMap[Any] = HookMap()
         self.mode = "sim"
