@@ -86,6 +86,10 @@ class BridgeLink:
             async with asyncio.timeout(reply_within_s):
                 return await asyncio.shield(future)
         except TimeoutError:
+            if future.done() and not future.cancelled():
+                # the reply was read in the same loop pass as the expired deadline (the loop
+                # had been blocked): the board answered, the lateness was ours
+                return future.result()
             self._poison(f"no reply to {command!r} within {reply_within_s:g} s")
             raise DriverFault(self.error or "timeout") from None
 
