@@ -158,14 +158,15 @@ dev_step_venv() {
 # (it wants include/, bin/ and lib/libddsc.so under one folder; Debian splits them by
 # multiarch), made inside VENV; prints its path.
 cyclonedds_home() {
-    local home="$1/cyclonedds-home" multiarch
-    multiarch="$(gcc -print-multiarch 2>/dev/null || dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || true)"
-    if [[ "${DRY_RUN}" != 1 && -n "${multiarch}" && -e "/usr/lib/${multiarch}/libddsc.so" ]]; then
+    local home="$1/cyclonedds-home" lib
+    for lib in /usr/lib/*/libddsc.so; do
+        [[ "${DRY_RUN}" != 1 && -e "${lib}" ]] || continue
         mkdir -p "${home}"
         ln -sfn /usr/include "${home}/include"
         ln -sfn /usr/bin "${home}/bin"
-        ln -sfn "/usr/lib/${multiarch}" "${home}/lib"
-    fi
+        ln -sfn "$(dirname "${lib}")" "${home}/lib"
+        break
+    done
     printf '%s\n' "${home}"
 }
 
@@ -271,6 +272,7 @@ MODE_FLAG="${ARBITERD_MODE:-}"                  # hardware | sim | '' (keep the 
 INSTALL_DRIVER="${ARBITERD_INSTALL_DRIVER:-}"   # [driver] type for a new config
 NO_START="${ARBITERD_NO_START:-0}"              # 1 = install only, do not (re)start
 PIP_ARGS="${ARBITERD_PIP_ARGS:-}"               # extra pip install arguments
+ROS2_FLAG="${ARBITERD_ROS2:-}"                  # 1 | 0 | '' (keep): the ROS 2 face's binding
 WHEEL="" RELEASE="" PURGE=0
 EXIT_UNHEALTHY=3                                # activated release failed its health check
 
@@ -469,6 +471,8 @@ svc_step_packages() {
             odrive_can) wanted+=(can-utils) ;;
         esac
     fi
+    # the ROS 2 face: pip builds the Cyclone DDS binding against Debian's library
+    [[ "$(effective_ros2)" == 1 ]] && wanted+=(cyclonedds-dev gcc python3-dev)
     if staging; then
         record_action "apt-get install ${wanted[*]}"
         return 0
@@ -591,14 +595,16 @@ verify_groups() {
 # Step 3: the release: a venv (with the system site packages, for apt's lgpio/pigpio) holding
 # the package, under /opt/arbiterd/releases/NAME, plus this installer and the unit files.
 svc_step_release() {
-    local id reldir
+    local id reldir ros2 extra=""
+    ros2="$(effective_ros2)"
+    [[ "${ros2}" == 1 ]] && extra="-ros2"
     if [[ -n "${WHEEL}" ]]; then
         [[ -f "${WHEEL}" ]] || die "--wheel ${WHEEL}: no such file"
-        id="wheel:$(sha256_of "${WHEEL}")"
-        [[ -n "${RELEASE}" ]] || RELEASE="$(basename "${WHEEL}" | cut -d- -f2)-$(sha256_of "${WHEEL}" | cut -c1-12)"
+        id="wheel:$(sha256_of "${WHEEL}")${extra}"
+        [[ -n "${RELEASE}" ]] || RELEASE="$(basename "${WHEEL}" | cut -d- -f2)-$(sha256_of "${WHEEL}" | cut -c1-12)${extra}"
     else
-        id="source:$(source_hash)"
-        [[ -n "${RELEASE}" ]] || RELEASE="$(source_version)-${id#source:}"
+        id="source:$(source_hash)${extra}"
+        [[ -n "${RELEASE}" ]] || RELEASE="$(source_version)-$(source_hash)${extra}"
     fi
     [[ "${RELEASE}" =~ ^[A-Za-z0-9][A-Za-z0-9._+-]*$ ]] || die "invalid release name: ${RELEASE}"
     reldir="${PREFIX}/releases/${RELEASE}"
@@ -621,8 +627,11 @@ svc_step_release() {
     # shellcheck disable=SC2206  # PIP_ARGS is a list of words on purpose
     index+=(${PIP_ARGS})
     venv_bootstrap "$(r "${reldir}")/venv/bin/python" "${index[@]}"
-    run "$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check \
-        "${index[@]}" "${WHEEL:-$(source_snapshot)}"
+    # the ros2 extra: pip builds the Cyclone DDS binding against Debian's library (docs/ros2.md)
+    local build_env=()
+    [[ -z "${extra}" ]] || build_env=(CYCLONEDDS_HOME="$(cyclonedds_home "$(r "${reldir}")")")
+    run env "${build_env[@]}" "$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check \
+        "${index[@]}" "${WHEEL:-$(source_snapshot)}${extra:+[ros2]}"
     [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
     pending_add restart
 }
@@ -669,6 +678,14 @@ effective_mode() {
     elif [[ -f "$(r "${CONFIG_DIR}/arbiterd.env")" ]] \
          && grep -q '^ARBITERD_ARGS=$' "$(r "${CONFIG_DIR}/arbiterd.env")"; then echo hardware
     else echo sim; fi
+}
+
+# effective_ros2: 1 when the release gets the ROS 2 face's binding (--ros2, or the current
+# release has it and no --no-ros2), else 0.
+effective_ros2() {
+    if [[ -n "${ROS2_FLAG}" ]]; then echo "${ROS2_FLAG}"
+    elif [[ "$(readlink "$(r "${PREFIX}/current")" 2>/dev/null)" == *-ros2 ]]; then echo 1
+    else echo 0; fi
 }
 
 effective_driver() {
@@ -1069,6 +1086,8 @@ Options:
   --driver NAME        [driver] type for a new config: ${DRIVERS}
                        (serial: an Arduino with ROSArduinoBridge, at /dev/arduino)
   --wheel FILE         install this wheel instead of building the source tree
+  --ros2 | --no-ros2   with / without the ROS 2 face's Cyclone DDS binding (apt cyclonedds-dev,
+                       pip cyclonedds built against it; docs/ros2.md) (default: keep; first: without)
   --release NAME       name of the release directory (default: version + content hash)
   --keep N             releases to keep (default ${KEEP_RELEASES})
   --health-timeout S   seconds to wait for /api/health (default ${HEALTH_TIMEOUT})
@@ -1081,7 +1100,7 @@ Options:
   -h, --help           this help
 
 Environment (same as the flags): ARBITERD_ROOT, ARBITERD_DRY_RUN=1, ARBITERD_MODE=hardware|sim,
-ARBITERD_INSTALL_DRIVER, ARBITERD_NO_START=1, ARBITERD_KEEP_RELEASES, ARBITERD_HEALTH_TIMEOUT;
+ARBITERD_INSTALL_DRIVER, ARBITERD_ROS2=1|0, ARBITERD_NO_START=1, ARBITERD_KEEP_RELEASES, ARBITERD_HEALTH_TIMEOUT;
 also ARBITERD_PYTHON (dev: python3; robot: /usr/bin/python3), ARBITERD_PIP_ARGS (extra pip arguments), ARBITERD_SYSTEMCTL
 (systemctl to call; with --root it is only recorded unless this is set), ARBITERD_DEV_VENV.
 Exit status: 0 ok, 1 error, 2 usage, 3 the new release is active but failed its health check.
@@ -1105,6 +1124,8 @@ parse_service_options() {
             --sim) MODE_FLAG=sim ;;
             --driver) need_value $# "$1"; INSTALL_DRIVER="$2"; shift ;;
             --wheel) need_value $# "$1"; WHEEL="$2"; shift ;;
+            --ros2) ROS2_FLAG=1 ;;
+            --no-ros2) ROS2_FLAG=0 ;;
             --release) need_value $# "$1"; RELEASE="$2"; shift ;;
             --keep) need_value $# "$1"; KEEP_RELEASES="$2"; shift ;;
             --health-timeout|--timeout) need_value $# "$1"; HEALTH_TIMEOUT="$2"; shift ;;
@@ -1123,6 +1144,8 @@ validate_service_options() {
         || usage_error "--driver ${INSTALL_DRIVER}: not one of: ${DRIVERS}"
     [[ -z "${MODE_FLAG}" || "${MODE_FLAG}" == hardware || "${MODE_FLAG}" == sim ]] \
         || usage_error "ARBITERD_MODE=${MODE_FLAG}: use hardware or sim"
+    [[ -z "${ROS2_FLAG}" || "${ROS2_FLAG}" == 1 || "${ROS2_FLAG}" == 0 ]] \
+        || usage_error "ARBITERD_ROS2=${ROS2_FLAG}: use 1 (with the ROS 2 face) or 0"
     if ! [[ "${KEEP_RELEASES}" =~ ^[0-9]+$ ]] || (( KEEP_RELEASES < 2 )); then
         usage_error "--keep ${KEEP_RELEASES}: need a number >= 2 (the rollback target is kept)"
     fi

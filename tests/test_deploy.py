@@ -107,6 +107,11 @@ def exited(pid: int) -> bool:
         return True
 
 
+#: each test may pay for the module's first deploy: a release venv installed offline (numpy,
+#: scipy, aiohttp...), a minute or two on a busy 2-core machine
+pytestmark = pytest.mark.timeout(300)
+
+
 @pytest.fixture(scope="module")
 def pi(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FakePi]:
     """A fake Pi reachable over ssh, with a first release deployed and healthy."""

@@ -26,7 +26,7 @@ from sim.rplidar_emulator import RplidarEmulator
 from tests.support.deploy import INSTALL_SH, SYSTEMD_DIR
 from tests.support.deploy.machine import FAKE_SYSTEMCTL, Machine
 from tests.support.deploy.machine import available as machine_available
-from tests.support.deploy.wheels import Wheels, wheels
+from tests.support.deploy.wheels import Wheels, add_ros2_extra, wheels
 from tests.support.net import free_port
 from tests.support.wait import wait_for
 
@@ -323,11 +323,12 @@ REPO_DIR = INSTALL_SH.parent
 README = REPO_DIR / "README.md"
 
 
-def readme_robot_steps() -> list[str]:
-    """The commands of the first ``sh`` block under README's "On the robot", comments dropped."""
+def readme_robot_steps(block: int = 0) -> list[str]:
+    """The commands of an ``sh`` block (the first: the install; the second: the optional ROS 2
+    face) under README's "On the robot", comments dropped."""
     section = README.read_text().split("## On the robot", 1)[1].split("\n## ", 1)[0]
-    block = section.split("```sh\n", 1)[1].split("```", 1)[0]
-    return [line.split("  #", 1)[0].strip() for line in block.splitlines() if line.strip()]
+    text = section.split("```sh\n")[1 + block].split("```", 1)[0]
+    return [line.split("  #", 1)[0].strip() for line in text.splitlines() if line.strip()]
 
 
 def set_key(text: str, section: str, key: str, value: str) -> str:
@@ -343,11 +344,14 @@ def set_key(text: str, section: str, key: str, value: str) -> str:
     raise AssertionError(f"no {key} in [{section}] of the installed config")
 
 
-EDITOR = """import json, sys
+EDITOR = """import json, os, sys
 {set_key}
 path = sys.argv[-1]
 text = open(path).read()
-for section, key, value in json.load(open({edits!r})):
+calls = {edits!r} + ".calls"
+call = int(open(calls).read()) if os.path.exists(calls) else 0
+open(calls, "w").write(str(call + 1))
+for section, key, value in json.load(open({edits!r}))[call]:
     text = set_key(text, section, key, value)
 open(path, "w").write(text)
 """
@@ -375,8 +379,11 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
                                                                  built: Wheels) -> None:
     if why := machine_available():
         pytest.skip(f"the README robot steps run in a private mount namespace: {why}")
-    steps = readme_robot_steps()
+    steps, ros2_steps = readme_robot_steps(), readme_robot_steps(1)
     assert steps[0].startswith("sudo ./install.sh systemd --hardware --driver serial"), steps
+    assert ros2_steps[0] == "sudo ./install.sh systemd --ros2", ros2_steps
+    steps += ros2_steps
+    add_ros2_extra(built)
     machine = Machine(tmp_path / "machine")
     out = tmp_path / "out"
     out.mkdir()
@@ -387,7 +394,8 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
              ("lidar", "port", f'"{devices / "rplidar"}"'),
              ("http", "host", '"127.0.0.1"'), ("http", "port", str(http_port)),
              ("rosbridge", "host", '"127.0.0.1"'), ("rosbridge", "port", str(ws_port))]
-    (tmp_path / "edits.json").write_text(json.dumps(edits))
+    ros2_edits = [("ros2", "enabled", "true"), ("ros2", "discovery", '"localhost"')]
+    (tmp_path / "edits.json").write_text(json.dumps([edits, ros2_edits]))
     editor = tmp_path / "editor.py"
     editor.write_text(EDITOR.format(set_key=inspect.getsource(set_key),
                                     edits=str(tmp_path / "edits.json")))
@@ -405,6 +413,7 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
         f" || echo $? >{out}/nobody.rc",
         health,
         f"cp /etc/arbiterd/arbiterd.env /etc/arbiterd/arbiterd.toml {out}/",
+        f"readlink /opt/arbiterd/current >{out}/current.out",
     ])
     env = {k: v for k, v in os.environ.items() if not k.startswith("ARBITERD_")}
     env.update(ARBITERD_PIP_ARGS=f"--no-index --find-links {built.wheelhouse}",
@@ -431,8 +440,15 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     body = json.loads((out / "health.json").read_text())
     assert (body["status"], body["mode"], body["driver"]) == ("ok", "hardware", "serial"), \
         json.dumps(body)
-    status = (out / f"step{len(steps) - 1}.out").read_text()
+    status = (out / "step4.out").read_text()
     assert ": ok (" in status and "hardware mode, driver serial" in status, status
+    # the ROS 2 face: a -ros2 release whose venv has the binding; the node runs
+    assert (out / "current.out").read_text().strip().endswith("-ros2")
+    ros2 = body["components"]["ros2"]
+    assert (ros2["status"], ros2["node"], ros2["discovery"]) == ("ok", "/arbiterd", "localhost"), \
+        json.dumps(ros2)
+    ros2_status = (out / f"step{len(steps) - 1}.out").read_text()
+    assert re.search(r"^\s*ros2\s+ok", ros2_status, re.M), ros2_status
     check = (out / "step2.out").read_text()
     assert check.startswith("arbiterd check: ok: /etc/arbiterd/arbiterd.toml"), check
     calls = (machine.state / "systemctl.log").read_text()

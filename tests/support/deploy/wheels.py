@@ -1,6 +1,7 @@
 # Builds, once per test session, the arbiterd wheel and an offline wheelhouse of its dependencies.
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -23,9 +24,10 @@ class Wheels:
 _cache: dict[str, Wheels] = {}
 
 
-def pip(*args: str) -> None:
+def pip(*args: str, env: dict[str, str] | None = None) -> None:
     cmd = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q", *args]
-    result = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False,
+                            env=None if env is None else {**os.environ, **env})
     assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stderr}"
 
 
@@ -66,3 +68,12 @@ def wheels(work: Path) -> Wheels:
         broken = build_wheel(broken_source(work), work / "broken")
         _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=house, broken_wheel=broken)
     return _cache["wheels"]
+
+
+def add_ros2_extra(built: Wheels) -> None:
+    """Adds the ros2 extra's wheels (the Cyclone DDS binding, built against Debian's library
+    the way ./install.sh dev builds it) to the wheelhouse, once."""
+    if "ros2" not in _cache:
+        pip("wheel", "-w", str(built.wheelhouse), f"{built.wheel}[ros2]",
+            env={"CYCLONEDDS_HOME": str(Path(sys.prefix) / "cyclonedds-home")})
+        _cache["ros2"] = built
