@@ -632,7 +632,10 @@ svc_step_release() {
     [[ -z "${extra}" ]] || build_env=(CYCLONEDDS_HOME="$(cyclonedds_home "$(r "${reldir}")")")
     run env "${build_env[@]}" "$(r "${reldir}")/venv/bin/python" -m pip install -q --disable-pip-version-check \
         "${index[@]}" "${WHEEL:-$(source_snapshot)}${extra:+[ros2]}"
-    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
+    if [[ "${DRY_RUN}" != 1 ]]; then
+        printf '%s\n' "${id}" >"$(r "${reldir}")/.release-id"
+        if [[ -n "${extra}" ]]; then : >"$(r "${reldir}")/.ros2"; else rm -f "$(r "${reldir}")/.ros2"; fi
+    fi
     pending_add restart
 }
 
@@ -681,10 +684,10 @@ effective_mode() {
 }
 
 # effective_ros2: 1 when the release gets the ROS 2 face's binding (--ros2, or the current
-# release has it and no --no-ros2), else 0.
+# release has it, marked by its .ros2 file, and no --no-ros2), else 0.
 effective_ros2() {
     if [[ -n "${ROS2_FLAG}" ]]; then echo "${ROS2_FLAG}"
-    elif [[ "$(readlink "$(r "${PREFIX}/current")" 2>/dev/null)" == *-ros2 ]]; then echo 1
+    elif [[ -e "$(r "${PREFIX}/current/.ros2")" ]]; then echo 1
     else echo 0; fi
 }
 

@@ -268,6 +268,25 @@ def test_dry_run_prints_actions_and_changes_nothing(tmp_path: Path, built: Wheel
     assert "[dry-run] ln -sfn releases/" in out
 
 
+@pytest.mark.parametrize(("flags", "with_ros2"), [((), True), (("--no-ros2",), False)])
+def test_a_later_release_keeps_the_ros2_face_unless_told(tmp_path: Path, built: Wheels,
+                                                          flags: tuple[str, ...],
+                                                          with_ros2: bool) -> None:
+    root = tmp_path / "root"
+    current = root / "opt/arbiterd/releases/0.1.0-deployed"  # what deploy-pi.sh names it
+    current.mkdir(parents=True)
+    (current / ".ros2").touch()
+    (root / "opt/arbiterd/current").symlink_to("releases/0.1.0-deployed")
+    result = install_sh("systemd", "--root", str(root), "--wheel", str(built.wheel),
+                        "--release", "0.1.1-next", "--dry-run", *flags)
+    assert result.returncode == 0, result.stderr
+    pip_line = next(line for line in result.stdout.splitlines() if " pip install " in line
+                    and str(built.wheel) in line)
+    assert (shlex.split(pip_line)[-1] == f"{built.wheel}[ros2]") == with_ros2, pip_line
+    assert ("CYCLONEDDS_HOME=" in pip_line) == with_ros2, pip_line
+    assert ("cyclonedds-dev" in result.stdout) == with_ros2, result.stdout
+
+
 def test_staging_dry_run_never_names_a_path_outside_the_root(tmp_path: Path,
                                                              built: Wheels) -> None:
     root = tmp_path / "root"
