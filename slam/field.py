@@ -4,7 +4,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import ndimage
 
 from slam.grid import OccupancyGrid
 
@@ -26,6 +25,8 @@ class DistanceField:
         self.origin_x, self.origin_y = origin_x, origin_y
         self.max_distance = max_distance
         self.height, self.width = occupied.shape
+        from scipy import ndimage  # here, not at import: the daemon starts without scipy
+
         if not occupied.any():
             dist = np.full(occupied.shape, max_distance)
         elif exact_xy is None:

@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse.linalg import spsolve
 
 from slam.pose import Pose2
 
@@ -80,6 +78,9 @@ class PoseGraph:
         rows.append(np.arange(3))  # anchor node 0
         cols.append(np.arange(3))
         vals.append(np.full(3, 1e12))
+        from scipy import sparse  # here, not at import: the daemon starts without scipy
+        from scipy.sparse.linalg import spsolve
+
         hessian = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
                                      np.concatenate(cols))), shape=(n, n)).tocsc()
         rhs = np.zeros(n)
