@@ -107,3 +107,15 @@ def test_every_support_module_says_what_it_is_for() -> None:
         if lines and lines[0].startswith("#!"):
             lines = lines[1:]
         assert lines and lines[0].startswith("# ") and len(lines[0]) > 10, path
+
+
+#: modules a daemon with every component off must not load at start (slow imports, memory)
+HEAVY_AT_START = ("scipy", "rosbags", "cyclonedds", "mcap_ros2")
+
+
+def test_the_daemon_and_its_cli_start_without_the_heavy_libraries() -> None:
+    code = ("import sys, daemon.cli, daemon.app, daemon.components\n"
+            f"print(' '.join(m for m in {HEAVY_AT_START!r} if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            cwd=REPO, check=True).stdout.split()
+    assert not loaded, f"imported at start: {loaded}; import them where they are used"
