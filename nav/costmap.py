@@ -13,8 +13,8 @@ HIT, MISS = 4, 1
 EVIDENCE_MIN, EVIDENCE_MAX = -8, 16
 #: evidence from which a cell counts as an obstacle
 OCCUPIED = 2
-#: distances to obstacles are computed on cells at least this big (m): finer grids are pooled
-#: for it (an obstacle anywhere in a pooled cell counts for the whole cell)
+#: costs are worked out on cells at least this big (m): finer grids are pooled for it (an
+#: obstacle anywhere in a pooled cell counts for the whole cell)
 DISTANCE_CELL_M = 0.1
 
 
@@ -121,32 +121,46 @@ class Costmap:
 
 def cost_grid(obstacles: np.ndarray, seen: np.ndarray, resolution: float,
               params: CostParams) -> np.ndarray:
-    """The traversal cost of every cell (see :meth:`Costmap.costs`)."""
-    distance = obstacle_distance(obstacles, resolution)
+    """The traversal cost of every cell (see :meth:`Costmap.costs`). On a grid finer than
+    DISTANCE_CELL_M the costs are worked out on pooled cells (an obstacle or a sighting
+    anywhere in one counts for all of it) and spread back onto the cells."""
+    pool = max(1, int(DISTANCE_CELL_M / resolution + 1e-9))
+    if pool == 1:
+        return _costs(obstacle_distance(obstacles), seen, resolution, 0.0, params)
+    h, w = obstacles.shape
+    coarse = _costs(obstacle_distance(pool_any(obstacles, pool)), pool_any(seen, pool),
+                    pool * resolution, (pool - 1) * resolution * math.sqrt(2.0), params)
+    return np.repeat(np.repeat(coarse, pool, axis=0), pool, axis=1)[:h, :w]
+
+
+def _costs(cells: np.ndarray, seen: np.ndarray, resolution: float, shrink: float,
+           params: CostParams) -> np.ndarray:
+    """Costs from the distance to the nearest obstacle in cells, cut by ``shrink`` metres
+    (how much nearer a point of a pooled cell can be than its centre)."""
+    distance = np.maximum(cells * resolution - shrink, 0.0)
     beyond = np.maximum(distance - params.radius_m, 0.0)
     band = np.clip(1.0 - beyond / params.inflation_m, 0.0, 1.0) if params.inflation_m > 0 \
-        else np.zeros(obstacles.shape)
+        else np.zeros(cells.shape)
     costs = (1.0 + params.inflation_cost * band ** 2).astype(np.float32)
     costs[~seen] += np.float32(params.unknown_cost)
     costs[distance <= params.radius_m] = np.inf
     return costs
 
 
-def obstacle_distance(obstacles: np.ndarray, resolution: float) -> np.ndarray:
-    """Distance from each cell to the nearest obstacle cell (m; ``inf`` without any). On a
-    grid finer than DISTANCE_CELL_M it is computed on pooled cells (an obstacle fills its
-    pooled cell, and distances are cut by the most two cells in pooled cells can be nearer than
-    their centres: they err short by at most about one pooled cell, never long)."""
+def obstacle_distance(obstacles: np.ndarray) -> np.ndarray:
+    """Distance from each cell to the nearest obstacle cell, in cells (``inf`` without any)."""
     if not obstacles.any():
         return np.full(obstacles.shape, np.inf)
-    pool = max(1, int(DISTANCE_CELL_M / resolution + 1e-9))
-    if pool == 1:
-        return np.asarray(ndimage.distance_transform_edt(~obstacles)) * resolution
-    h, w = obstacles.shape
-    ph, pw = -(-h // pool) * pool, -(-w // pool) * pool
-    padded = np.zeros((ph, pw), dtype=bool)
-    padded[:h, :w] = obstacles
-    coarse = padded.reshape(ph // pool, pool, pw // pool, pool).any(axis=(1, 3))
-    distance = np.asarray(ndimage.distance_transform_edt(~coarse)) * (pool * resolution)
-    distance = np.maximum(distance - (pool - 1) * resolution * math.sqrt(2.0), 0.0)
-    return np.repeat(np.repeat(distance, pool, axis=0), pool, axis=1)[:h, :w]
+    return np.asarray(ndimage.distance_transform_edt(~obstacles))
+
+
+def pool_any(cells: np.ndarray, pool: int) -> np.ndarray:
+    """Blocks of ``pool`` x ``pool`` cells, set where any of their cells is (edges padded)."""
+    h, w = cells.shape
+    padded = np.zeros((-(-h // pool) * pool, -(-w // pool) * pool), dtype=bool)
+    padded[:h, :w] = cells
+    out = padded[::pool, ::pool].copy()
+    for dr in range(pool):
+        for dc in range(pool):
+            out |= padded[dr::pool, dc::pool]
+    return out

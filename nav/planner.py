@@ -72,10 +72,13 @@ def pooled(costs: np.ndarray, pool: int) -> np.ndarray:
     if pool == 1:
         return costs.copy()
     h, w = costs.shape
-    ph, pw = -(-h // pool) * pool, -(-w // pool) * pool
-    padded = np.full((ph, pw), np.inf, dtype=costs.dtype)
+    padded = np.full((-(-h // pool) * pool, -(-w // pool) * pool), np.inf, dtype=costs.dtype)
     padded[:h, :w] = costs
-    return padded.reshape(ph // pool, pool, pw // pool, pool).max(axis=(1, 3))
+    out = padded[::pool, ::pool].copy()
+    for dr in range(pool):
+        for dc in range(pool):
+            np.maximum(out, padded[dr::pool, dc::pool], out=out)
+    return out
 
 
 def _block_centre(block: tuple[int, int], pool: int, shape: tuple[int, ...]) -> tuple[int, int]:

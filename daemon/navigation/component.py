@@ -59,8 +59,8 @@ SCAN_QUEUE = 10
 HISTORY_S = 1.0
 #: a goal whose cell the lidar never saw while the robot was this near it (m) for
 #: UNSEEN_FAIL_S fails: it lies inside an obstacle or a closed room
-UNSEEN_NEAR_M = 4.0
-UNSEEN_FAIL_S = 15.0
+UNSEEN_NEAR_M = 5.0
+UNSEEN_FAIL_S = 10.0
 
 
 def navigator_settings(config: Config) -> NavigatorSettings:
