@@ -2,6 +2,7 @@
 # unreachable ones failed in bounded time, teleop, e-stop and stale scans, and bad goals refused.
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import AsyncIterator
 
@@ -121,3 +122,19 @@ async def test_bad_goals_are_refused_with_the_reason_and_a_new_goal_replaces_the
     nav.request(GoalRequest("odom", 1.5, 0.5, None))
     assert nav.navigator.goals == 2 and nav.navigator.target is not None
     assert nav.navigator.target.x == 1.5
+
+
+def test_simulate_goals_prints_each_goal_judged_by_ground_truth(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from daemon.cli import main
+
+    assert main(["simulate", "--goals", "1", "--unreachable", "1", "--world", "apartment",
+                 "--seed", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    reachable = [r for r in report["goals"] if r["reachable"]]
+    unreachable = [r for r in report["goals"] if not r["reachable"]]
+    assert [r["reached"] for r in reachable] == [True]
+    assert reachable[0]["error_m"] <= 0.10 and reachable[0]["ratio"] is not None
+    assert [r["state"] for r in unreachable] in (["failed"], ["refused"])
+    assert unreachable[0]["reason"] and unreachable[0]["seconds"] < 60
+    assert report["summary"]["all"]["collisions"] == 0

@@ -13,7 +13,6 @@ import numpy as np
 from aiohttp import web
 
 from base.config import Config
-from daemon.autonomy.component import _footprint_reach
 from daemon.bus import BusKey
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.control.commands import Twist
@@ -77,9 +76,16 @@ def navigator_settings(config: Config) -> NavigatorSettings:
 
 def cost_params(config: Config) -> CostParams:
     s = config.get(NavigationSettings)
-    reach = _footprint_reach(config.get(CollisionMonitorSettings))
+    reach = footprint_reach(config.get(CollisionMonitorSettings))
     return CostParams(radius_m=reach + s.clearance_m, inflation_m=s.inflation_m,
                       unknown_cost=s.unknown_cost)
+
+
+def footprint_reach(cm: CollisionMonitorSettings) -> float:
+    """How far the footprint reaches from the robot's centre (m)."""
+    if cm.footprint:
+        return max(math.hypot(x, y) for x, y in cm.footprint)
+    return float(cm.footprint_radius)
 
 
 class NavigationComponent(BaseComponent):
