@@ -43,6 +43,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    "an empty costmap, judged by ground truth; print each goal and a summary")
     p.add_argument("--unreachable", type=int, default=0, metavar="M", help="with --goals: "
                    "also M goals inside obstacles or closed spaces (each must fail)")
+    p.add_argument("--drift", action="store_true", help="with --goals: a base that drifts "
+                   "(2 %% calibration errors, 2 %% slip, 5 %% lidar dropouts); add --mapping "
+                   "to send the goals in the map frame")
     p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
                    "change to stderr")
     return p
@@ -85,7 +88,8 @@ def run_goals(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     try:
         run = NavigationRun(args.world, args.seed or 1, reachable=args.goals,
-                            unreachable=args.unreachable)
+                            unreachable=args.unreachable, mapping=args.mapping,
+                            drift=args.drift)
     except (ConfigError, SimConfigError, WorldError, OSError, ValueError) as exc:
         print(f"arbiterd simulate: {exc}", file=sys.stderr)
         return EXIT_CONFIG

@@ -272,14 +272,15 @@ class NavigationComponent(BaseComponent):
         scans = list(self._scans)
         self._scans.clear()
         start, goal = self._odom(), self._goal_in_odom()
+        yaw = None if target.yaw is None else goal[2]
         job = (scans, start, goal)
         if self.inline:
-            self._take_plan(self._plan_job(*job), target.number)
+            self._take_plan(self._plan_job(*job), target.number, yaw)
             return
         self._planning = True
         future = asyncio.get_running_loop().run_in_executor(None, self._plan_job, *job)
         self._tasks.add(future)
-        future.add_done_callback(lambda f: self._planned(f, target.number))
+        future.add_done_callback(lambda f: self._planned(f, target.number, yaw))
 
     def _plan_job(self, scans: list[tuple[Pose2, np.ndarray, np.ndarray]], start: Pose2,
                   goal: Pose2) -> Plan:
@@ -291,7 +292,7 @@ class NavigationComponent(BaseComponent):
         self.plan_ms = round(1000 * (time.perf_counter() - started), 1)
         return result
 
-    def _planned(self, future: asyncio.Future[Any], number: int) -> None:
+    def _planned(self, future: asyncio.Future[Any], number: int, yaw: float | None) -> None:
         self._tasks.discard(future)
         self._planning = False
         if future.cancelled():
@@ -300,12 +301,12 @@ class NavigationComponent(BaseComponent):
             log.error("planning failed: %r", future.exception())
             self._end("failed", f"the planner failed: {future.exception()!r}")
             return
-        self._take_plan(future.result(), number)
+        self._take_plan(future.result(), number, yaw)
 
-    def _take_plan(self, result: Plan, number: int) -> None:
+    def _take_plan(self, result: Plan, number: int, yaw: float | None) -> None:
         navigator = self.navigator
         state = navigator.state
-        navigator.planned(result, self.clock(), number)
+        navigator.planned(result, self.clock(), number, yaw)
         if result.found and navigator.target is not None and number == navigator.target.number:
             self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.odom_frame,
                                                result.points))

@@ -153,8 +153,9 @@ class Navigator:
         """A plan was asked for; the next one not before a replan period."""
         self.next_plan = now + self.settings.replan_period_s
 
-    def planned(self, plan: Plan, now: float, number: int) -> None:
-        """A plan for goal ``number`` came back."""
+    def planned(self, plan: Plan, now: float, number: int, yaw: float | None) -> None:
+        """A plan for goal ``number`` came back; ``yaw``: the goal's heading in the plan's
+        frame (None: any)."""
         target = self.target
         if target is None or number != target.number or not self.active \
                 or self.state == "recovering":
@@ -167,7 +168,7 @@ class Navigator:
                 self.stuck(plan.reason, now)
             return
         first = self.pursuit is None
-        self._follow(plan.points, target.yaw, now)
+        self._follow(plan.points, yaw, now)
         assert self.pursuit is not None
         if first:
             self._set_deadline()
