@@ -24,15 +24,28 @@ WORLDS = ("apartment", "warehouse", "loop")
 GOALS, UNREACHABLE = 7, 2
 
 
-def goal_runs(seeds: range, reachable: int = GOALS,
-              unreachable: int = UNREACHABLE) -> list[dict[str, Any]]:
-    """Every world and seed, each from an empty costmap; one row per goal."""
+def goal_runs(seeds: range, reachable: int = GOALS, unreachable: int = UNREACHABLE,
+              drift: bool = False) -> list[dict[str, Any]]:
+    """Every world and seed, each from an empty costmap; one row per goal. ``drift``: a
+    drifting base, the mapper running and the goals in its map frame."""
     rows: list[dict[str, Any]] = []
     for world in WORLDS:
         for seed in seeds:
-            run = NavigationRun(world, seed, reachable=reachable, unreachable=unreachable)
+            run = NavigationRun(world, seed, reachable=reachable, unreachable=unreachable,
+                                mapping=drift, drift=drift)
             rows += asyncio.run(run.run())
     return rows
+
+
+def drift_results(seeds: range, goals: int) -> list[BenchResult]:
+    """Goals in the map frame on a drifting base (2 % calibration errors and slip)."""
+    rows = goal_runs(seeds, goals, 0, drift=True)
+    s = summarise(rows)["all"]
+    return [BenchResult(SUITE, "drifting base, map-frame goals: reached", s["success_rate"],
+                        "", ">= 0.97", s["success_rate"] >= 0.97,
+                        f"{s['reached']}/{s['reachable']}, {s['collisions']} collisions, "
+                        f"path ratio mean {s['ratio_mean']}; {len(seeds)} seed(s) x {goals} "
+                        "goals per world, mapper on, 2 % calibration errors + slip")]
 
 
 def control_cost_us(ticks: int = 4000) -> float:
@@ -83,6 +96,7 @@ def run(quick: bool) -> list[BenchResult]:
     dump.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
     results = _goal_results(rows, f"{len(seeds)} seeds x {GOALS} goals + {UNREACHABLE} "
                             f"unreachable per world, from an empty map; rows in {dump}")
+    results += drift_results(range(1, 2), 2 if quick else 4)
     eight = asyncio.run(figure_eight_run(4.0, 0.3))
     results.append(BenchResult(SUITE, "figure-eight (4 m) tracking error RMS, true pose",
                                eight["true_rms_m"], "m", "<= 0.05", eight["true_rms_m"] <= 0.05,

@@ -307,7 +307,7 @@ class NavigationComponent(BaseComponent):
         navigator = self.navigator
         state = navigator.state
         navigator.planned(result, self.clock(), number, yaw)
-        if result.found and navigator.target is not None and number == navigator.target.number:
+        if result.found and navigator.plan_points is result.points:  # taken: it is followed
             self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.odom_frame,
                                                result.points))
         if navigator.state != state:
