@@ -40,7 +40,7 @@ from nav.planner import Plan, plan
 from nav.pursuit import PursuitSettings, figure_eight, transform
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
-from slam.pose import Pose2, compose, inverse
+from slam.pose import Pose2, compose
 
 log = logging.getLogger("arbiterd.navigation")
 
@@ -89,7 +89,8 @@ def footprint_reach(cm: CollisionMonitorSettings) -> float:
 
 
 class NavigationComponent(BaseComponent):
-    """Plans to a goal on a costmap of the lidar's revolutions (in the odometry frame) and
+    """Plans to a goal on a costmap of the lidar's revolutions (in the map frame while mapping
+    runs, else in the odometry frame) and
     follows the plan with Regulated Pure Pursuit; its commands go through the arbiter (above
     the wander behaviour, below every client), so the collision monitor and the limiter
     apply. Any client command cancels the goal; the e-stop or a driver fault fail it; a stale
@@ -116,6 +117,9 @@ class NavigationComponent(BaseComponent):
         self.odom_frame = robot.odom_frame_id
         self.map_frame = mapping.map_frame_id if mapping.enabled else ""
         self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
+        #: the frame of the costmap, the plans and the follower: the map while mapping runs
+        #: (the mapper's corrections reach the costmap and the goal), else odometry's
+        self.frame = self.map_frame or self.odom_frame
         self.period = 1.0 / settings.control_rate
         self._next_decision = -math.inf
         self._scans: deque[tuple[Pose2, np.ndarray, np.ndarray]] = deque(maxlen=SCAN_QUEUE)
@@ -145,10 +149,19 @@ class NavigationComponent(BaseComponent):
         self._scans.append((self._pose_at(now - age), xs, ys))
 
     def _pose_at(self, t: float) -> Pose2:
+        """The robot's pose in :attr:`frame` at control-clock time ``t``."""
         for stamp, pose in reversed(self._history):
             if stamp <= t:
-                return pose
-        return self._odom()
+                return self._in_frame(pose)
+        return self._here()
+
+    def _in_frame(self, odom_pose: Pose2) -> Pose2:
+        """A pose in odometry's frame in :attr:`frame`."""
+        return compose(self.map_to_odom, odom_pose) if self.map_frame else odom_pose
+
+    def _here(self) -> Pose2:
+        """The robot's pose in :attr:`frame`."""
+        return self._in_frame(self._odom())
 
     def _odom(self) -> Pose2:
         pose = self.control.odometry.reported
@@ -175,12 +188,12 @@ class NavigationComponent(BaseComponent):
             return f"driver fault: {self.control.fault}"
         return None
 
-    def to_odom(self, frame: str, x: float, y: float, yaw: float) -> Pose2:
-        """A pose in ``frame`` (odom, or map while mapping runs) in the odometry frame."""
-        if frame == self.odom_frame:
+    def to_frame(self, frame: str, x: float, y: float, yaw: float) -> Pose2:
+        """A pose in ``frame`` (odom, or map while mapping runs) in :attr:`frame`."""
+        if frame == self.frame:
             return (x, y, yaw)
-        if self.map_frame and frame == self.map_frame:
-            return compose(inverse(self.map_to_odom), (x, y, yaw))
+        if frame == self.odom_frame:
+            return self._in_frame((x, y, yaw))
         frames = " or ".join(repr(f) for f in (self.map_frame, self.odom_frame) if f)
         hint = "" if self.map_frame else " (the map frame needs [mapping] enabled)"
         raise GoalError(f"header.frame_id is {frame!r}: goals are taken in {frames}{hint}")
@@ -199,24 +212,24 @@ class NavigationComponent(BaseComponent):
         self.navigator.start(target, now)
         self._next_decision, self.unseen_near_s = now, 0.0
         if target.path is not None:
-            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.odom_frame, target.path))
+            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, target.path))
         log.info("goal %d: %s", self.navigator.goals, self._describe(target))
         self.publisher.publish(now)
 
     def _target(self, request: GoalRequest) -> Target:
         if request.path:
-            x, y, theta = self._odom()
+            x, y, theta = self._here()
             points = transform(figure_eight(request.size), (x, y, theta))
-            return self._checked(Target(self.odom_frame, x, y, None, points, request.path))
+            return self._checked(Target(self.frame, x, y, None, points, request.path))
         if request.waypoints:
-            points = np.array([(x, y) for x, y, _ in (self.to_odom(request.frame, px, py, 0.0)
+            points = np.array([(x, y) for x, y, _ in (self.to_frame(request.frame, px, py, 0.0)
                                                       for px, py in request.waypoints)])
-            here = np.array([self._odom()[:2]])
+            here = np.array([self._here()[:2]])
             last = points[-1]
-            return self._checked(Target(self.odom_frame, float(last[0]), float(last[1]), None,
+            return self._checked(Target(self.frame, float(last[0]), float(last[1]), None,
                                         np.vstack((here, points)), "waypoints"))
         yaw = 0.0 if request.yaw is None else request.yaw
-        x, y, _ = self.to_odom(request.frame, request.x, request.y, yaw)
+        x, y, _ = self.to_frame(request.frame, request.x, request.y, yaw)
         self._check_point(x, y)
         return Target(request.frame, request.x, request.y, request.yaw)
 
@@ -229,9 +242,9 @@ class NavigationComponent(BaseComponent):
     def _check_point(self, x: float, y: float) -> None:
         row, col = self.area.cell(x, y)
         if not self.area.inside(row, col):
-            raise GoalError(f"({x:.2f}, {y:.2f}) in {self.odom_frame} is outside the map "
-                            f"([navigation] size_m = {self.settings.size_m:g} m around where "
-                            "odometry started)")
+            raise GoalError(f"({x:.2f}, {y:.2f}) in {self.frame} is outside the map "
+                            f"([navigation] size_m = {self.settings.size_m:g} m around the "
+                            f"origin of {self.frame})")
         costs = self.costs
         if costs is not None and self.costmap.seen[row, col] and \
                 not math.isfinite(float(costs[row, col])):
@@ -260,10 +273,10 @@ class NavigationComponent(BaseComponent):
 
     # -- planning ------------------------------------------------------------------------------
 
-    def _goal_in_odom(self) -> Pose2:
+    def _goal_in_frame(self) -> Pose2:
         target = self.navigator.target
         assert target is not None
-        return self.to_odom(target.frame, target.x, target.y, target.yaw or 0.0)
+        return self.to_frame(target.frame, target.x, target.y, target.yaw or 0.0)
 
     def _request_plan(self, now: float) -> None:
         self.navigator.planning(now)
@@ -271,7 +284,7 @@ class NavigationComponent(BaseComponent):
         assert target is not None
         scans = list(self._scans)
         self._scans.clear()
-        start, goal = self._odom(), self._goal_in_odom()
+        start, goal = self._here(), self._goal_in_frame()
         yaw = None if target.yaw is None else goal[2]
         job = (scans, start, goal)
         if self.inline:
@@ -308,8 +321,7 @@ class NavigationComponent(BaseComponent):
         state = navigator.state
         navigator.planned(result, self.clock(), number, yaw)
         if result.found and navigator.plan_points is result.points:  # taken: it is followed
-            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.odom_frame,
-                                               result.points))
+            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, result.points))
         if navigator.state != state:
             self._state_changed(state)
 
@@ -331,7 +343,7 @@ class NavigationComponent(BaseComponent):
         if navigator.wants_plan(now) and not self._planning:
             self._request_plan(now)
         stale = self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S
-        v, w = navigator.decide(now, self._odom(), self.control.odometry.linear,
+        v, w = navigator.decide(now, self._here(), self.control.odometry.linear,
                                 "no fresh lidar scan" if stale else None, self._held())
         if navigator.active:
             self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)
@@ -362,8 +374,8 @@ class NavigationComponent(BaseComponent):
         target = self.navigator.target
         if target is None or target.path is not None:
             return None
-        x, y, _ = self._goal_in_odom()
-        here = self._odom()
+        x, y, _ = self._goal_in_frame()
+        here = self._here()
         row, col = self.area.cell(x, y)
         if not self.area.inside(row, col) or self.costmap.seen[row, col] \
                 or math.hypot(x - here[0], y - here[1]) > UNSEEN_NEAR_M:
