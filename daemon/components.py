@@ -6,6 +6,7 @@ from daemon.autonomy import component as autonomy
 from daemon.component import ComponentSpec
 from daemon.control import api as control
 from daemon.mapping import component as mapping
+from daemon.navigation import component as navigation
 from daemon.recorder import component as recorder
 from daemon.ros2 import component as ros2
 from daemon.rosbridge import server as rosbridge
@@ -21,6 +22,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     collision_monitor.COMPONENT,
     autonomy.COMPONENT,
     mapping.COMPONENT,
+    navigation.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,

@@ -146,6 +146,9 @@ SUITES: dict[str, Suite] = {
     "mapping-sim": Suite("daemon.bench.mapping_sim", "the mapper in `arbiterd simulate`: pose "
                          "error and map quality against the true world, beside odometry, "
                          "apartment / warehouse / loop with a drifting base"),
+    "navigation": Suite("daemon.bench.navigation", "goals in `arbiterd simulate` against the "
+                        "true world: success, collisions, path length vs the shortest; "
+                        "figure-eight tracking; planning and follower cost"),
 }
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +21,7 @@ from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
 from daemon.lockstep.mapping import MappingProbe
 from daemon.lockstep.script import Step
+from daemon.navigation.component import NavigationComponent
 from daemon.safety.component import SafetyComponent, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
 from daemon.settings import RobotSettings
@@ -68,7 +69,7 @@ class Lockstep:
 
     def __init__(self, config: Config, *, script: Sequence[Step] = (),
                  autonomy: str | None = None, mapping: bool = False,
-                 map_out: str | None = None) -> None:
+                 map_out: str | None = None, navigation: bool = False) -> None:
         self.config = config
         self._simulated_lidar(config)
         self.clock = VirtualClock()
@@ -99,8 +100,12 @@ class Lockstep:
         self._since_clearance = 0.0
         self.truth_at_cast: dict[float, tuple[float, float, float]] = {}
         self.map_out = map_out
+        self._step_index, self._next_tick = 0, 0.0
         self.mapping = MappingProbe(config, self.plugs, points, self.clock, self.world.world,
                                     self.truth_at_cast) if mapping else None
+        self.navigation = NavigationComponent(config, self.plugs, lidar=True, points=points,
+                                              inline=True, wall_clock=self.clock) \
+            if navigation else None
 
     @staticmethod
     def _simulated_lidar(config: Config) -> None:
@@ -114,31 +119,51 @@ class Lockstep:
 
     async def run(self, seconds: float) -> dict[str, Any]:
         start = time.perf_counter()
+        await self.begin()
+        await self.advance(seconds)
+        await self._script_until(self.now, final=True)
+        result = self.report(seconds, time.perf_counter() - start)
+        await self.finish()
+        return result
+
+    async def begin(self) -> None:
+        """Start the control loop (and the mapper, and the --autonomy mode) at time 0."""
         await self.control.start(realtime=False)
         if self.mapping is not None:
             await self.mapping.start()
         if self.start_mode:
             self.autonomy.set_mode(self.start_mode, "--autonomy")
+        self._step_index, self._next_tick = 0, 0.0
+
+    @property
+    def now(self) -> float:
+        return self._step_index * self.world.config.physics_dt
+
+    async def advance(self, seconds: float, until: Callable[[], bool] | None = None) -> None:
+        """Step the world and the daemon's code ``seconds`` on (or until ``until()`` holds,
+        checked after each control tick)."""
         dt = self.world.config.physics_dt
         period = self.control.period_s
-        next_tick = 0.0
-        steps = round(seconds / dt)
-        for index in range(steps):
-            t = index * dt
+        end = self._step_index + round(seconds / dt)
+        while self._step_index < end:
+            t = self._step_index * dt
             self.clock.set(t)
             await self._script_until(t)
             self._lidar_at(t)
-            if t + 1e-9 >= next_tick:
-                await self.control.tick(next_tick)
-                next_tick += period
+            ticked = t + 1e-9 >= self._next_tick
+            if ticked:
+                await self.control.tick(self._next_tick)
+                self._next_tick += period
             self.world.step()
             self._track()
-        self.clock.set(steps * dt)
-        await self._script_until(steps * dt, final=True)
-        result = self.report(seconds, time.perf_counter() - start)
+            self._step_index += 1
+            if ticked and until is not None and until():
+                break
+        self.clock.set(self.now)
+
+    async def finish(self) -> None:
         await self.control.stop()
         self.world.close()
-        return result
 
     async def _script_until(self, t: float, final: bool = False) -> None:
         while self.script and self.script[0].t <= t + 1e-9:

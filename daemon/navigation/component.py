@@ -1,0 +1,485 @@
+# The "navigation" component: goals and paths, planned on a lidar costmap, as a command source.
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from aiohttp import web
+
+from base.config import Config
+from daemon.bus import BusKey
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
+from daemon.control.commands import Twist
+from daemon.http_api import ApiError, json_response, read_json_object
+from daemon.mapping.settings import MappingSettings
+from daemon.messages.convert import json_string_msg
+from daemon.messages.definitions import PATH, POINT_STAMPED, POSE_STAMPED, STRING
+from daemon.navigation.messages import (
+    GoalError,
+    GoalRequest,
+    PlanMessage,
+    goal_of_json,
+    goal_of_pose_stamped,
+    path_msg,
+)
+from daemon.navigation.navigator import Navigator, NavigatorSettings, Target
+from daemon.navigation.settings import NavigationSettings
+from daemon.safety.component import StatePublisher, scan_points
+from daemon.safety.settings import CollisionMonitorSettings
+from daemon.settings import LimitsSettings, RobotSettings
+from daemon.telemetry import SCAN, TRANSFORMS, Transform
+from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from nav.costmap import Costmap, CostParams, GridArea, centred_area
+from nav.planner import Plan, plan
+from nav.pursuit import PursuitSettings, figure_eight, transform
+from sensors.rplidar.settings import LidarSettings
+from sensors.scan import LaserScan, ScanPoints
+from slam.pose import Pose2, compose
+
+log = logging.getLogger("arbiterd.navigation")
+
+SOURCE = "navigation"
+PRIORITY = 1  # below every client, above the wander behaviour
+#: the state on every change and once a second
+STATE: BusKey[dict[str, Any]] = BusKey("navigation_state")
+#: the path being followed, on every new plan
+PLAN: BusKey[PlanMessage] = BusKey("navigation_plan")
+#: a scan older than this holds the robot (s)
+SCAN_TIMEOUT_S = 0.5
+#: revolutions kept for the next plan; older ones are dropped
+SCAN_QUEUE = 10
+#: odometry poses kept to place a revolution at its own time (s)
+HISTORY_S = 1.0
+#: a goal whose cell the lidar never saw while the robot was this near it (m) for
+#: UNSEEN_FAIL_S fails: it lies inside an obstacle or a closed room
+UNSEEN_NEAR_M = 5.0
+UNSEEN_FAIL_S = 10.0
+
+
+def navigator_settings(config: Config) -> NavigatorSettings:
+    """The follower's limits: [navigation] speeds capped by [limits]."""
+    s, limits = config.get(NavigationSettings), config.get(LimitsSettings)
+    pursuit = PursuitSettings(
+        max_speed=min(s.max_speed, limits.linear_x_max_velocity),
+        max_turn=min(s.max_turn, limits.angular_z_max_velocity),
+        max_deceleration=0.5 * limits.linear_x_max_deceleration,
+        xy_tolerance=s.xy_tolerance, yaw_tolerance=s.yaw_tolerance)
+    return NavigatorSettings(pursuit, s.replan_period_s, s.progress_timeout_s,
+                             s.held_timeout_s, s.goal_timeout_s)
+
+
+def cost_params(config: Config) -> CostParams:
+    s = config.get(NavigationSettings)
+    reach = footprint_reach(config.get(CollisionMonitorSettings))
+    return CostParams(radius_m=reach + s.clearance_m, inflation_m=s.inflation_m,
+                      unknown_cost=s.unknown_cost)
+
+
+def footprint_reach(cm: CollisionMonitorSettings) -> float:
+    """How far the footprint reaches from the robot's centre (m)."""
+    if cm.footprint:
+        return max(math.hypot(x, y) for x, y in cm.footprint)
+    return float(cm.footprint_radius)
+
+
+class NavigationComponent(BaseComponent):
+    """Plans to a goal on a costmap of the lidar's revolutions (in the map frame while mapping
+    runs, else in the odometry frame) and
+    follows the plan with Regulated Pure Pursuit; its commands go through the arbiter (above
+    the wander behaviour, below every client), so the collision monitor and the limiter
+    apply. Any client command cancels the goal; the e-stop or a driver fault fail it; a stale
+    scan holds the robot. Plans run in a worker thread (``inline``: in the tick, repeatable)."""
+
+    name = "navigation"
+    core = False
+
+    def __init__(self, config: Config, plugs: Plugs, *, lidar: bool,
+                 points: ScanPoints | None = None, inline: bool = False,
+                 wall_clock: Callable[[], float] = time.time) -> None:
+        self.settings = settings = config.get(NavigationSettings)
+        self.control = control = plugs.control
+        self.bus = plugs.bus
+        self.clock = control.clock
+        self.wall_clock = wall_clock
+        self.lidar, self.inline = lidar, inline
+        self.points = points or scan_points(config)
+        self.area: GridArea = centred_area(settings.resolution, settings.size_m)
+        self.costmap = Costmap(self.area, cost_params(config))
+        self.costs: np.ndarray | None = None
+        self.navigator = Navigator(navigator_settings(config))
+        robot, mapping = config.get(RobotSettings), config.get(MappingSettings)
+        self.odom_frame = robot.odom_frame_id
+        self.map_frame = mapping.map_frame_id if mapping.enabled else ""
+        self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
+        #: the frame of the costmap, the plans and the follower: the map while mapping runs
+        #: (the mapper's corrections reach the costmap and the goal), else odometry's
+        self.frame = self.map_frame or self.odom_frame
+        self.period = 1.0 / settings.control_rate
+        self._next_decision = -math.inf
+        self._scans: deque[tuple[Pose2, np.ndarray, np.ndarray]] = deque(maxlen=SCAN_QUEUE)
+        self._history: deque[tuple[float, Pose2]] = deque()
+        self.scan_time: float | None = None
+        self._planning = False
+        #: how long the robot has been near the goal without the lidar seeing its cell (s)
+        self.unseen_near_s = 0.0
+        self._invalidations = control.invalidations - control.stall_invalidations
+        self._tasks: set[asyncio.Future[Any]] = set()
+        self.plan_ms: float | None = None
+        self._published = ""
+        plugs.add_tick_source(self._tick)
+        plugs.on_command(self._on_command)
+        plugs.subscribe(SCAN, self.on_scan)
+        plugs.subscribe(TRANSFORMS, self.on_transforms)
+        plugs.add_status("navigation", self.brief)
+        self.publisher = StatePublisher(plugs, STATE, self.status)
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def on_scan(self, scan: LaserScan) -> None:
+        now = self.clock()
+        self.scan_time = now
+        age = min(max(0.0, self.wall_clock() - scan.stamp), HISTORY_S)
+        xs, ys = self.points(scan)
+        self._scans.append((self._pose_at(now - age), xs, ys))
+
+    def _pose_at(self, t: float) -> Pose2:
+        """The robot's pose in :attr:`frame` at control-clock time ``t``."""
+        for stamp, pose in reversed(self._history):
+            if stamp <= t:
+                return self._in_frame(pose)
+        return self._here()
+
+    def _in_frame(self, odom_pose: Pose2) -> Pose2:
+        """A pose in odometry's frame in :attr:`frame`."""
+        return compose(self.map_to_odom, odom_pose) if self.map_frame else odom_pose
+
+    def _here(self) -> Pose2:
+        """The robot's pose in :attr:`frame`."""
+        return self._in_frame(self._odom())
+
+    def _odom(self) -> Pose2:
+        pose = self.control.odometry.reported
+        return (pose.x, pose.y, pose.theta)
+
+    def on_transforms(self, transforms: tuple[Transform, ...]) -> None:
+        for t in transforms:
+            if self.map_frame and t.parent == self.map_frame and t.child == self.odom_frame:
+                self.map_to_odom = (t.x, t.y, t.theta)
+
+    def _on_command(self, source: str) -> None:
+        if self.navigator.active:
+            self._end("canceled", f"teleop from {source}")
+
+    # -- goals ---------------------------------------------------------------------------------
+
+    def refusal(self) -> str | None:
+        """Why no goal can start now, or None."""
+        if not self.lidar:
+            return "navigation needs the lidar: enable [lidar]"
+        if self.control.arbiter.estop_engaged:
+            return "e-stop engaged: release it first"
+        if self.control.fault:
+            return f"driver fault: {self.control.fault}"
+        return None
+
+    def to_frame(self, frame: str, x: float, y: float, yaw: float) -> Pose2:
+        """A pose in ``frame`` (odom, or map while mapping runs) in :attr:`frame`."""
+        if frame == self.frame:
+            return (x, y, yaw)
+        if frame == self.odom_frame:
+            return self._in_frame((x, y, yaw))
+        frames = " or ".join(repr(f) for f in (self.map_frame, self.odom_frame) if f)
+        hint = "" if self.map_frame else " (the map frame needs [mapping] enabled)"
+        raise GoalError(f"header.frame_id is {frame!r}: goals are taken in {frames}{hint}")
+
+    def request(self, request: GoalRequest) -> None:
+        """Start ``request``, replacing any goal; a GoalError says why it cannot start."""
+        refusal = self.refusal()
+        if refusal:
+            raise GoalError(refusal)
+        target = self._target(request)
+        if self.navigator.active:
+            log.info("goal %d replaced by a new goal", self.navigator.goals)
+            self.navigator.end("canceled", "replaced by a new goal", self.clock())
+        self._invalidations = self.control.invalidations - self.control.stall_invalidations
+        now = self.clock()
+        self.navigator.start(target, now)
+        self._next_decision, self.unseen_near_s = now, 0.0
+        if target.path is not None:
+            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, target.path))
+        log.info("goal %d: %s", self.navigator.goals, self._describe(target))
+        self.publisher.publish(now)
+
+    def _target(self, request: GoalRequest) -> Target:
+        if request.path:
+            x, y, theta = self._here()
+            points = transform(figure_eight(request.size), (x, y, theta))
+            return self._checked(Target(self.frame, x, y, None, points, request.path))
+        if request.waypoints:
+            points = np.array([(x, y) for x, y, _ in (self.to_frame(request.frame, px, py, 0.0)
+                                                      for px, py in request.waypoints)])
+            here = np.array([self._here()[:2]])
+            last = points[-1]
+            return self._checked(Target(self.frame, float(last[0]), float(last[1]), None,
+                                        np.vstack((here, points)), "waypoints"))
+        yaw = 0.0 if request.yaw is None else request.yaw
+        x, y, _ = self.to_frame(request.frame, request.x, request.y, yaw)
+        self._check_point(x, y)
+        return Target(request.frame, request.x, request.y, request.yaw)
+
+    def _checked(self, target: Target) -> Target:
+        assert target.path is not None
+        for x, y in target.path:
+            self._check_point(float(x), float(y))
+        return target
+
+    def _check_point(self, x: float, y: float) -> None:
+        row, col = self.area.cell(x, y)
+        if not self.area.inside(row, col):
+            raise GoalError(f"({x:.2f}, {y:.2f}) in {self.frame} is outside the map "
+                            f"([navigation] size_m = {self.settings.size_m:g} m around the "
+                            f"origin of {self.frame})")
+        costs = self.costs
+        if costs is not None and self.costmap.seen[row, col] and \
+                not math.isfinite(float(costs[row, col])):
+            raise GoalError(f"({x:.2f}, {y:.2f}) is inside an obstacle, or too close to one "
+                            "for the footprint")
+
+    @staticmethod
+    def _describe(target: Target) -> str:
+        if target.path is not None:
+            return f"follow {target.name} ({len(target.path)} points)"
+        yaw = "any heading" if target.yaw is None else f"{math.degrees(target.yaw):.0f} deg"
+        return f"({target.x:.2f}, {target.y:.2f}) in {target.frame}, {yaw}"
+
+    def cancel(self, reason: str) -> bool:
+        if not self.navigator.active:
+            return False
+        self._end("canceled", reason)
+        return True
+
+    def _end(self, state: str, reason: str) -> None:
+        now = self.clock()
+        self.navigator.end(state, reason, now)
+        self.control.arbiter.drop(SOURCE)
+        log.info("goal %d %s%s", self.navigator.goals, state, f": {reason}" if reason else "")
+        self.publisher.publish(now)
+
+    # -- planning ------------------------------------------------------------------------------
+
+    def _goal_in_frame(self) -> Pose2:
+        target = self.navigator.target
+        assert target is not None
+        return self.to_frame(target.frame, target.x, target.y, target.yaw or 0.0)
+
+    def _request_plan(self, now: float) -> None:
+        self.navigator.planning(now)
+        target = self.navigator.target
+        assert target is not None
+        scans = list(self._scans)
+        self._scans.clear()
+        start, goal = self._here(), self._goal_in_frame()
+        yaw = None if target.yaw is None else goal[2]
+        job = (scans, start, goal)
+        if self.inline:
+            self._take_plan(self._plan_job(*job), target.number, yaw)
+            return
+        self._planning = True
+        future = asyncio.get_running_loop().run_in_executor(None, self._plan_job, *job)
+        self._tasks.add(future)
+        future.add_done_callback(lambda f: self._planned(f, target.number, yaw))
+
+    def _plan_job(self, scans: list[tuple[Pose2, np.ndarray, np.ndarray]], start: Pose2,
+                  goal: Pose2) -> Plan:
+        started = time.perf_counter()
+        for pose, xs, ys in scans:
+            self.costmap.add_scan(pose, xs, ys)
+        self.costs = costs = self.costmap.costs()
+        result = plan(costs, self.area, start[:2], goal[:2], self.settings.plan_block)
+        self.plan_ms = round(1000 * (time.perf_counter() - started), 1)
+        return result
+
+    def _planned(self, future: asyncio.Future[Any], number: int, yaw: float | None) -> None:
+        self._tasks.discard(future)
+        self._planning = False
+        if future.cancelled():
+            return
+        if future.exception() is not None:
+            log.error("planning failed: %r", future.exception())
+            self._end("failed", f"the planner failed: {future.exception()!r}")
+            return
+        self._take_plan(future.result(), number, yaw)
+
+    def _take_plan(self, result: Plan, number: int, yaw: float | None) -> None:
+        navigator = self.navigator
+        state = navigator.state
+        navigator.planned(result, self.clock(), number, yaw)
+        if result.found and navigator.plan_points is result.points:  # taken: it is followed
+            self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, result.points))
+        if navigator.state != state:
+            self._state_changed(state)
+
+    # -- the tick ------------------------------------------------------------------------------
+
+    def _tick(self, now: float) -> None:
+        self._history.append((now, self._odom()))
+        while self._history and self._history[0][0] < now - HISTORY_S:
+            self._history.popleft()
+        navigator = self.navigator
+        if not navigator.active or now < self._next_decision:
+            return
+        self._next_decision = now + self.period - 1e-9
+        failure = self._failure() or self._never_seen()
+        if failure is not None:
+            self._end("failed", failure)
+            return
+        state = navigator.state
+        if navigator.wants_plan(now) and not self._planning:
+            self._request_plan(now)
+        stale = self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S
+        v, w = navigator.decide(now, self._here(), self.control.odometry.linear,
+                                "no fresh lidar scan" if stale else None, self._held())
+        if navigator.active:
+            self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)
+        if navigator.state != state:
+            self._state_changed(state)
+
+    def _state_changed(self, previous: str) -> None:
+        navigator = self.navigator
+        log.info("goal %d: %s -> %s%s", navigator.goals, previous, navigator.state,
+                 f" ({navigator.reason})" if navigator.reason else "")
+        if not navigator.active:
+            self.control.arbiter.drop(SOURCE)
+        self.publisher.publish(self.clock())
+
+    def _failure(self) -> str | None:
+        control = self.control
+        if control.arbiter.estop_engaged:
+            return "e-stop engaged"
+        if control.fault:
+            return f"driver fault: {control.fault}"
+        if control.invalidations - control.stall_invalidations != self._invalidations:
+            return "e-stop or driver fault in between: send the goal again"
+        return None
+
+    def _never_seen(self) -> str | None:
+        """Why the goal is taken for unreachable: its cell stays unseen though the robot has
+        been near it long enough (a lidar never sees inside an obstacle or a closed room)."""
+        target = self.navigator.target
+        if target is None or target.path is not None:
+            return None
+        x, y, _ = self._goal_in_frame()
+        here = self._here()
+        row, col = self.area.cell(x, y)
+        if not self.area.inside(row, col) or self.costmap.seen[row, col] \
+                or math.hypot(x - here[0], y - here[1]) > UNSEEN_NEAR_M:
+            return None
+        self.unseen_near_s += self.period
+        if self.unseen_near_s < UNSEEN_FAIL_S:
+            return None
+        return (f"the lidar never saw the goal though the robot was within "
+                f"{UNSEEN_NEAR_M:g} m of it for {UNSEEN_FAIL_S:g} s: it lies inside an "
+                "obstacle or a closed room")
+
+    def _held(self) -> bool:
+        return getattr(self.control.guard, "action", "none") == "stop"
+
+    # -- reports -------------------------------------------------------------------------------
+
+    def status(self) -> dict[str, Any]:
+        nav = self.navigator
+        out: dict[str, Any] = {"state": nav.state, "reason": nav.reason, "goals": nav.goals}
+        target = nav.target
+        if target is not None:
+            out["goal"] = ({"path": target.name, "points": len(target.path)}
+                           if target.path is not None else
+                           {"frame": target.frame, "x": target.x, "y": target.y,
+                            "theta": target.yaw})
+            progress = nav.progress
+            out.update(
+                distance_remaining_m=round(nav.last.remaining_m, 3), eta_s=nav.eta_s(),
+                elapsed_s=round(max(0.0, self.clock() - progress.started), 2),
+                recoveries=progress.recoveries, replans=progress.replans,
+                plan_length_m=round(nav.pursuit.length, 3) if nav.pursuit else None,
+                plan_ms=self.plan_ms,
+                tracking={"rms_m": round(progress.tracking.rms, 4),
+                          "max_m": round(progress.tracking.worst, 4)})
+        return out
+
+    def brief(self) -> dict[str, Any]:
+        status = self.status()
+        keys = ("state", "reason", "distance_remaining_m", "eta_s")
+        return {k: status[k] for k in keys if k in status}
+
+    def health(self) -> dict[str, Any]:
+        level = "ok" if self.lidar else "degraded"
+        extra = {} if self.lidar else {"problem": "no lidar: goals are refused"}
+        return {"status": level, **extra, **self.status()}
+
+    # -- HTTP and topics -----------------------------------------------------------------------
+
+    async def get_goal(self, request: web.Request) -> web.Response:
+        return json_response(self.status())
+
+    async def post_goal(self, request: web.Request) -> web.Response:
+        body = await read_json_object(request, 65536)
+        try:
+            goal = goal_of_json(body, self.map_frame or self.odom_frame)
+        except GoalError as exc:
+            raise ApiError(422, f"invalid goal: {exc}") from None
+        try:
+            self.request(goal)
+        except GoalError as exc:
+            raise ApiError(409, f"goal refused: {exc}") from None
+        return json_response(self.status())
+
+    async def delete_goal(self, request: web.Request) -> web.Response:
+        self.cancel("canceled over HTTP")
+        return json_response(self.status())
+
+    async def on_goal_pose(self, message: Inbound) -> Refusal | None:
+        """``/goal_pose`` (geometry_msgs/PoseStamped): go there."""
+        try:
+            self.request(goal_of_pose_stamped(message.msg))
+        except GoalError as exc:
+            return Refusal(f"goal refused: {exc}")
+        return None
+
+    async def on_clicked_point(self, message: Inbound) -> Refusal | None:
+        """``/clicked_point``: Foxglove advertises it on every connection; not used."""
+        return None
+
+    def routes(self) -> Sequence[Route]:
+        return (Route("GET", "/api/goal", self.get_goal, "read"),
+                Route("POST", "/api/goal", self.post_goal, "drive"),
+                Route("DELETE", "/api/goal", self.delete_goal, "drive"))
+
+    def topics(self) -> Sequence[Topic]:
+        return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive"),
+                TopicIn("/clicked_point", POINT_STAMPED, self.on_clicked_point, "drive"),
+                TopicOut("/plan", PATH, PLAN, path_msg, "on every new plan", latched=True),
+                TopicOut("/navigation/state", STRING, STATE, json_string_msg,
+                         "on change + 1 Hz"))
+
+    async def stop(self) -> None:
+        if self.navigator.active:
+            self._end("canceled", "daemon stopping")
+        for task in list(self._tasks):
+            task.cancel()
+
+
+def create(ctx: DaemonContext) -> NavigationComponent | None:
+    """The navigation component when ``[navigation] enabled``."""
+    if not ctx.settings(NavigationSettings).enabled:
+        return None
+    return NavigationComponent(ctx.config, ctx.plugs, lidar=ctx.settings(LidarSettings).enabled,
+                               points=ctx.scan_points)
+
+
+COMPONENT = ComponentSpec("navigation", create, NavigationSettings)

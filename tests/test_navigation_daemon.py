@@ -1,0 +1,97 @@
+# `arbiterd run --sim`: a goal published on /goal_pose over rosbridge the way Foxglove does drives
+# the robot there (ground truth); bad goals over rosbridge and HTTP are refused; it keeps running.
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from daemon.messages.definitions import POINT_STAMPED, POSE_STAMPED, POSE_WITH_COVARIANCE_STAMPED
+from slam.pose import between
+from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
+from tests.support.net import http
+from tests.support.rosbridge import Client, connect
+from tests.support.wait import wait_for
+
+START = (-1.0, -2.5, 0.0)  # sim/worlds/apartment.toml
+GOAL = (0.0, -0.5, math.pi / 2)  # the living room, past the table, in the world's frame
+WALL = (1.0, -3.0)  # on the wall between the living room and the kitchen
+
+
+def pose_stamped(frame: str, x: float, y: float, yaw: float) -> dict[str, Any]:
+    return {"header": {"frame_id": frame},
+            "pose": {"position": {"x": x, "y": y, "z": 0.0},
+                     "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2),
+                                     "w": math.cos(yaw / 2)}}}
+
+
+def status(daemon: DaemonSubprocess) -> dict[str, Any]:
+    code, body = daemon.get("/api/status")
+    assert code == 200, body
+    return body  # type: ignore[no-any-return]
+
+
+async def advertise_like_foxglove(client: Client) -> None:
+    """What Foxglove's 3D panel advertises on every connection."""
+    for topic, type_name in (("/goal_pose", POSE_STAMPED), ("/clicked_point", POINT_STAMPED),
+                             ("/initialpose", POSE_WITH_COVARIANCE_STAMPED)):
+        await client.send(op="advertise", topic=topic, type=type_name)
+    await client.send(op="publish", topic="/clicked_point", id="click", msg={
+        "header": {"frame_id": "odom"}, "point": {"x": 1.0, "y": 0.0, "z": 0.0}})
+
+
+def state_is(name: str) -> Any:
+    def matches(m: dict[str, Any]) -> bool:
+        return m.get("topic") == "/navigation/state" and \
+            json.loads(m["msg"]["data"])["state"] == name
+    return matches
+
+
+async def test_a_goal_from_foxglove_drives_the_robot_there(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess('[sim]\ndriver = "mock"\nworld_file = "apartment"\n',
+                               args=("--sim",))
+    wait_for(lambda: status(daemon)["safety"]["zone"] != "unknown", "the first revolution")
+    async with connect(f"ws://127.0.0.1:{daemon.ws_port}") as client:
+        for topic in ("/navigation/state", "/plan"):
+            await client.send(op="subscribe", topic=topic)
+        await advertise_like_foxglove(client)
+        await client.send(op="publish", topic="/goal_pose", id="bad",
+                          msg=pose_stamped("base_link", 1.0, 0.0, 0.0))
+        refusal = await client.op("status", id="bad")
+        assert refusal["level"] == "error" and "goal refused" in refusal["msg"], refusal
+
+        x, y, yaw = between(START, GOAL)
+        await client.send(op="publish", topic="/goal_pose", id="go",
+                          msg=pose_stamped("odom", x, y, yaw))
+        plan = await client.expect(lambda m: m.get("topic") == "/plan", what="/plan")
+        assert plan["msg"]["header"]["frame_id"] == "odom" and plan["msg"]["poses"]
+        await client.expect(state_is("succeeded"), within=60, what="the goal reached")
+        errors = [m for m in client.received if m.get("op") == "status"
+                  and m.get("level") == "error" and m.get("id") != "bad"]
+        assert not errors, errors  # the three advertises and the ignored click included
+
+    wait_for(lambda: abs(status(daemon)["ground_truth"]["v"]) < 0.01, "the robot at rest")
+    truth = status(daemon)["ground_truth"]
+    assert math.hypot(truth["x"] - GOAL[0], truth["y"] - GOAL[1]) <= 0.10, truth
+    assert abs(math.remainder(truth["theta"] - GOAL[2], math.tau)) <= 0.1, truth
+    assert daemon.get("/api/sim/metrics")[1]["collisions"] == 0
+    assert status(daemon)["navigation"]["state"] == "succeeded"
+
+    wall = between(START, (*WALL, 0.0))
+    for body, code, problem in (({"x": wall[0], "y": wall[1]}, 409, "inside an obstacle"),
+                                ({"x": 1.0, "y": "up"}, 422, "y: expected a finite number"),
+                                ({"x": 1.0, "y": 0.0, "frame": "map"}, 409,
+                                 "needs [mapping] enabled"),
+                                ({"x": 500.0, "y": 0.0}, 409, "outside the map")):
+        answer = daemon.post("/api/goal", body)
+        assert answer[0] == code and problem in answer[1]["error"], answer
+    code, body = daemon.post("/api/goal", {"x": 0.0, "y": 0.0})
+    assert code == 200 and body["state"] == "planning", body
+    code, body = daemon.post("/api/goal", {"path": "figure_eight", "size": 1.0})
+    assert code == 200 and body["state"] == "following" and body["goals"] == 3, body
+    code, body = http("DELETE", daemon.base_url + "/api/goal")
+    assert code == 200 and body["state"] == "canceled", body
+    wait_for(lambda: abs(status(daemon)["ground_truth"]["v"]) < 0.01, "the robot stopped")
+    health = daemon.get("/api/health")
+    assert health[0] == 200 and "navigation" in health[1]["components"], health
