@@ -1,5 +1,5 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls|mapping
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls|mapping|navigate
 //        [--shots DIR] [--token T] [--seconds S] [--map-name NAME]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { readFile } from "node:fs/promises";
@@ -509,6 +509,57 @@ async function mappingScenario(browser) {
   await context.close();
 }
 
+// The navigation component: the figure-eight started and cancelled from its buttons; then the
+// "go to" tool, a tap on the view at the goal the test names (odometry frame), the plan drawn,
+// the state line until the robot is there.
+async function navigateScenario(browser) {
+  const [gx, gy] = option("--goal").split(",").map(Number);
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await waitReady(page);
+  await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
+  await page.waitForSelector("#goal-tool", { state: "visible", timeout: 10000 });
+  const until = (what, predicate, arg, ms = 20000) => page.waitForFunction(predicate, arg,
+    { timeout: ms }).catch(async (e) => {
+      throw new Error(`${what}: ${e.message}; the state line: ${await text(page, "#nav-state")}`);
+    });
+  const navState = (name) => until(name, (n) =>
+    document.getElementById("nav-state").dataset.state === n, name);
+
+  await page.click("#figure-eight");
+  await navState("following");
+  const figurePlan = await page.$eval("#view", (v) => Number(v.dataset.planPoints));
+  await page.click("#nav-cancel");
+  await navState("canceled");
+  report("figure", { planPoints: figurePlan, state: await text(page, "#nav-state"),
+    cancelShown: await page.isVisible("#nav-cancel") });
+
+  await page.click("#zoom-out"); // the goal and the robot in view
+  await page.click("#goal-tool");
+  const pressed = await page.$eval("#goal-tool", (b) => b.getAttribute("aria-pressed"));
+  await until("the goal tool on", () => document.getElementById("view").dataset.goalTool === "true");
+  const [a, b, c, d, e, f] = (await page.$eval("#view", (v) => v.dataset.transform))
+    .split(",").map(Number);
+  const box = await page.locator("#view").boundingBox();
+  const dpr = await page.evaluate(() => window.devicePixelRatio || 1);
+  const at = { x: box.x + (a * gx + c * gy + e) / dpr, y: box.y + (b * gx + d * gy + f) / dpr };
+  const request = page.waitForRequest((r) => r.url().endsWith("/api/goal") &&
+    r.method() === "POST", { timeout: 10000 });
+  await page.mouse.click(at.x, at.y);
+  const sent = (await request).postDataJSON();
+  await until("the plan drawn", () => Number(document.getElementById("view").dataset.planPoints) > 1);
+  const planPoints = await page.$eval("#view", (v) => Number(v.dataset.planPoints));
+  const following = await text(page, "#nav-state");
+  const cancelShown = await page.isVisible("#nav-cancel");
+  if (shots) await page.screenshot({ path: `${shots}/console-navigate.png` });
+  await until("the goal reached", () =>
+    document.getElementById("nav-state").dataset.state === "succeeded", null, 60000);
+  report("goal", { pressed, sent, planPoints, following, cancelShown, truth: await truth(),
+    reached: await text(page, "#nav-state"), toolAfter: await page.$eval("#view",
+      (v) => v.dataset.goalTool), planAfter: await page.$eval("#view", (v) => v.dataset.planPoints),
+    errors: [...errors] });
+  await context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
@@ -518,6 +569,7 @@ try {
   else if (scenario === "fault") await faultScenario(browser);
   else if (scenario === "controls") await controlsScenario(browser);
   else if (scenario === "mapping") await mappingScenario(browser);
+  else if (scenario === "navigate") await navigateScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

@@ -323,3 +323,40 @@ def test_console_draws_the_map_saves_it_and_sets_the_pose(tmp_path: Path) -> Non
     assert math.hypot(x - sent["x"], y - sent["y"]) < 0.35, (after, sent)
     assert abs(math.remainder(math.radians(deg) - sent["theta"], math.tau)) < math.radians(25)
     _keep_shots(shots, "console-map.png")
+
+
+def test_console_sends_a_tapped_goal_and_the_robot_arrives(tmp_path: Path) -> None:
+    """[navigation] on: the figure-eight starts from its button (its plan drawn) and its cancel
+    stops it; the "go to" tool and a tap on the view send the goal there (odometry frame, no
+    heading), the plan is drawn, the state line follows until the robot is there (ground
+    truth)."""
+    _require_browser()
+    assert NODE is not None
+    start, goal = (-1.0, -2.5), (0.0, -0.5)  # sim/worlds/apartment.toml: past the table
+    target = (goal[0] - start[0], goal[1] - start[1])  # in the odometry frame (heading 0)
+    toml = '[sim]\ndriver = "mock"\nworld_file = "apartment"\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        _wait_healthy(daemon)
+        client = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
+                                 "navigate", "--goal", f"{target[0]},{target[1]}"], cwd=HERE,
+                                capture_output=True, text=True, timeout=180, check=False)
+        steps = {r["step"]: r for r in map(json.loads, filter(
+            lambda line: line.startswith("{"), client.stdout.splitlines()))}
+        assert client.returncode == 0 and "done" in steps, (client.stdout, client.stderr,
+                                                             daemon.log())
+        collisions = daemon.get("/api/sim/metrics")[1]["collisions"]
+        assert daemon.stop() == 0
+    sent = steps["goal"]["sent"]
+    assert sent["frame"] == "odom" and "theta" not in sent, sent
+    assert math.hypot(sent["x"] - target[0], sent["y"] - target[1]) < 0.05, sent
+    reached = steps["goal"]
+    assert reached["pressed"] == "true" and reached["planPoints"] > 1, reached
+    assert reached["following"].startswith(("planning", "following")), reached
+    assert reached["cancelShown"] is True and reached["reached"].startswith("succeeded"), reached
+    assert reached["toolAfter"] == "false" and reached["planAfter"] == "0", reached
+    figure = steps["figure"]
+    assert figure["planPoints"] > 100 and figure["state"].startswith("canceled"), figure
+    assert figure["cancelShown"] is False and reached["errors"] == [], (figure, reached)
+    assert collisions == 0
+    truth = reached["truth"]  # when the console said succeeded
+    assert math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.10, truth

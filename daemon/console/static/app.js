@@ -8,6 +8,7 @@ import { Hud } from "./hud.js";
 import { Joystick } from "./joystick.js";
 import { LogTail } from "./log.js";
 import { MapPanel } from "./map.js";
+import { NavPanel } from "./navigate.js";
 import { RobotPanel } from "./robot.js";
 import { TokenBox } from "./token.js";
 import { View, poseOf } from "./view.js";
@@ -52,6 +53,9 @@ const robot = new RobotPanel({
 }, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });
 const mapPanel = new MapPanel({ save: $("map-save"), message: $("map-message"),
   hint: $("map-hint") }, api, bridge, view, { onRefused: (what) => tokenProblem(what) });
+const navPanel = new NavPanel({ tool: $("goal-tool"), figure8: $("figure-eight"),
+  cancel: $("nav-cancel"), state: $("nav-state") }, api, bridge, view,
+{ onRefused: (what) => tokenProblem(what) });
 
 // -- connection, access and the banner ------------------------------------------------------
 
@@ -231,6 +235,7 @@ function healthArrived(health) {
   }
   robot.setRecorder(health.components.recorder);
   mapPanel.health(health.components.mapping);
+  navPanel.health(health.components.navigation);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
   if (firstTime && state.wsPort) bridge.connect();

@@ -47,8 +47,12 @@ export class View {
     this.map = null; // the occupancy grid (map.js mapImage), drawn in the map frame
     this.mapToOdom = null; // where the odometry frame is in the map; null: no map frame
     this.poseTool = false; // dragging sets the pose in the map (localisation mode)
-    this.drag = null; // {start, end} in the map frame while dragging
+    this.goalTool = false; // a tap (and drag for a heading) sends a navigation goal
+    this.drag = null; // {start, end, tool} in the view's frame while dragging
     this.onPoseDrag = () => {};
+    this.onGoalDrag = () => {};
+    this.plan = null; // the navigation plan ([[x, y], ...]) and goal, in the view's frame
+    this.goal = null;
     this.worldOf = null; // device pixel -> view-frame metres, from the last draw
     new ResizeObserver(() => this.request()).observe(canvas);
     canvas.addEventListener("wheel", (event) => {
@@ -83,14 +87,38 @@ export class View {
   setPoseTool(on) {
     if (on === this.poseTool) return;
     this.poseTool = on;
-    this.drag = null;
     this.canvas.dataset.poseTool = String(on);
+    this.toolChanged();
+  }
+
+  setGoalTool(on) {
+    if (on === this.goalTool) return;
+    this.goalTool = on;
+    this.canvas.dataset.goalTool = String(on);
+    this.toolChanged();
+  }
+
+  // The tool a press on the view uses: the goal tool while it is on, else the pose tool.
+  tool() { return this.goalTool ? "goal" : this.poseTool ? "pose" : null; }
+
+  toolChanged() {
+    const on = this.tool() !== null;
+    this.drag = null;
     this.canvas.style.touchAction = on ? "none" : "";
     this.canvas.style.cursor = on ? "crosshair" : "";
     this.request();
   }
 
-  // Press where the robot is, drag towards where it faces, release: onPoseDrag({x, y, theta}).
+  // The navigation plan and goal to draw (null: none), in the view's frame.
+  setPlan(points, goal) {
+    this.plan = points && points.length ? points : null;
+    this.goal = goal || null;
+    this.canvas.dataset.planPoints = String(this.plan ? this.plan.length : 0); // for tests
+    this.request();
+  }
+
+  // Press where the robot is (or should go), drag towards where it faces, release:
+  // onPoseDrag({x, y, theta}) or onGoalDrag({x, y, theta}) (theta null: a tap, any heading).
   listenForPoseDrag() {
     const { canvas } = this;
     const at = (event) => {
@@ -101,11 +129,12 @@ export class View {
       return { x: p.x, y: p.y };
     };
     canvas.addEventListener("pointerdown", (event) => {
-      if (!this.poseTool || !this.worldOf || event.button !== 0) return;
+      const tool = this.tool();
+      if (!tool || !this.worldOf || event.button !== 0) return;
       event.preventDefault();
       canvas.setPointerCapture(event.pointerId);
       const start = at(event);
-      this.drag = { start, end: start, scale: this.worldOf.a };
+      this.drag = { start, end: start, scale: this.worldOf.a, tool };
       this.request();
     });
     canvas.addEventListener("pointermove", (event) => {
@@ -122,8 +151,12 @@ export class View {
       const end = at(event);
       const dx = end.x - drag.start.x;
       const dy = end.y - drag.start.y;
-      // a click without a drag keeps the heading the robot has now
       const still = Math.hypot(dx, dy) < 8 * Math.abs(drag.scale);
+      if (drag.tool === "goal") { // a tap: any heading at the goal
+        this.onGoalDrag({ x: drag.start.x, y: drag.start.y, theta: still ? null : Math.atan2(dy, dx) });
+        return;
+      }
+      // a click without a drag keeps the heading the robot has now
       const theta = still ? this.shown(this.pose).theta : Math.atan2(dy, dx);
       this.onPoseDrag({ x: drag.start.x, y: drag.start.y,
         theta: Math.atan2(Math.sin(theta), Math.cos(theta)) });
@@ -245,6 +278,7 @@ export class View {
     }
     this.drawTrail(this.trail, cssColor("--odom"), 2 * dpr * px);
     ctx.restore();
+    this.drawPlan(cssColor("--accent"), dpr * px);
     this.drawScan(cssColor("--scan"), 3 * dpr * px);
     if (this.truth) this.drawRobot(this.truth, cssColor("--truth"), false, dpr * px);
     this.drawRobot(here, cssColor("--odom"), true, dpr * px);
@@ -263,6 +297,28 @@ export class View {
     ctx.translate(map.origin.x, map.origin.y);
     ctx.scale(map.resolution, map.resolution);
     ctx.drawImage(map.canvas, 0, 0);
+    ctx.restore();
+  }
+
+  // The navigation plan, dashed, and a ring at its goal.
+  drawPlan(color, px) {
+    const { ctx, plan, goal } = this;
+    if (!plan && !goal) return;
+    ctx.save();
+    ctx.strokeStyle = color;
+    ctx.lineWidth = 2 * px;
+    if (plan) {
+      ctx.setLineDash([6 * px, 4 * px]);
+      ctx.beginPath();
+      plan.forEach(([x, y], i) => (i ? ctx.lineTo(x, y) : ctx.moveTo(x, y)));
+      ctx.stroke();
+      ctx.setLineDash([]);
+    }
+    if (goal) {
+      ctx.beginPath();
+      ctx.arc(goal.x, goal.y, 8 * px, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
     ctx.restore();
   }
 
