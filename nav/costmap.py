@@ -5,7 +5,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 #: evidence a lidar return adds to its cell, and a ray passing through takes away
 HIT, MISS = 4, 1
@@ -149,6 +148,8 @@ def _costs(cells: np.ndarray, seen: np.ndarray, resolution: float, shrink: float
 
 def obstacle_distance(obstacles: np.ndarray) -> np.ndarray:
     """Distance from each cell to the nearest obstacle cell, in cells (``inf`` without any)."""
+    from scipy import ndimage  # here, not at import: the daemon starts without scipy
+
     if not obstacles.any():
         return np.full(obstacles.shape, np.inf)
     return np.asarray(ndimage.distance_transform_edt(~obstacles))

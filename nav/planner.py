@@ -6,8 +6,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from nav.costmap import GridArea
 
@@ -108,6 +106,9 @@ def cheapest_path(costs: np.ndarray, start: tuple[int, int],
                   goal: tuple[int, int]) -> tuple[list[tuple[int, int]], float]:
     """Cells of the cheapest 8-connected path (start first) and its cost in cells; a step
     costs its length times the mean cost of its two cells. Empty when none exists."""
+    from scipy.sparse import csr_matrix  # here, not at import: the daemon starts without scipy
+    from scipy.sparse.csgraph import dijkstra
+
     h, w = costs.shape
     source, target, length, pointers = _graph(h, w)
     flat = costs.ravel().astype(np.float64)
