@@ -43,6 +43,8 @@ class JointStates:
 
 
 JOINT_STATES: BusKey[JointStates] = BusKey("arm_joint_states")
+#: reconnecting the servos after a fault or a failed start: first and longest wait, s
+RETRY_MIN_S, RETRY_MAX_S = 1.0, 10.0
 
 
 def joint_state_msg(states: JointStates) -> dict[str, Any]:
@@ -62,10 +64,11 @@ class ArmComponent(BaseComponent):
     name = "arm"
     core = False
 
-    def __init__(self, settings: ArmSettings, servo: ServoArray, plugs: Plugs, *,
-                 readback: PulseReader | None = None) -> None:
+    def __init__(self, settings: ArmSettings, make_servo: Callable[[], ServoArray],
+                 plugs: Plugs, *, readback: PulseReader | None = None) -> None:
         self.settings = settings
-        self.servo = servo
+        self.make_servo = make_servo
+        self.servo = servo = make_servo()
         self.control = plugs.control
         self.bus = plugs.bus
         self.clock = self.control.clock
@@ -73,6 +76,10 @@ class ArmComponent(BaseComponent):
         self.arm = ArmController(settings, servo, self.clock(), self._estop)
         self._task: asyncio.Task[None] | None = None
         self._next_publish = 0.0
+        #: why the servos are not connected (None: they are)
+        self.unreachable: str | None = None
+        self._retry_at = 0.0
+        self._retry_s = RETRY_MIN_S
         plugs.subscribe(COMMAND, self._on_command_event)
 
     def _estop(self) -> str | None:
@@ -88,16 +95,53 @@ class ArmComponent(BaseComponent):
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
-        await self.servo.open()
-        await self.arm.step(self.clock())
+        """Connect the servos and send the home pose; a board that does not answer is logged,
+        makes health ``error`` and is tried again with back-off (the daemon runs on)."""
+        if await self._connect():
+            await self.arm.step(self.clock())
         self._task = asyncio.create_task(self._run(), name="arm")
+
+    async def _connect(self) -> bool:
+        try:
+            await self.servo.open()
+        except DeviceError as exc:
+            if self.unreachable != str(exc):
+                log.error("arm: %s (trying again every %g..%g s)", exc, RETRY_MIN_S,
+                          RETRY_MAX_S)
+            self.unreachable = str(exc)
+            self._retry_at = self.clock() + self._retry_s
+            self._retry_s = min(2 * self._retry_s, RETRY_MAX_S)
+            return False
+        if self.unreachable is not None:
+            log.info("arm: servos connected; the arm waits for a command")
+        self.unreachable, self._retry_s = None, RETRY_MIN_S
+        return True
+
+    async def _recover(self, now: float) -> None:
+        """After a fault or a failed connect: a fresh device, opened again with back-off; the
+        arm then holds still (frozen where it was) until it is told to move."""
+        if now < self._retry_at:
+            return
+        if self.arm.fault is not None:
+            await self.servo.close()
+            self.servo = self.arm.servo = self.make_servo()
+            self.unreachable = self.arm.fault
+            self.arm.fault, self.arm.written = None, None
+        elif self.servo.is_open:
+            return
+        elif self.servo.fault is not None or self.unreachable is not None:
+            self.servo = self.arm.servo = self.make_servo()
+        await self._connect()
 
     async def _run(self) -> None:
         period = 1.0 / self.settings.update_rate
         deadline = self.clock()
         while True:
             now = self.clock()
-            await self.arm.step(now)
+            if self.arm.fault is not None or not self.servo.is_open:
+                await self._recover(now)
+            else:
+                await self.arm.step(now)
             self._publish(now)
             deadline = max(deadline + period, self.clock())
             await asyncio.sleep(deadline - self.clock())
@@ -117,8 +161,9 @@ class ArmComponent(BaseComponent):
     def health(self) -> dict[str, Any]:
         device = self.servo.health()
         status = "error" if self.arm.fault or device["status"] != "ok" else "ok"
+        fault = self.arm.fault or device.get("fault") or self.unreachable
         return {"status": status, "backend": self.settings.backend,
-                "fault": self.arm.fault or device.get("fault"), "writes": self.arm.writes,
+                "fault": fault, "writes": self.arm.writes,
                 "frozen_by_estop": self.arm.frozen_by}
 
     # -- reports -----------------------------------------------------------------------------
@@ -234,18 +279,19 @@ def create(ctx: DaemonContext) -> ArmComponent | None:
     problems = settings.pose_problems()
     if problems:
         raise ValueError(problems[0])
-    servo = build_servo(ctx.config)
-    readback = None
+    config = ctx.config
+    component = ArmComponent(settings, lambda: build_servo(config), ctx.plugs)
     if ctx.sim is not None:
         emulator = ctx.sim.device_emulators.get("arm")
-        readback = emulator.servo_pulse_us if emulator is not None else servo_reader(servo)
-    return ArmComponent(settings, servo, ctx.plugs, readback=readback)
+        component.readback = emulator.servo_pulse_us if emulator is not None \
+            else lambda output: component_pulse(component, output)
+    return component
 
 
-def servo_reader(servo: ServoArray) -> PulseReader | None:
-    """The mock servos read their own recorded pulses."""
-    reader: PulseReader | None = getattr(servo, "servo_pulse_us", None)
-    return reader
+def component_pulse(component: ArmComponent, output: int) -> float:
+    """The mock servos' own record of an output's pulse (they have no emulator)."""
+    reader: PulseReader | None = getattr(component.servo, "servo_pulse_us", None)
+    return reader(output) if reader is not None else 0.0
 
 
 def devices(config: Config) -> list[DeviceUse]:
