@@ -323,3 +323,28 @@ def test_console_draws_the_map_saves_it_and_sets_the_pose(tmp_path: Path) -> Non
     assert math.hypot(x - sent["x"], y - sent["y"]) < 0.35, (after, sent)
     assert abs(math.remainder(math.radians(deg) - sent["theta"], math.tau)) < math.radians(25)
     _keep_shots(shots, "console-map.png")
+
+
+def test_console_moves_the_arm(tmp_path: Path) -> None:
+    """[arm] on (PCA9685 emulated): the pose buttons move the arm and the side view follows;
+    the gripper closes; the panel fits a phone."""
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    toml = SIM + '[arm]\nenabled = true\nbackend = "pca9685"\n' \
+        'max_speed = [10.0, 10.0, 10.0, 0.35]\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "arm", "--shots", str(shots))
+        assert daemon.stop() == 0
+        log = daemon.log()
+    arm = steps["arm"]
+    assert arm["errors"] == [], log
+    assert arm["poses"] == ["carry", "grasp", "grasp_close", "home", "pregrasp"]
+    assert arm["at"]["api"]["pose"] == "pregrasp" and "at pregrasp" in arm["at"]["state"]
+    tip = arm["at"]["points"].split()[-1].split(",")
+    assert (float(tip[0]), -float(tip[1])) == pytest.approx((0.7736, -0.0381), abs=1e-3)
+    assert arm["before"] != arm["at"]["points"]
+    assert arm["closed"] == 0.0 and "close the gripper" in arm["message"]
+    phone = steps["armPhone"]
+    assert phone["errors"] == [] and phone["width"] <= 390
+    _keep_shots(shots, "console-arm-laptop.png", "console-arm-phone.png")
