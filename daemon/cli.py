@@ -178,6 +178,8 @@ def _probed(config: Config) -> str:
     what = f"driver {config['driver']['type']}"
     if config.get(LidarSettings).enabled:
         what += f", lidar on {config['lidar']['port']}"
+    if config["arm"]["enabled"]:
+        what += f", arm servos ({config['arm']['backend']})"
     return what
 
 

@@ -21,7 +21,21 @@ async def probe_hardware(config: Config) -> list[str]:
     finally:
         await driver.close()
     problems += [f"[lidar] {p}" for p in await probe_lidar(config)]
+    problems += await probe_arm(config)
     return problems
+
+
+async def probe_arm(config: Config) -> list[str]:
+    """Ask the arm's servo output (``[arm]`` on) whether it answers, without moving a servo."""
+    from daemon.arm.component import build_servo
+
+    if not config["arm"]["enabled"]:
+        return []
+    try:
+        await build_servo(config).probe()
+    except DriverError as exc:
+        return [str(exc)]
+    return []
 
 
 async def safe_stop(config: Config) -> None:

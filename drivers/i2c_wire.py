@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import errno
+import os
 from dataclasses import dataclass
 
 #: the prefix of a ``bus`` option naming an emulated bus: ``emulated:HOST:PORT``
@@ -57,5 +58,5 @@ def parse_reply(line: bytes) -> list[int]:
         raise OSError(errno.EIO, "the emulated I2C bus closed the connection")
     if words[0] == "e":
         code = int(words[1])
-        raise OSError(code, errno.errorcode.get(code, "I2C error"))
+        raise OSError(code, os.strerror(code))  # as the kernel's i2c-dev reports it
     return [int(w) for w in words[1:]]

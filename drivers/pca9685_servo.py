@@ -101,6 +101,21 @@ class Pca9685Servos(ServoArray):
             time.sleep(WAKE_S)
             bus.write_byte_data(s.address, chip.MODE1, awake | chip.RESTART)
 
+    async def _probe(self) -> None:
+        """Read MODE1 only: opening would sleep the chip, pausing every channel's pulses."""
+        try:
+            await asyncio.to_thread(self._read_mode)
+        except OSError as exc:
+            raise self._fail(exc) from None
+        finally:
+            await asyncio.to_thread(self._drop)
+
+    def _read_mode(self) -> None:
+        s: Pca9685Settings = self.settings
+        with self._lock:
+            self._bus = open_i2c(s.bus, s.timeout_s)
+            self._bus.read_byte_data(s.address, chip.MODE1)
+
     async def _send_pulses(self, pulses: dict[int, float]) -> None:
         try:
             await asyncio.to_thread(self._write_channels, pulses)

@@ -102,3 +102,14 @@ class ServoArray(Actuator):
 
     async def _send_pulses(self, pulses: dict[int, float]) -> None:
         raise NotImplementedError
+
+    async def probe(self) -> None:
+        """Check that the outputs answer without changing a pulse (``arbiterd check``);
+        ``DeviceError`` saying why not. The device is closed afterwards."""
+        try:
+            await self._probe()
+        finally:
+            await self.close()
+
+    async def _probe(self) -> None:
+        await self.open()

@@ -13,7 +13,7 @@ from base.config import ConfigError
 from daemon.arm.kinematics import forward
 from daemon.arm.settings import SEED_POSES
 from daemon.config import load_config
-from daemon.probe import safe_stop_arm
+from daemon.probe import probe_arm, safe_stop_arm
 from drivers import pca9685_protocol as chip
 from drivers.devices import Actuator, DeviceError, create_device
 from sim.pca9685_emulator import Pca9685Emulator
@@ -248,5 +248,22 @@ async def test_safe_stop_puts_the_servos_in_their_shutdown_state(
         for channel in range(3):
             assert emulated.emulator.servo_pulse_us(channel) == pytest.approx(
                 pulse, abs=chip.step_us(50.0))
+    finally:
+        emulated.stop()
+
+
+async def test_check_probes_the_board_without_touching_it(tmp_path: Path) -> None:
+    emulated = DEVICE_EMULATORS["pca9685_servo"](tmp_path, {})
+    board: Pca9685Emulator = emulated.emulator
+    try:
+        path = tmp_path / "arbiterd.toml"
+        path.write_text(arm_toml("pca9685", f'bus = "{board.bus}"\n'))
+        writes = board.chip.writes
+        assert await probe_arm(load_config(path)) == []
+        assert board.chip.writes == writes and board.chip.asleep  # read only
+        board.answering = False
+        assert await probe_arm(load_config(path)) == [
+            f"[arm] no answer from the PCA9685 at 0x40 on {board.bus} (Remote I/O error): "
+            "check its wiring and address"]
     finally:
         emulated.stop()
