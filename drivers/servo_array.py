@@ -47,6 +47,8 @@ class ServoArray(Actuator):
         s = self.settings
         outputs: list[int] = getattr(s, self.OUTPUTS_KEY)
         self._check_lengths(s, outputs)
+        if len(set(s.joints)) != len(s.joints):
+            raise ValueError(f"[{section}] joints: a name is used twice: {s.joints}")
         if len(set(outputs)) != len(outputs):
             raise ValueError(f"[{section}] {self.OUTPUTS_KEY}: {self.OUTPUT_NOUN} is used "
                              f"twice: {outputs}")

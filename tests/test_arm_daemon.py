@@ -160,6 +160,10 @@ def test_a_channel_used_twice_is_a_configuration_error(tmp_path: Path) -> None:
     ('poses = [["wave", 0.1, 0.2, 0.3, nan]]\n', r"\[arm\] poses: .*finite"),
     ('backend = "servo9000"\n', r"\[arm\] backend: must be one of"),
     ("max_speed = [1.0, 1.0, 0.0, 0.1]\n", r"\[arm\] max_speed: item 2: must be > 0"),
+    ('joints = ["a", "b", "a", "g"]\n', r"\[arm\] joints: a name is used twice"),
+    ("offsets_us = [0, 0, 400, 0]\n", r"\[arm\] joint arm_joint3: pulses with the offset "
+                                        r"\(900..2900 µs\) leave 500..2500 µs"),
+    ("lower = [-1.0, -1.0, -1.0]\n", r"\[arm\] lower: expected a list of 4 items"),
 ])
 def test_bad_arm_keys_name_the_key(tmp_path: Path, extra: str, problem: str) -> None:
     path = tmp_path / "arbiterd.toml"
@@ -267,3 +271,12 @@ async def test_check_probes_the_board_without_touching_it(tmp_path: Path) -> Non
             "check its wiring and address"]
     finally:
         emulated.stop()
+
+
+def test_a_pose_outside_the_limits_names_the_pose_and_joint(tmp_path: Path) -> None:
+    from daemon.arm.settings import ArmSettings
+
+    path = tmp_path / "arbiterd.toml"
+    path.write_text(arm_toml("mock", 'poses = [["reach", 0.0, 0.0, 0.0, 0.05]]\n'))
+    assert load_config(path, sim=True).get(ArmSettings).pose_problems() == [
+        "[arm] poses: reach: gripper = 0.05 is outside 0.0..0.035"]
