@@ -109,9 +109,11 @@ async def test_the_estop_freezes_the_arm_and_refuses_it(tmp_path: Path) -> None:
         assert held != {name: 0.0 for name in held}
         status, body = await post_arm(http, url, {"pose": "home"})
         assert status == 409 and "e-stop engaged" in body["error"]
-        writes = robot.component("arm").arm.writes
-        await eventually(lambda: robot.component("arm").arm.written is not None, "a write")
-        assert robot.component("arm").arm.writes == writes  # nothing sent: the servos hold
+        arm = robot.component("arm").arm
+        await eventually(lambda: arm.written == arm.motion.goal, "the frozen position written")
+        writes, steps = arm.writes, arm.steps
+        await eventually(lambda: arm.steps >= steps + 5, "five more servo updates")
+        assert arm.writes == writes  # nothing more sent: the servos hold
 
 
 async def test_joint_states_follow_the_topics(tmp_path: Path) -> None:
@@ -279,4 +281,4 @@ def test_a_pose_outside_the_limits_names_the_pose_and_joint(tmp_path: Path) -> N
     path = tmp_path / "arbiterd.toml"
     path.write_text(arm_toml("mock", 'poses = [["reach", 0.0, 0.0, 0.0, 0.05]]\n'))
     assert load_config(path, sim=True).get(ArmSettings).pose_problems() == [
-        "[arm] poses: reach: gripper = 0.05 is outside 0.0..0.035"]
+        "poses: reach: gripper = 0.05 is outside 0.0..0.035"]

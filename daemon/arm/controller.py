@@ -53,6 +53,7 @@ class ArmController:
         self.frozen_by: str | None = None
         self.written: dict[str, float] | None = None
         self.writes = 0
+        self.steps = 0
 
     # -- commands ----------------------------------------------------------------------------
 
@@ -93,6 +94,7 @@ class ArmController:
 
     async def step(self, now: float, *, obey_estop: bool = True) -> None:
         """Write where the move is at ``now`` (frozen first when the e-stop is latched)."""
+        self.steps += 1
         reason = self.estop() if obey_estop else None
         if reason is not None and self.frozen_by is None:
             self.frozen_by = reason

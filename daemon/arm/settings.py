@@ -125,6 +125,6 @@ class ArmSettings(SectionSettings, section="arm", options=ARM_OPTIONS):
         for name, targets in self.named_poses().items():
             for joint, low, high in zip(self.joints, self.lower, self.upper, strict=True):
                 if not low <= targets[joint] <= high:
-                    problems.append(f"[arm] poses: {name}: {joint} = {targets[joint]} is "
+                    problems.append(f"poses: {name}: {joint} = {targets[joint]} is "
                                     f"outside {low}..{high}")
         return problems
