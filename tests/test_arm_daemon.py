@@ -282,3 +282,33 @@ def test_a_pose_outside_the_limits_names_the_pose_and_joint(tmp_path: Path) -> N
     path.write_text(arm_toml("mock", 'poses = [["reach", 0.0, 0.0, 0.0, 0.05]]\n'))
     assert load_config(path, sim=True).get(ArmSettings).pose_problems() == [
         "poses: reach: gripper = 0.05 is outside 0.0..0.035"]
+
+
+async def test_a_board_lost_while_moving_freezes_the_arm_until_it_answers_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import daemon.arm.component
+
+    monkeypatch.setattr(daemon.arm.component, "RETRY_MIN_S", 0.05)
+    slow = "max_speed = [0.5, 0.5, 0.5, 0.02]\n"
+    async with in_process_daemon(tmp_path, arm_toml("pca9685", slow)) as robot, \
+            aiohttp.ClientSession() as http:
+        component = robot.component("arm")
+        board: Pca9685Emulator = robot.ctx.sim.device_emulators["arm"]
+        await post_arm(http, robot.http_url, {"pose": "carry"})
+        await eventually(lambda: component.arm.writes > 3, "the arm moving")
+        board.answering = False
+        health = await eventually(
+            lambda: (h := component.health())["status"] == "error" and h, "the fault")
+        assert "no answer from the PCA9685" in health["fault"]
+        state = await get_arm(http, robot.http_url)
+        assert not state["moving"] and state["pose"] is None  # frozen part way
+        status, body = await post_arm(http, robot.http_url, {"pose": "home"})
+        assert status == 503
+        board.answering = True
+        await eventually(lambda: component.health()["status"] == "ok", "the board back")
+        await eventually(lambda: component.arm.written is not None, "the held position sent")
+        after = (await get_arm(http, robot.http_url))["joints"]
+        for name, joint in state["joints"].items():  # it holds where it froze
+            assert after[name]["target"] == joint["target"] == joint["position"]
+        status, body = await post_arm(http, robot.http_url, {"pose": "home"})
+        assert status == 200

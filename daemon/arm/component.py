@@ -138,13 +138,20 @@ class ArmComponent(BaseComponent):
         deadline = self.clock()
         while True:
             now = self.clock()
-            if self.arm.fault is not None or not self.servo.is_open:
-                await self._recover(now)
-            else:
-                await self.arm.step(now)
-            self._publish(now)
+            try:
+                await self._update(now)
+            except Exception as exc:  # a bug must not end the loop with the arm unwatched
+                log.exception("arm update failed")
+                self.arm.fail(f"update failed: {exc!r}", now)
             deadline = max(deadline + period, self.clock())
             await asyncio.sleep(deadline - self.clock())
+
+    async def _update(self, now: float) -> None:
+        if self.arm.fault is not None or not self.servo.is_open:
+            await self._recover(now)
+        else:
+            await self.arm.step(now)
+        self._publish(now)
 
     async def stop(self) -> None:
         if self._task is not None:
@@ -179,13 +186,16 @@ class ArmComponent(BaseComponent):
         return out
 
     def joint_states(self, now: float) -> JointStates:
+        """Where the joints are: what the emulated servos' pulses mean under ``--sim`` (the
+        commanded position for a relaxed servo), else the commanded position; each finger
+        travels the gripper's opening."""
         here, velocity = self.arm.motion.position(now), self.arm.motion.velocity(now)
-        measured = self.measured() or {}
-        values = [measured.get(j) if measured.get(j) is not None else here[j]
-                  for j in self.arm.joints]
+        for joint, value in (self.measured() or {}).items():
+            if value is not None:
+                here[joint] = value
         *pitch, gripper = self.arm.joints
         return JointStates(time.time(), [*pitch, *FINGERS],
-                           [float(v or 0.0) for v in values[:3]] + [float(values[3] or 0.0)] * 2,
+                           [here[j] for j in pitch] + [here[gripper]] * 2,
                            [velocity[j] for j in pitch] + [velocity[gripper]] * 2)
 
     def _publish(self, now: float) -> None:
