@@ -302,7 +302,7 @@ async def test_a_board_lost_while_moving_freezes_the_arm_until_it_answers_again(
         assert "no answer from the PCA9685" in health["fault"]
         state = await get_arm(http, robot.http_url)
         assert not state["moving"] and state["pose"] is None  # frozen part way
-        status, body = await post_arm(http, robot.http_url, {"pose": "home"})
+        status, _ = await post_arm(http, robot.http_url, {"pose": "home"})
         assert status == 503
         board.answering = True
         await eventually(lambda: component.health()["status"] == "ok", "the board back")
@@ -310,5 +310,5 @@ async def test_a_board_lost_while_moving_freezes_the_arm_until_it_answers_again(
         after = (await get_arm(http, robot.http_url))["joints"]
         for name, joint in state["joints"].items():  # it holds where it froze
             assert after[name]["target"] == joint["target"] == joint["position"]
-        status, body = await post_arm(http, robot.http_url, {"pose": "home"})
+        status, _ = await post_arm(http, robot.http_url, {"pose": "home"})
         assert status == 200
