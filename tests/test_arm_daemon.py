@@ -192,7 +192,10 @@ async def test_a_board_that_does_not_answer_degrades_health_only(
         board.answering = False
         return Emulated(board, {"bus": board.bus}, board.close)
 
+    import daemon.arm.component
+
     monkeypatch.setitem(sim.wiring.DEVICE_EMULATORS, "pca9685_servo", silent_board)
+    monkeypatch.setattr(daemon.arm.component, "RETRY_MIN_S", 0.05)
     async with in_process_daemon(tmp_path, arm_toml("pca9685")) as robot, \
             aiohttp.ClientSession() as http:
         health = robot.daemon.health()
@@ -202,6 +205,11 @@ async def test_a_board_that_does_not_answer_degrades_health_only(
         assert status == 503 and "not connected" in body["error"]
         async with http.get(f"{robot.http_url}/api/status") as answer:
             assert answer.status == 200  # the daemon runs on
+        board: Pca9685Emulator = robot.ctx.sim.device_emulators["arm"]
+        board.answering = True  # connected at last: the servos are sent home
+        await eventually(lambda: board.servo_pulse_us(0) > 0, "the first pulses")
+        assert [board.servo_pulse_us(c) for c in range(4)] == pytest.approx(
+            [1500, 1500, 1500, 500], abs=chip.step_us(50.0))
 
 
 async def test_pca9685_register_semantics(tmp_path: Path) -> None:
