@@ -69,7 +69,8 @@ def test_roslib_drives_the_simulated_robot(tmp_path: Path, flavour: str) -> None
 
 #: a PCA9685 count at 50 Hz (4.9 µs of the 2000 µs pulse range) in rad and in m of the gripper
 ONE_STEP = 1e6 / (50.03 * 4096) / 2000
-ARM = '[arm]\nenabled = true\nbackend = "pca9685"\nmax_speed = [10.0, 10.0, 10.0, 0.35]\n'
+ARM = '[sim]\nlidar = false\n[arm]\nenabled = true\nbackend = "pca9685"\n' \
+    'max_speed = [10.0, 10.0, 10.0, 0.35]\n'
 
 
 def test_roslib_moves_the_arm(tmp_path: Path) -> None:
