@@ -7,9 +7,12 @@ from typing import Any
 
 from base.config import SectionSettings
 from base.options import Option, Options
+from drivers.i2c_link import check_bus
 from drivers.mock_servo import MOCK_SERVO_OPTIONS
+from drivers.pca9685_protocol import DEFAULT_ADDRESS
 from drivers.pca9685_servo import PCA9685_OPTIONS
 from drivers.pigpio_servo import SERVO_OPTIONS
+from drivers.servo_pulses import SERVO_HZ
 
 JOINT_COUNT = 4  # three pitching joints, then the gripper
 HALF_PI = round(math.pi / 2, 6)
@@ -53,6 +56,17 @@ ARM_OPTIONS: Options = {
     **SERVO_OPTIONS,
     **PCA9685_OPTIONS,
     **{k: v for k, v in MOCK_SERVO_OPTIONS.items() if k not in ("history",)},
+    "host": Option(str, "localhost", "pigpio: the host running pigpiod"),
+    "port": Option(int, 8888, "pigpio: pigpiod's port", minval=1, maxval=65535),
+    "timeout_s": Option(float, 1.0, "pigpio: connecting to and each reply from pigpiod; "
+                        "pca9685: each transfer on the simulator's emulated bus, s", above=0.0,
+                        maxval=30.0),
+    "bus": Option(str, "/dev/i2c-1", "pca9685: the I2C bus, /dev/i2c-N (or N); the simulator "
+                  "writes emulated:HOST:PORT", check=check_bus),
+    "address": Option(int, DEFAULT_ADDRESS, "pca9685: the board's I2C address (64 = 0x40, "
+                      "A0..A5 open)", minval=0x03, maxval=0x77),
+    "frequency_hz": Option(float, SERVO_HZ, "pca9685: PWM frequency, Hz (hobby servos: 50)",
+                           minval=24.0, maxval=1526.0),
     "joints": _per_joint(["arm_joint1", "arm_joint2", "arm_joint3", "gripper"],
                          "names of joint1, joint2, joint3 (pitch about y) and the gripper",
                          str),
