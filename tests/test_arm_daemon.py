@@ -320,3 +320,16 @@ async def test_a_board_lost_while_moving_freezes_the_arm_until_it_answers_again(
             assert after[name]["target"] == joint["target"] == joint["position"]
         status, _ = await post_arm(http, robot.http_url, {"pose": "home"})
         assert status == 200
+
+
+async def test_the_daemons_shutdown_parks_the_arm_at_home_when_configured(
+        tmp_path: Path) -> None:
+    toml = arm_toml("pca9685", FAST + 'on_stop = "home"\n')
+    async with in_process_daemon(tmp_path, toml) as robot, aiohttp.ClientSession() as http:
+        board: Pca9685Emulator = robot.ctx.sim.device_emulators["arm"]
+        await post_arm(http, robot.http_url, {"pose": "carry"})
+        await eventually(lambda: robot.component("arm").state()["pose"] == "carry",
+                         "the arm at carry")
+    # the daemon has stopped: the board (its registers outlive the emulator) holds home
+    assert [board.servo_pulse_us(c) for c in range(4)] == pytest.approx(
+        [1500, 1500, 1500, 500], abs=chip.step_us(50.0))
