@@ -79,6 +79,9 @@ class Pca9685Servos(ServoArray):
         if exc.errno in (errno.EREMOTEIO, errno.ENXIO, errno.EIO):
             return DeviceError(f"[{self.section}] no answer from the {self._where()} "
                                f"({exc.strerror or exc}): check its wiring and address")
+        if exc.errno == errno.ENOENT:
+            return DeviceError(f"[{self.section}] {self._where()}: no such bus: enable I2C "
+                               "(raspi-config: Interface options, I2C) or fix [arm] bus")
         return DeviceError(f"[{self.section}] {self._where()}: {exc}")
 
     async def _open(self) -> None:
@@ -87,6 +90,9 @@ class Pca9685Servos(ServoArray):
         except OSError as exc:
             await asyncio.to_thread(self._drop)
             raise self._fail(exc) from None
+        except ImportError as exc:
+            raise DeviceError(f"[{self.section}] {self._where()}: smbus2 is not installed "
+                              f"({exc})") from None
 
     def _start_chip(self) -> None:
         s: Pca9685Settings = self.settings
@@ -107,6 +113,9 @@ class Pca9685Servos(ServoArray):
             await asyncio.to_thread(self._read_mode)
         except OSError as exc:
             raise self._fail(exc) from None
+        except ImportError as exc:
+            raise DeviceError(f"[{self.section}] {self._where()}: smbus2 is not installed "
+                              f"({exc})") from None
         finally:
             await asyncio.to_thread(self._drop)
 

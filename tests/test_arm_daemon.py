@@ -333,3 +333,20 @@ async def test_the_daemons_shutdown_parks_the_arm_at_home_when_configured(
     # the daemon has stopped: the board (its registers outlive the emulator) holds home
     assert [board.servo_pulse_us(c) for c in range(4)] == pytest.approx(
         [1500, 1500, 1500, 500], abs=chip.step_us(50.0))
+
+
+@pytest.mark.parametrize(("problem", "says"), [
+    (FileNotFoundError(2, "No such file or directory"), r"no such bus: enable I2C"),
+    (ModuleNotFoundError("No module named 'smbus2'"), r"smbus2 is not installed"),
+])
+async def test_a_missing_bus_or_library_says_what_to_do(
+        monkeypatch: pytest.MonkeyPatch, problem: Exception, says: str) -> None:
+    import drivers.pca9685_servo
+
+    def fails(bus: str, timeout_s: float) -> None:
+        raise problem
+
+    monkeypatch.setattr(drivers.pca9685_servo, "open_i2c", fails)
+    servo = create_device("pca9685_servo", {"bus": "/dev/i2c-1"}, section="arm")
+    with pytest.raises(DeviceError, match=rf"\[arm\] PCA9685 at 0x40 on /dev/i2c-1: {says}"):
+        await servo.open()
