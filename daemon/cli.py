@@ -178,6 +178,8 @@ def _probed(config: Config) -> str:
     what = f"driver {config['driver']['type']}"
     if config.get(LidarSettings).enabled:
         what += f", lidar on {config['lidar']['port']}"
+    if config["arm"]["enabled"]:
+        what += f", arm servos ({config['arm']['backend']})"
     return what
 
 
@@ -384,7 +386,9 @@ def cmd_safe_stop(args: argparse.Namespace) -> int:
     except Exception as exc:
         print(f"arbiterd safe-stop: could not zero the motors: {exc}", file=sys.stderr)
         return EXIT_HARDWARE
-    print(f"arbiterd safe-stop: motors zeroed through the {config['driver']['type']} driver")
+    arm = f"; arm servos: {config['arm']['on_stop']}" if config["arm"]["enabled"] else ""
+    print(f"arbiterd safe-stop: motors zeroed through the {config['driver']['type']} "
+          f"driver{arm}")
     return EXIT_OK
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from daemon import console, core_api, http_api, lidar, simulator
+from daemon.arm import component as arm
 from daemon.autonomy import component as autonomy
 from daemon.component import ComponentSpec
 from daemon.control import api as control
@@ -23,6 +24,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     autonomy.COMPONENT,
     mapping.COMPONENT,
     navigation.COMPONENT,
+    arm.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,

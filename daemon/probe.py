@@ -21,12 +21,52 @@ async def probe_hardware(config: Config) -> list[str]:
     finally:
         await driver.close()
     problems += [f"[lidar] {p}" for p in await probe_lidar(config)]
+    problems += await probe_arm(config)
     return problems
 
 
+async def probe_arm(config: Config) -> list[str]:
+    """Ask the arm's servo output (``[arm]`` on) whether it answers, without moving a servo."""
+    from daemon.arm.component import build_servo
+
+    if not config["arm"]["enabled"]:
+        return []
+    try:
+        await build_servo(config).probe()
+    except DriverError as exc:
+        return [str(exc)]
+    return []
+
+
 async def safe_stop(config: Config) -> None:
-    """Zero the motors through the configured driver, from a process of its own."""
-    await build_driver(config).safe_stop()
+    """Zero the motors through the configured driver, from a process of its own; then put the
+    arm's servos (``[arm]`` on) in their shutdown state, even when the wheels failed."""
+    try:
+        await build_driver(config).safe_stop()
+    finally:
+        await safe_stop_arm(config)
+
+
+async def safe_stop_arm(config: Config) -> str | None:
+    """``[arm] on_stop``: ``relax`` turns the servo pulses off; ``home`` sends the home pose's
+    pulses at once (after a crash nothing knows where the arm is: each servo moves there at
+    its own speed). None when the arm is off."""
+    from daemon.arm.component import build_servo
+    from daemon.arm.settings import ArmSettings
+
+    settings = config.get(ArmSettings)
+    if not settings.enabled:
+        return None
+    servo = build_servo(config)
+    try:
+        await servo.open()
+        if settings.on_stop == "home":
+            await servo.write(settings.named_poses()["home"])
+            return "home"
+        await servo.relax()
+        return "relaxed"
+    finally:
+        await servo.close()
 
 
 async def probe_lidar(config: Config) -> list[str]:

@@ -5,4 +5,6 @@ from __future__ import annotations
 # Each name has an emulator row in sim/wiring.py DEVICE_EMULATORS.
 DEVICES: dict[str, tuple[str, str]] = {
     "pigpio_servo": ("drivers.pigpio_servo", "PigpioServos"),
+    "pca9685_servo": ("drivers.pca9685_servo", "Pca9685Servos"),
+    "mock_servo": ("drivers.mock_servo", "MockServos"),
 }

@@ -556,6 +556,10 @@ class PigpiodEmulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def servo_pulse_us(self, gpio: int) -> float:
+        """The servo pulse width a GPIO carries now, µs (0 = off)."""
+        return float(self.bank.pins[gpio].servo_us)
+
     @property
     def address(self) -> tuple[str, int]:
         return self.host, self.port

@@ -157,7 +157,23 @@ def _start_pigpio_servo(workdir: Path, options: Mapping[str, Any]) -> Emulated:
     return Emulated(pigpiod, {"host": LOOPBACK, "port": pigpiod.port}, pigpiod.close)
 
 
+def _start_pca9685_servo(workdir: Path, options: Mapping[str, Any]) -> Emulated:
+    """A PCA9685 board on an emulated I2C bus (a loopback port) at the section's address: its
+    channels' pulse widths are ``servo_pulse_us(channel)``."""
+    from sim.pca9685_emulator import Pca9685Emulator
+
+    board = Pca9685Emulator(options.get("address", 0x40), host=LOOPBACK).start()
+    return Emulated(board, {"bus": board.bus}, board.close)
+
+
+def _start_mock_servo(workdir: Path, options: Mapping[str, Any]) -> Emulated:
+    """No wire: the mock servos record their pulses themselves."""
+    return Emulated(None, {}, lambda: None)
+
+
 #: device name => the starter of its emulator; one row per name in ``drivers.device_registry``
 DEVICE_EMULATORS: dict[str, DeviceStarter] = {
     "pigpio_servo": _start_pigpio_servo,
+    "pca9685_servo": _start_pca9685_servo,
+    "mock_servo": _start_mock_servo,
 }

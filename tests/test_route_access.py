@@ -22,13 +22,14 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
 
 def locked_toml(tmp_path: Path) -> str:
     """LOCKED with every optional component on (its maps in the test's own folder)."""
-    return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n'
+    return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n' \
+        '[arm]\nenabled = true\n'
 
 
 @pytest.fixture
 async def locked(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
     """Token configured, reads need it too, every optional route registered (sim, lidar,
-    fault injection, mapping)."""
+    fault injection, mapping, the arm)."""
     async with in_process_daemon(tmp_path, locked_toml(tmp_path)) as robot:
         yield robot
 

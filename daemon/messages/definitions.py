@@ -112,6 +112,12 @@ MSG_TEXT: dict[str, str] = {
         "float32 range_max\n"
         "float32[] ranges\n"
         "float32[] intensities\n"),
+    "sensor_msgs/msg/JointState": (
+        "std_msgs/Header header\n"
+        "string[] name\n"
+        "float64[] position\n"
+        "float64[] velocity\n"
+        "float64[] effort\n"),
     "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n",
     "rcl_interfaces/msg/Log": (
         "# A log line, as published on /rosout.\n"
@@ -166,6 +172,7 @@ STRING = "std_msgs/msg/String"
 BOOL = "std_msgs/msg/Bool"
 ODOMETRY = "nav_msgs/msg/Odometry"
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
+JOINT_STATE = "sensor_msgs/msg/JointState"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 LOG = "rcl_interfaces/msg/Log"
 COMMAND = "arbiterd_msgs/msg/Command"

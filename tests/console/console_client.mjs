@@ -1,5 +1,5 @@
 // Drives arbiterd's web console in Debian's Chromium (playwright-core) and measures the robot.
-// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls|mapping|navigate
+// Usage: node console_client.mjs URL drive|token|reconnect|hold|fault|controls|mapping|navigate|arm
 //        [--shots DIR] [--token T] [--seconds S] [--map-name NAME]
 // Prints one JSON object per step on stdout; tests/console/test_console_browser.py asserts.
 import { readFile } from "node:fs/promises";
@@ -560,6 +560,37 @@ async function navigateScenario(browser) {
   await context.close();
 }
 
+// The arm panel: a pose button moves the arm there (the side view follows), the gripper opens,
+// and on a phone the panel fits the screen.
+async function armScenario(browser) {
+  const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
+  await page.waitForSelector("#arm-panel:not([hidden]) #arm-poses button", { timeout: 15000 });
+  const poses = await page.$$eval("#arm-poses button", (b) => b.map((e) => e.textContent));
+  const before = await page.$eval("#arm-view .links", (e) => e.getAttribute("points"));
+  await page.click('#arm-poses button[data-pose="pregrasp"]');
+  await page.waitForSelector('#arm-poses button[data-pose="pregrasp"][aria-pressed="true"]',
+    { timeout: 15000 });
+  const at = { points: await page.$eval("#arm-view .links", (e) => e.getAttribute("points")),
+    state: await text(page, "#arm-state"), api: await getJson("/api/arm") };
+  await page.click("#gripper-close");
+  await page.waitForFunction(() => / gripper 0 mm/.test(
+    document.getElementById("arm-state").textContent), null, { timeout: 15000 });
+  const closed = (await getJson("/api/arm")).gripper_m;
+  if (shots) await page.screenshot({ path: `${shots}/console-arm-laptop.png` });
+  report("arm", { poses, before, at, closed, message: await text(page, "#arm-message"),
+    errors: [...errors] });
+  await context.close();
+  const phone = await newPage(browser, PHONE);
+  await phone.page.waitForSelector("#arm-panel:not([hidden]) #arm-poses button", { timeout: 15000 });
+  const box = await phone.page.locator("#arm-panel").boundingBox();
+  if (shots) {
+    await phone.page.locator("#arm-panel").scrollIntoViewIfNeeded();
+    await phone.page.screenshot({ path: `${shots}/console-arm-phone.png` });
+  }
+  report("armPhone", { width: box.width, errors: phone.errors });
+  await phone.context.close();
+}
+
 const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
 try {
   if (scenario === "drive") await driveScenario(browser);
@@ -570,6 +601,7 @@ try {
   else if (scenario === "controls") await controlsScenario(browser);
   else if (scenario === "mapping") await mappingScenario(browser);
   else if (scenario === "navigate") await navigateScenario(browser);
+  else if (scenario === "arm") await armScenario(browser);
   else throw new Error(`unknown scenario ${scenario}`);
   report("done", { ok: true });
 } catch (error) {

@@ -360,3 +360,29 @@ def test_console_sends_a_tapped_goal_and_the_robot_arrives(tmp_path: Path) -> No
     assert collisions == 0
     truth = reached["truth"]  # when the console said succeeded
     assert math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.10, truth
+
+
+def test_console_moves_the_arm(tmp_path: Path) -> None:
+    """[arm] on (PCA9685 emulated): the pose buttons move the arm and the side view follows;
+    the gripper closes; the panel fits a phone."""
+    _require_browser()
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    # no lidar: the arm panel is under test, and the daemon is up sooner without it
+    toml = '[sim]\ndriver = "mock"\nlidar = false\n[arm]\nenabled = true\n' \
+        'backend = "pca9685"\nmax_speed = [10.0, 10.0, 10.0, 0.35]\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        steps = _run_console(daemon, "arm", "--shots", str(shots), healthy=False)
+        assert daemon.stop() == 0
+        log = daemon.log()
+    arm = steps["arm"]
+    assert arm["errors"] == [], log
+    assert arm["poses"] == ["carry", "grasp", "grasp_close", "home", "pregrasp"]
+    assert arm["at"]["api"]["pose"] == "pregrasp" and "at pregrasp" in arm["at"]["state"]
+    tip = arm["at"]["points"].split()[-1].split(",")
+    assert (float(tip[0]), -float(tip[1])) == pytest.approx((0.7736, -0.0381), abs=1e-3)
+    assert arm["before"] != arm["at"]["points"]
+    assert arm["closed"] == 0.0 and "close the gripper" in arm["message"]
+    phone = steps["armPhone"]
+    assert phone["errors"] == [] and phone["width"] <= 390
+    _keep_shots(shots, "console-arm-laptop.png", "console-arm-phone.png")

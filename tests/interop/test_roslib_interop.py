@@ -65,3 +65,33 @@ def test_roslib_drives_the_simulated_robot(tmp_path: Path, flavour: str) -> None
         else:
             assert steps["scan"]["subscribed"] is True
         assert daemon.stop() == 0
+
+
+#: a PCA9685 count at 50 Hz (4.9 µs of the 2000 µs pulse range) in rad and in m of the gripper
+ONE_STEP = 1e6 / (50.03 * 4096) / 2000
+ARM = '[sim]\nlidar = false\n[arm]\nenabled = true\nbackend = "pca9685"\n' \
+    'max_speed = [10.0, 10.0, 10.0, 0.35]\n'
+
+
+def test_roslib_moves_the_arm(tmp_path: Path) -> None:
+    """/arm/pose and the seed's joint command topics from roslib drive the emulated PCA9685
+    servos; /joint_states (what their pulses mean) converges to each target."""
+    _require_roslib()
+    assert NODE is not None
+    with DaemonSubprocess(tmp_path, ARM, args=("--sim",)) as daemon:
+        result = subprocess.run(
+            [NODE, str(HERE / "roslib_arm.mjs"), f"ws://127.0.0.1:{daemon.ws_port}/",
+             str(ONE_STEP * 3.1416), str(ONE_STEP * 0.035)],
+            cwd=HERE, capture_output=True, text=True, timeout=60)
+        steps = {json.loads(line)["step"]: json.loads(line)
+                 for line in result.stdout.splitlines() if line.startswith("{")}
+        assert result.returncode == 0, (
+            f"roslib client failed:\n{result.stdout}\n{result.stderr}\n--- daemon log ---\n"
+            f"{daemon.log()}")
+        assert daemon.stop() == 0
+    assert steps["pregrasp"]["name"] == ["arm_joint1", "arm_joint2", "arm_joint3",
+                                         "left_finger_joint", "right_finger_joint"]
+    assert steps["joints"]["position"] == pytest.approx([0.3, -0.4, 0.6, 0.01, 0.01],
+                                                        abs=ONE_STEP * 3.1416)
+    assert steps["refused"]["level"] == "error"
+    assert "no pose named 'wave'" in steps["refused"]["msg"]

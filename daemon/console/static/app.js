@@ -1,6 +1,7 @@
 // The console page: wires the HTTP API, the rosbridge connection, driving, the e-stop, the
 // view, the latency HUD and the health panel together. docs/console.md describes it.
 import { Api } from "./api.js";
+import { ArmPanel } from "./arm.js";
 import { Bridge } from "./bridge.js";
 import { Drive, isDriveKey } from "./drive.js";
 import { renderHealth, renderMotion } from "./health.js";
@@ -51,6 +52,9 @@ const robot = new RobotPanel({
   recordState: $("record-state"), odomReset: $("odom-reset"), simReset: $("sim-reset"),
   message: $("robot-message"), recordings: $("recordings"), refresh: $("recordings-refresh"),
 }, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });
+const armPanel = new ArmPanel({ panel: $("arm-panel"), poses: $("arm-poses"),
+  open: $("gripper-open"), close: $("gripper-close"), state: $("arm-state"), view: $("arm-view"),
+  message: $("arm-message") }, api, { onRefused: (what) => tokenProblem(what) });
 const mapPanel = new MapPanel({ save: $("map-save"), message: $("map-message"),
   hint: $("map-hint") }, api, bridge, view, { onRefused: (what) => tokenProblem(what) });
 const navPanel = new NavPanel({ tool: $("goal-tool"), figure8: $("figure-eight"),
@@ -236,6 +240,7 @@ function healthArrived(health) {
   robot.setRecorder(health.components.recorder);
   mapPanel.health(health.components.mapping);
   navPanel.health(health.components.navigation);
+  armPanel.health(health.components.arm);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
   if (firstTime && state.wsPort) bridge.connect();
@@ -272,6 +277,7 @@ const pollHealth = () => guarded("/api/health", healthArrived);
 every(1000, pollHealth);
 every(250, () => guarded("/api/status", statusArrived));
 every(2000, () => guarded("/api/latency", (body) => hud.api(body)));
+every(250, () => (armPanel.present ? guarded("/api/arm", (body) => armPanel.render(body)) : null));
 every(2000, () => (state.wsUp ? ping() : null));
 
 function statusArrived(status) {

@@ -17,6 +17,8 @@ const DETAILS = {
   rosbridge: (c) => [`${c.clients} clients`, `port ${c.port}`,
     c.dropped_messages ? `${c.dropped_messages} dropped` : ""],
   http: (c) => [`port ${c.port}`, `${c.connections} connections`],
+  arm: (c) => [`servos ${c.backend}`, `${c.writes} writes`,
+    c.frozen_by_estop ? "frozen by the e-stop" : ""],
   sim: (c) => [`${c.obstacles} obstacles`, `${c.collisions} collisions`, `emulator ${c.emulator}`],
 };
 
