@@ -128,8 +128,8 @@ def test_a_sigterm_recording_reads_back_in_python_and_node(
 
     node = node_read(path)
     assert node["profile"] == "ros2" and node["monotonic"] is True
-    assert {t: v["count"] for t, v in node["topics"].items()} == {
-        t: v.count for t, v in info.topics.items()}
+    assert {t: v["count"] for t, v in node["topics"].items()} == {  # Node lists what it read
+        t: v.count for t, v in info.topics.items() if v.count}
     assert all(v["decoded"] == v["count"] and v["messageEncoding"] == "cdr"
                and v["schemaEncoding"] == "ros2msg" for v in node["topics"].values())
     assert close_to([node["lastOdom"]["x"], node["lastOdom"]["y"]], [final["x"], final["y"]],
