@@ -1,5 +1,5 @@
-# Twenty seeds of the default arena, ten simulated minutes of wander each, through `arbiterd
-# simulate` in parallel processes: no collision, a useful speed, the coverage reported.
+# Seeds of the default arena, ten simulated minutes of wander each, through `arbiterd simulate`
+# in parallel processes: no collision, a useful speed, the coverage reported.
 from __future__ import annotations
 
 import json
@@ -13,7 +13,8 @@ import pytest
 
 from tests.support.paths import REPO
 
-SEEDS = range(1, 21)
+#: CI runs seeds 1-8; ARBITERD_WANDER_SEEDS=20 runs the twenty of docs/autonomy.md's table
+SEEDS = range(1, 1 + int(os.environ.get("ARBITERD_WANDER_SEEDS", "8")))
 SECONDS = 600
 
 
@@ -28,7 +29,7 @@ def wander(seed: int) -> dict[str, Any]:
 
 
 @pytest.mark.timeout(1800)
-def test_twenty_seeds_of_ten_minutes_wander() -> None:
+def test_seeds_of_ten_minutes_wander() -> None:
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
         runs = list(pool.map(wander, SEEDS))
     table = "\n".join(
