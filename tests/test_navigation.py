@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import AsyncIterator
 
 import pytest
@@ -13,6 +14,7 @@ from daemon.control.commands import Twist
 from daemon.lockstep.runner import Lockstep
 from daemon.navigation.component import NavigationComponent
 from daemon.navigation.messages import GoalError, GoalRequest, goal_of_pose_stamped
+from daemon.navigation.mission import mission_of_json
 from slam.pose import Pose2, between
 
 APARTMENT_START: Pose2 = (-1.0, -2.5, 0.0)
@@ -136,3 +138,54 @@ def test_simulate_goals_prints_each_goal_judged_by_ground_truth(
     assert goal["error_m"] <= 0.10 and goal["ratio"] is not None
     assert report["summary"]["all"]["collisions"] == 0
     assert main(["simulate", "--goals", "0", "--world", "apartment"]) == 2
+
+
+def odom_goal(world_goal: Pose2) -> dict[str, float | str]:
+    x, y, theta = between(APARTMENT_START, world_goal)
+    return {"x": x, "y": y, "theta": theta, "frame": "odom"}
+
+
+async def test_a_mission_runs_its_steps_in_turn_with_a_result_each(apartment: Lockstep) -> None:
+    nav = nav_of(apartment)
+    living, bathroom = (0.0, -0.5, math.pi / 2), (-0.2, 2.4, math.pi / 2)
+    nav.start_mission(mission_of_json({"name": "tour", "steps": [
+        odom_goal(living), odom_goal(bathroom), odom_goal((-2.5, -1.3, 0.0))]}, "odom"))
+    mission = nav.mission
+    assert mission is not None
+    await apartment.advance(180.0, until=lambda: mission.index == 2 or not mission.running)
+    truth = apartment.world.physics.state  # where step 2 ended: the bathroom
+    assert math.hypot(truth.x - bathroom[0], truth.y - bathroom[1]) <= 0.10, truth
+    await apartment.advance(90.0, until=lambda: not mission.running)
+    report = nav.status()["mission"]
+    assert report["name"] == "tour" and report["state"] == "failed", report
+    states = [r["state"] for r in report["results"]]
+    assert states == ["succeeded", "succeeded", "failed"], report
+    assert report["reason"].startswith("step 3: ") and report["results"][2]["reason"], report
+    assert all(r["elapsed_s"] > 0 for r in report["results"][:2]), report
+    assert apartment.world.metrics_summary()["collisions"] == 0
+
+
+async def test_a_mission_ends_canceled_by_a_goal_or_teleop_and_bad_steps_are_named(
+        apartment: Lockstep) -> None:
+    nav = nav_of(apartment)
+    for body, problem in (({"steps": []}, "steps: expected a list of 1..100 goals"),
+                          ({"steps": [{"x": 1.0, "y": 0.0}, {"x": "far"}]},
+                           "steps[1].x: expected a finite number"),
+                          ({"steps": [{"x": 1.0, "y": 0.0}], "loop": True},
+                           "loop: unknown field")):
+        with pytest.raises(GoalError, match=re.escape(problem)):
+            mission_of_json(body, "odom")
+    with pytest.raises(GoalError, match=r"step 1: .*outside the map"):
+        nav.start_mission(mission_of_json({"steps": [{"x": 500.0, "y": 0.0}]}, "odom"))
+    assert nav.mission is None
+    nav.start_mission(mission_of_json({"steps": [odom_goal((0.0, -0.5, 0.0))] * 2}, "odom"))
+    await apartment.advance(1.0)
+    nav.request(GoalRequest("odom", 0.5, 0.0, None))  # a goal replaces the mission
+    assert nav.status()["mission"]["state"] == "canceled"
+    assert [r["state"] for r in nav.status()["mission"]["results"]] == ["canceled", "skipped"]
+    nav.start_mission(mission_of_json({"steps": [odom_goal((0.0, -0.5, 0.0))]}, "odom"))
+    await apartment.advance(1.0)
+    await apartment.control.submit("http", Twist(0.0, 0.0), t_recv=apartment.now)  # teleop wins
+    await apartment.advance(0.2)
+    report = nav.status()["mission"]
+    assert report["state"] == "canceled" and "teleop" in report["reason"], report

@@ -28,6 +28,7 @@ from daemon.navigation.messages import (
     goal_of_pose_stamped,
     path_msg,
 )
+from daemon.navigation.mission import Mission, mission_of_json
 from daemon.navigation.navigator import Navigator, NavigatorSettings, Target
 from daemon.navigation.settings import NavigationSettings
 from daemon.safety.component import StatePublisher, scan_points
@@ -138,6 +139,7 @@ class NavigationComponent(BaseComponent):
         plugs.subscribe(TRANSFORMS, self.on_transforms)
         plugs.add_status("navigation", self.brief)
         self.publisher = StatePublisher(plugs, STATE, self.status)
+        self.mission: Mission | None = None  # the last mission (POST /api/mission)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -198,18 +200,23 @@ class NavigationComponent(BaseComponent):
         hint = "" if self.map_frame else " (the map frame needs [mapping] enabled)"
         raise GoalError(f"header.frame_id is {frame!r}: goals are taken in {frames}{hint}")
 
-    def request(self, request: GoalRequest) -> None:
-        """Start ``request``, replacing any goal; a GoalError says why it cannot start."""
+    def request(self, request: GoalRequest, *, step_of: Mission | None = None) -> None:
+        """Start ``request``, replacing any goal (and a mission, unless it is ``step_of`` that
+        mission); a GoalError says why it cannot start."""
         refusal = self.refusal()
         if refusal:
             raise GoalError(refusal)
         target = self._target(request)
+        if self.mission is not None and self.mission.running and step_of is not self.mission:
+            self.mission.finish("canceled", "replaced by a new goal")
         if self.navigator.active:
             log.info("goal %d replaced by a new goal", self.navigator.goals)
             self.navigator.end("canceled", "replaced by a new goal", self.clock())
         self._invalidations = self.control.invalidations - self.control.stall_invalidations
         now = self.clock()
         self.navigator.start(target, now)
+        if step_of is not None:
+            step_of.step_started(self.navigator.goals, now)
         self._next_decision, self.unseen_near_s = now, 0.0
         if target.path is not None:
             self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, target.path))
@@ -269,7 +276,35 @@ class NavigationComponent(BaseComponent):
         self.navigator.end(state, reason, now)
         self.control.arbiter.drop(SOURCE)
         log.info("goal %d %s%s", self.navigator.goals, state, f": {reason}" if reason else "")
+        self._goal_ended()
         self.publisher.publish(now)
+
+    # -- missions ------------------------------------------------------------------------------
+
+    def start_mission(self, mission: Mission) -> None:
+        """Run ``mission`` from its first step, replacing any goal; GoalError: step 1 refused."""
+        try:
+            self.request(mission.steps[0], step_of=mission)
+        except GoalError as exc:
+            raise GoalError(f"step 1: {exc}") from None
+        self.mission = mission
+        log.info("mission %r: %d steps", mission.name, len(mission.steps))
+
+    def _goal_ended(self) -> None:
+        """The navigator's goal ended: the mission records the step and starts the next one."""
+        mission, navigator = self.mission, self.navigator
+        if mission is None or not mission.running or mission.goal_number != navigator.goals \
+                or navigator.active:
+            return
+        now, state, reason = self.clock(), navigator.state, navigator.reason
+        while mission.step_ended(state, reason, now):
+            try:
+                self.request(mission.steps[mission.index], step_of=mission)
+                return
+            except GoalError as exc:
+                state, reason = "failed", f"refused: {exc}"
+        log.info("mission %r %s%s", mission.name, mission.state,
+                 f": {mission.reason}" if mission.reason else "")
 
     # -- planning ------------------------------------------------------------------------------
 
@@ -356,6 +391,7 @@ class NavigationComponent(BaseComponent):
                  f" ({navigator.reason})" if navigator.reason else "")
         if not navigator.active:
             self.control.arbiter.drop(SOURCE)
+            self._goal_ended()
         self.publisher.publish(self.clock())
 
     def _failure(self) -> str | None:
@@ -410,6 +446,8 @@ class NavigationComponent(BaseComponent):
                 plan_ms=self.plan_ms,
                 tracking={"rms_m": round(progress.tracking.rms, 4),
                           "max_m": round(progress.tracking.worst, 4)})
+        if self.mission is not None:
+            out["mission"] = self.mission.report()
         return out
 
     def brief(self) -> dict[str, Any]:
@@ -439,6 +477,18 @@ class NavigationComponent(BaseComponent):
             raise ApiError(409, f"goal refused: {exc}") from None
         return json_response(self.status())
 
+    async def post_mission(self, request: web.Request) -> web.Response:
+        body = await read_json_object(request, 262144)
+        try:
+            mission = mission_of_json(body, self.map_frame or self.odom_frame)
+        except GoalError as exc:
+            raise ApiError(422, f"invalid mission: {exc}") from None
+        try:
+            self.start_mission(mission)
+        except GoalError as exc:
+            raise ApiError(409, f"mission refused: {exc}") from None
+        return json_response(self.status())
+
     async def delete_goal(self, request: web.Request) -> web.Response:
         self.cancel("canceled over HTTP")
         return json_response(self.status())
@@ -458,7 +508,8 @@ class NavigationComponent(BaseComponent):
     def routes(self) -> Sequence[Route]:
         return (Route("GET", "/api/goal", self.get_goal, "read"),
                 Route("POST", "/api/goal", self.post_goal, "drive"),
-                Route("DELETE", "/api/goal", self.delete_goal, "drive"))
+                Route("DELETE", "/api/goal", self.delete_goal, "drive"),
+                Route("POST", "/api/mission", self.post_mission, "drive"))
 
     def topics(self) -> Sequence[Topic]:
         return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive"),
