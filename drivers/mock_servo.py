@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from base.options import Option, Options
-from drivers.servo_array import CALIBRATION_OPTIONS, ServoArray
+from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
 
 MOCK_SERVO_OPTIONS: Options = {
     "channels": Option(list, [0], "each joint's output number, in joint order", item=int,
@@ -18,17 +18,8 @@ MOCK_SERVO_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class MockServoSettings:
+class MockServoSettings(CalibrationSettings):
     channels: list[int]
-    joints: list[str]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    joint_min_pulse_us: list[int]
-    joint_max_pulse_us: list[int]
-    offsets_us: list[int]
-    reversed: list[bool]
     history: int
 
 

@@ -12,7 +12,7 @@ from base.options import Option, Options
 from drivers import pca9685_protocol as chip
 from drivers.devices import DeviceError
 from drivers.i2c_link import I2cBus, check_bus, open_i2c
-from drivers.servo_array import CALIBRATION_OPTIONS, ServoArray
+from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
 from drivers.servo_pulses import SERVO_HZ
 
 #: the oscillator needs 500 µs after SLEEP is cleared before RESTART (datasheet §7.3.1.1)
@@ -34,19 +34,10 @@ PCA9685_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class Pca9685Settings:
+class Pca9685Settings(CalibrationSettings):
     bus: str
     address: int
     channels: list[int]
-    joints: list[str]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    joint_min_pulse_us: list[int]
-    joint_max_pulse_us: list[int]
-    offsets_us: list[int]
-    reversed: list[bool]
     frequency_hz: float
     timeout_s: float
 

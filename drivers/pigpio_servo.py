@@ -9,7 +9,7 @@ from base.options import Option, Options
 from drivers.devices import DeviceError
 from drivers.pigpiod_client import connect_pigpio, drop_pigpio
 from drivers.pigpiod_watch import describe_io_error
-from drivers.servo_array import CALIBRATION_OPTIONS, ServoArray
+from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
 
 SERVO_OPTIONS: Options = {
     "host": Option(str, "localhost", "pigpiod host"),
@@ -24,19 +24,10 @@ SERVO_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class ServoSettings:
+class ServoSettings(CalibrationSettings):
     host: str
     port: int
     pins: list[int]
-    joints: list[str]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    joint_min_pulse_us: list[int]
-    joint_max_pulse_us: list[int]
-    offsets_us: list[int]
-    reversed: list[bool]
     timeout_s: float
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from base.options import Option, Options
@@ -31,6 +32,21 @@ CALIBRATION_OPTIONS: Options = {
     "reversed": Option(list, [], "per joint, in joint order: true when the servo turns the "
                        "other way (upper at the min pulse; [] = none)", item=bool),
 }
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """The fields of :data:`CALIBRATION_OPTIONS`; each backend's settings add theirs."""
+
+    joints: list[str]
+    lower: list[float]
+    upper: list[float]
+    min_pulse_us: int
+    max_pulse_us: int
+    joint_min_pulse_us: list[int]
+    joint_max_pulse_us: list[int]
+    offsets_us: list[int]
+    reversed: list[bool]
 
 
 class ServoArray(Actuator):
