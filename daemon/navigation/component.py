@@ -7,7 +7,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from aiohttp import web
@@ -43,6 +43,7 @@ from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 from slam.pose import Pose2, compose
 
+T = TypeVar("T")
 log = logging.getLogger("arbiterd.navigation")
 
 SOURCE = "navigation"
@@ -466,27 +467,25 @@ class NavigationComponent(BaseComponent):
         return json_response(self.status())
 
     async def post_goal(self, request: web.Request) -> web.Response:
-        body = await read_json_object(request, 65536)
-        try:
-            goal = goal_of_json(body, self.map_frame or self.odom_frame)
-        except GoalError as exc:
-            raise ApiError(422, f"invalid goal: {exc}") from None
-        try:
-            self.request(goal)
-        except GoalError as exc:
-            raise ApiError(409, f"goal refused: {exc}") from None
-        return json_response(self.status())
+        return await self._start_posted(request, 65536, goal_of_json, self.request, "goal")
 
     async def post_mission(self, request: web.Request) -> web.Response:
-        body = await read_json_object(request, 262144)
+        return await self._start_posted(request, 262144, mission_of_json, self.start_mission,
+                                        "mission")
+
+    async def _start_posted(self, request: web.Request, limit: int,
+                            parse: Callable[[dict[str, Any], str], T],
+                            start: Callable[[T], None], what: str) -> web.Response:
+        """A goal or mission from a JSON body: 422 when malformed, 409 when it cannot start."""
+        body = await read_json_object(request, limit)
         try:
-            mission = mission_of_json(body, self.map_frame or self.odom_frame)
+            item = parse(body, self.map_frame or self.odom_frame)
         except GoalError as exc:
-            raise ApiError(422, f"invalid mission: {exc}") from None
+            raise ApiError(422, f"invalid {what}: {exc}") from None
         try:
-            self.start_mission(mission)
+            start(item)
         except GoalError as exc:
-            raise ApiError(409, f"mission refused: {exc}") from None
+            raise ApiError(409, f"{what} refused: {exc}") from None
         return json_response(self.status())
 
     async def delete_goal(self, request: web.Request) -> web.Response:
