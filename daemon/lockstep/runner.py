@@ -92,6 +92,11 @@ class Lockstep:
         self.start_mode = autonomy
         self.sender = Sender()
         self.lidar = LidarFeed(1.0 / sim.lidar_rate)
+        #: the event loop is blocked until this time (script ``stall``)
+        self.stalled_until = -math.inf
+        #: when the collision monitor first had to brake (a limit or a stop)
+        self.first_brake: float | None = None
+        self.control.supervisor.clock = self.clock
         self.coverage = Coverage(self.world.world, sim.footprint_radius)
         self.marks: list[dict[str, Any]] = []
         self.min_clearance = math.inf
@@ -123,14 +128,18 @@ class Lockstep:
         period = self.control.period_s
         next_tick = 0.0
         steps = round(seconds / dt)
+        self.control.supervisor.beat()
         for index in range(steps):
             t = index * dt
             self.clock.set(t)
             await self._script_until(t)
             self._lidar_at(t)
             if t + 1e-9 >= next_tick:
-                await self.control.tick(next_tick)
+                if t + 1e-9 >= self.stalled_until:
+                    await self._tick(next_tick)
                 next_tick += period
+            if self.control.supervisor.enabled:
+                self.control.supervisor.check()  # the supervisor's thread, in virtual time
             self.world.step()
             self._track()
         self.clock.set(steps * dt)
@@ -140,13 +149,21 @@ class Lockstep:
         self.world.close()
         return result
 
+    async def _tick(self, deadline: float) -> None:
+        self.control.supervisor.beat()
+        moving = self.control.linear.velocity != 0.0 or self.control.angular.velocity != 0.0
+        await self.control.tick(deadline)
+        if self.first_brake is None and moving and \
+                self.control.guard_action in ("limit", "stop"):
+            self.first_brake = deadline
+
     async def _script_until(self, t: float, final: bool = False) -> None:
         while self.script and self.script[0].t <= t + 1e-9:
             step = self.script.pop(0)
             self._mark(step.label, t)
             await self._apply(step, t)
-        if final:
-            return
+        if final or t + 1e-9 < self.stalled_until:
+            return  # a blocked loop reads no commands (the client re-sends later)
         sender = self.sender
         if sender.twist is not None and t + 1e-9 >= sender.next_send:
             applied = await self.control.submit(SCRIPT_SOURCE, sender.twist, t_recv=t)
@@ -165,6 +182,8 @@ class Lockstep:
                 await self.control.engage_estop("script")
             else:
                 self.control.release_estop()
+        elif step.action == "stall":
+            self.stalled_until = t + step.value
         elif step.action == "autonomy":
             self.autonomy.request(step.value, "script")
         elif step.action == "lidar":
@@ -176,7 +195,8 @@ class Lockstep:
 
     def _lidar_at(self, t: float) -> None:
         feed = self.lidar
-        while feed.pending and feed.pending[0][0] <= t + 1e-9:
+        blocked = t + 1e-9 < self.stalled_until
+        while feed.pending and feed.pending[0][0] <= t + 1e-9 and not blocked:
             _, scan = feed.pending.pop(0)
             feed.delivered += 1
             self.bus.publish(SCAN, scan)
@@ -264,6 +284,9 @@ class Lockstep:
         if safety is None:
             return {"enabled": False}
         return {"enabled": True, "action": safety.action, "changes": safety.changes,
+                "first_brake_s": None if self.first_brake is None else round(
+                    self.first_brake, 4),
+                "stall_stops": self.control.supervisor.stall_stops,
                 "entries": dict(safety.entries),
                 "time_s": {k: round(v, 3) for k, v in safety.time_in.items()},
                 "stop_margin_m": safety.settings.stop_margin}

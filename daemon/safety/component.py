@@ -46,12 +46,21 @@ def monitor_settings(config: Config) -> MonitorSettings:
         slowdown_margin=max(cm.slowdown_margin_m, cm.stop_margin_m),
         slowdown_ratio=cm.slowdown_ratio,
         time_before_collision=cm.time_before_collision_s,
-        reaction_time=cm.reaction_time_s + 1.0 / config.get(ControlSettings).update_rate,
+        reaction_time=cm.reaction_time_s + unattended_s(config.get(ControlSettings)),
+        motor_lag=cm.reaction_time_s,
         min_points=cm.min_points, source_timeout=cm.source_timeout_s,
         stale_action=cm.stale_action,
         linear_deceleration=limits.linear_x_emergency_deceleration,
         angular_deceleration=limits.angular_z_emergency_deceleration,
         max_linear=limits.linear_x_max_velocity, max_angular=limits.angular_z_max_velocity)
+
+
+def unattended_s(control: ControlSettings) -> float:
+    """How long the wheels may keep their last command with nobody to change it: until the
+    stall supervisor zeroes them when the event loop stops (``stall_stop_s``, at least two
+    control periods, as the loop enforces), else one control period."""
+    period = 1.0 / control.update_rate
+    return max(2.0 * period, control.stall_stop_s) if control.stall_stop_s > 0 else period
 
 
 def horizon_warning(settings: MonitorSettings) -> str | None:
