@@ -14,9 +14,9 @@ from tests.support.paths import REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"
 SLOW, FAST = 0.25, 0.05  # motor time constants, s: a hobby gear motor, the simulated default
-SECONDS = 4.0
-#: stalls begin when braking must begin, and 1 s later (slow, near the post: the worst case)
-STALL_STARTS = (0.0, 1.0)
+SECONDS = 6.0  # it has stopped by 5.5 s
+#: stalls begin when braking must begin, 1 s later (slow, near the post: the worst case) and 2 s
+STALL_STARTS = (0.0, 1.0, 2.0)
 STALL_S = 1.0  # far longer than stall_stop_s: the supervisor has to stop the wheels
 
 
@@ -57,4 +57,4 @@ def test_a_budget_below_the_rule_hits_the_post() -> None:
     """The same drive with slow motors and the old budget (0.1 s, below their 0.25 s time
     constant): the rule in docs/safety.md is what keeps the robot off the post."""
     run = drive("post_2cm", SLOW, reaction=0.1)
-    assert run["collisions"] == 1
+    assert run["collisions"] >= 1
