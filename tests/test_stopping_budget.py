@@ -58,3 +58,29 @@ def test_a_budget_below_the_rule_hits_the_post() -> None:
     constant): the rule in docs/safety.md is what keeps the robot off the post."""
     run = drive("post_2cm", SLOW, reaction=0.1)
     assert run["collisions"] >= 1
+
+
+def stop_from_one_metre_per_second(motor: float, reaction: float) -> dict[str, Any]:
+    """Drive at 1 m/s, let go (the deadman brakes); the collision monitor's health."""
+    config = load_config(None, sim=True, env={})
+    config.update("sim", {"world_file": str(SCENARIOS / "post_2cm.toml"),
+                          "motor_time_constant": motor})
+    config.update("collision_monitor", {"reaction_time_s": reaction})
+    runner = Lockstep(config, script=parse_steps([
+        {"t": 0.0, "cmd_vel": {"linear": {"x": 1.0}}}, {"t": 1.5, "stop": True}]))
+    asyncio.run(runner.run(5.0))
+    assert runner.safety is not None
+    return runner.safety.health()
+
+
+def test_health_says_when_the_robot_brakes_slower_than_assumed() -> None:
+    slow = stop_from_one_metre_per_second(SLOW, reaction=0.1)
+    assert slow["status"] == "degraded" and "brakes slower" in slow["reason"], slow
+    braking = slow["braking"]
+    assert braking["measured"] and braking["stops"] == braking["slower_than_assumed"] == 1
+    assert braking["last"]["lag_s"] > 0.2  # the 0.25 s motor, measured by the encoders
+    assert braking["last"]["stopped_in_m"] > braking["last"]["planned_m"]
+
+    fine = stop_from_one_metre_per_second(SLOW, reaction=0.3)
+    assert fine["status"] == "ok" and fine["braking"]["stops"] == 1, fine
+    assert fine["braking"]["slower_than_assumed"] == 0

@@ -16,9 +16,11 @@ from daemon.control.clock import Clock
 from daemon.control.guard import Guarded
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.safety.braking import BrakingCheck
 from daemon.safety.footprint import Footprint
 from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings
 from daemon.safety.settings import CollisionMonitorSettings
+from daemon.safety.sweep import path_direction
 from daemon.settings import ControlSettings, LimitsSettings
 from daemon.telemetry import SCAN
 from daemon.topics import Topic, TopicOut
@@ -129,6 +131,7 @@ class SafetyComponent(BaseComponent):
         control, bus = plugs.control, plugs.bus
         self.settings = monitor_settings(config)
         self.monitor = CollisionMonitor(self.settings)
+        self.braking = BrakingCheck(self.settings.motor_lag)
         self.points = points or scan_points(config)
         self.clock = control.clock
         self.wall_clock = wall_clock
@@ -161,6 +164,10 @@ class SafetyComponent(BaseComponent):
 
     def observe(self, now: float, x: float, y: float, theta: float) -> None:
         self.monitor.observe(now, x, y, theta)
+        if self.control.wheel_guard.measured is not None:  # only what encoders measured
+            commanded = path_direction(self.control.linear.velocity,
+                                       self.control.angular.velocity)[1]
+            self.braking.observe(now, commanded, (x, y, theta))
 
     def on_scan(self, scan: LaserScan) -> None:
         """A revolution from the bus; its stamp (wall clock of the first ray) is turned into
@@ -216,9 +223,14 @@ class SafetyComponent(BaseComponent):
     def health(self) -> dict[str, Any]:
         now = self.clock()
         stale = self.monitor.stale(now)
-        return {"status": "degraded" if stale else "ok", **self.status(),
-                "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
-                "entries": dict(self.entries)}
+        slow_brakes = self.braking.reason()
+        out = {"status": "degraded" if stale or slow_brakes else "ok", **self.status(),
+               "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
+               "entries": dict(self.entries),
+               "braking": self.braking.health(self.control.wheel_guard.measured is not None)}
+        if slow_brakes and not stale:
+            out["reason"] = slow_brakes
+        return out
 
 
 def disabled_status() -> dict[str, Any]:
