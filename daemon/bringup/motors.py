@@ -128,6 +128,8 @@ async def spin(driver: MotorDriver, wheels: tuple[float, float], speed: float) -
         await driver.set_wheel_speeds(*commanded)
         while time.monotonic() - start < SPIN_S and not runaway:
             await asyncio.sleep(SAMPLE_S)
+            await driver.set_wheel_speeds(*commanded)  # as the control loop would: it feeds
+            # the device's deadman (the pigpio driver's script, the ODrive's watchdog)
             runaway = before is not None and _running_away(await _reading(driver), before,
                                                            start, speed)
     finally:

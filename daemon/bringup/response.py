@@ -43,7 +43,8 @@ async def measure(driver: MotorDriver, speed: float) -> tuple[Wheel, Wheel] | No
     t_go = time.monotonic()
     await driver.set_wheel_speeds(speed, speed)
     try:
-        run = await _sample(driver, lambda rs: rs[-1].t_mono - t_go >= RUN_S, RUN_S + 1.0)
+        run = await _sample(driver, lambda rs: rs[-1].t_mono - t_go >= RUN_S, RUN_S + 1.0,
+                            (speed, speed))
         t_stop = time.monotonic()
         await driver.set_wheel_speeds(0.0, 0.0)
     finally:
@@ -58,12 +59,16 @@ async def measure(driver: MotorDriver, speed: float) -> tuple[Wheel, Wheel] | No
 Done = Callable[[list[EncoderReading]], bool]
 
 
-async def _sample(driver: MotorDriver, done: Done, limit_s: float) -> list[EncoderReading]:
-    """Encoder readings every :data:`SAMPLE_S` until ``done(readings)`` or ``limit_s``."""
+async def _sample(driver: MotorDriver, done: Done, limit_s: float,
+                  hold: tuple[float, float] | None = None) -> list[EncoderReading]:
+    """Encoder readings every :data:`SAMPLE_S` until ``done(readings)`` or ``limit_s``,
+    re-sending ``hold`` each time (as the control loop does: it feeds a device's deadman)."""
     readings: list[EncoderReading] = []
     deadline = time.monotonic() + limit_s
     while time.monotonic() < deadline:
         await asyncio.sleep(SAMPLE_S)
+        if hold is not None:
+            await driver.set_wheel_speeds(*hold)
         reading = await driver.read_encoders()
         if reading is None:
             break
