@@ -19,11 +19,14 @@ from typing import Any
 
 from daemon.config import load_config
 from sim.motor_model import MotorPair
-from sim.wiring import EMULATORS, Emulated
+from sim.wiring import EMULATORS, Emulated, mounted
 
-#: drivers whose device can live in another process than the daemon (the ODrive's virtual
-#: CAN channel is in-process only, and the mock has no device)
-DRIVERS = ("serial", "pigpio", "l298n")
+#: drivers whose device can live in another process than the daemon (the mock has none; the
+#: ODrive is reached over python-can's udp_multicast interface)
+DRIVERS = ("serial", "pigpio", "l298n", "odrive_can")
+#: the options that switch each device's deadman off (--no-deadman)
+NO_DEADMAN: dict[str, dict[str, Any]] = {"pigpio": {"deadman_s": 0.0},
+                                         "odrive_can": {"watchdog_timeout_s": 0.0}}
 WHEEL_RADIUS = 0.05  # [robot] default
 SPEED_M_S = 0.5
 
@@ -46,6 +49,9 @@ def deadman_of(driver: str, options: dict[str, Any]) -> str:
         return f"firmware auto-stop {options['auto_stop_s']:g} s"
     if driver == "pigpio":
         return f"pigpiod script {options['deadman_s']:g} s" if options["deadman_s"] else "none"
+    if driver == "odrive_can":
+        watchdog = options["watchdog_timeout_s"]
+        return f"ODrive axis watchdog {watchdog:g} s" if watchdog else "none"
     return "none"
 
 
@@ -79,11 +85,32 @@ def device(driver: str, workdir: Path, overrides: dict[str, Any]) -> Iterator[
     options = config.driver_options(driver)
     wiring = EMULATORS[driver]
     pair = wiring.motors(max_speed_rad_s=40.0, time_constant_s=0.05)
-    emulated = wiring.start(pair, workdir, options, ())
+    emulated = _odrive(pair, options) if driver == "odrive_can" else \
+        wiring.start(pair, workdir, options, ())
     try:
         yield pair, emulated, {**options, **emulated.options}
     finally:
         emulated.stop()
+
+
+def _odrive(pair: MotorPair, options: dict[str, Any]) -> Emulated:
+    """An ODrive on udp_multicast (a virtual channel does not leave the process), its axes
+    mounted as the section expects (as sim.wiring does)."""
+    from sim.odrive_emulator import DEFAULT_MULTICAST_GROUP, ODriveEmulator
+
+    pair.wiring = mounted(options)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("", 0))
+        port = int(sock.getsockname()[1])
+    odrive = ODriveEmulator("udp_multicast", DEFAULT_MULTICAST_GROUP, motors=pair,
+                            directions=(1, 1), node_ids=(options["left_node_id"],
+                                                         options["right_node_id"]),
+                            gear_ratio=options["gear_ratio"],
+                            watchdog_timeout_s=options["watchdog_timeout_s"],
+                            bus_kwargs={"port": port}).start()
+    reach = {"interface": "udp_multicast", "channel": DEFAULT_MULTICAST_GROUP,
+             "multicast_port": port}
+    return Emulated(odrive, reach, odrive.stop)
 
 
 def _config(driver: str, options: dict[str, Any], port: int, workdir: Path) -> Path:
@@ -163,12 +190,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--speed", type=float, default=SPEED_M_S)
     parser.add_argument("--no-deadman", action="store_true",
-                        help="pigpio: deadman_s = 0 (what the issue measured)")
+                        help="pigpio deadman_s = 0, odrive_can watchdog_timeout_s = 0: the "
+                        "devices without their deadman")
     args = parser.parse_args(argv)
     print("| driver | device deadman | speed | rolled in the frozen time | still after |")
     print("|---|---|---|---|---|")
     for driver in args.driver or DRIVERS:
-        overrides = {"deadman_s": 0.0} if args.no_deadman and driver == "pigpio" else {}
+        overrides = NO_DEADMAN.get(driver, {}) if args.no_deadman else {}
         roll = measure(driver, args.seconds, overrides, args.speed)
         still = "moving" if roll.still_after_s is None else f"{roll.still_after_s:.2f} s"
         print(f"| {roll.driver} | {roll.deadman} | {roll.speed_m_s:g} m/s | "
