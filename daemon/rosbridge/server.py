@@ -132,10 +132,10 @@ class RosbridgeServer(BaseComponent):
 
     async def _handle(self, request: web.Request) -> web.StreamResponse:
         if request.version < HttpVersion10:  # no headers, no Host: nothing to check;
-            refusal = self._refuse("http09", 400, "HTTP/0.9 is not supported: connect with a "
-                                   "WebSocket (HTTP/1.1)")  # refused, as on the HTTP port,
-            refusal.force_close()  # and the connection closed
-            return refusal
+            http09 = self._refuse("http09", 400, "HTTP/0.9 is not supported: connect with a "
+                                  "WebSocket (HTTP/1.1)")  # refused, as on the HTTP port,
+            http09.force_close()  # and the connection closed
+            return http09
         if self.security.guessing(request.headers, request.query, request.remote):
             return self._refuse("guessing", 429, "too many wrong tokens from this address; "
                                 "wait a second")
