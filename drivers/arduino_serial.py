@@ -24,6 +24,7 @@ from drivers.base import (
     option,
 )
 from drivers.rosarduino import (
+    AUTO_STOP_S,
     BAUDRATE,
     DEFAULT_GAINS,
     MAX_PWM,
@@ -239,6 +240,7 @@ class SerialSettings:
     reset_wait_s: float
     boot_timeout_s: float
     keepalive_s: float
+    auto_stop_s: float
     left_motor_inverted: bool
     right_motor_inverted: bool
     left_encoder_inverted: bool
@@ -311,7 +313,11 @@ class SerialBridgeDriver(MotorDriver):
         "boot_timeout_s": option(float, 3.0, "then keep asking 'e' for this long until the "
                                  "board answers (a bootloader still running), s", minval=0),
         "keepalive_s": option(float, 0.5, "re-send a held non-zero speed after this many "
-                              "seconds (the firmware auto-stops after 2 s)", above=0),
+                              "seconds (at most a quarter of auto_stop_s)", above=0),
+        "auto_stop_s": option(float, AUTO_STOP_S, "the firmware's AUTO_STOP_INTERVAL: it stops "
+                              "the motors this long after the last motor command, s (2 s in "
+                              "ROSArduinoBridge as shipped; the simulated board uses this)",
+                              above=0.0, maxval=60.0),
         **inversion_options(),
     }
     SETTINGS = SerialSettings
@@ -515,7 +521,8 @@ class SerialBridgeDriver(MotorDriver):
     async def _keep_alive(self) -> None:
         """Re-send a held non-zero command before the firmware's auto-stop fires."""
         held = time.monotonic() - self._wire_sent_mono
-        if self._wire_command == self._stop_command() or held < self.settings.keepalive_s:
+        every = min(self.settings.keepalive_s, self.settings.auto_stop_s / 4)
+        if self._wire_command == self._stop_command() or held < every:
             return
         line = self._wire_command
         self._wire_sent_mono = time.monotonic()

@@ -79,6 +79,7 @@ class ODriveSettings:
     startup_timeout_s: float
     clear_errors_on_open: bool
     keepalive_period_s: float
+    watchdog_timeout_s: float
 
 
 @dataclass
@@ -173,6 +174,11 @@ class ODriveCanDriver(MotorDriver):
                                        "closed-loop control"),
         "keepalive_period_s": option(float, 0.1, "resend the last Set_Input_Vel this often to "
                                      "feed the ODrive watchdog (0 = off)", minval=0.0),
+        "watchdog_timeout_s": option(float, 0.5, "the axis watchdog set on the ODrive "
+                                     "(axis.config.watchdog_timeout, enable_watchdog = True; "
+                                     "the simulated ODrive has it): the axes go idle when no "
+                                     "Set_Input_Vel came for this long, s; 0 = not enabled",
+                                     minval=0.0, maxval=10.0),
     }
     SETTINGS = ODriveSettings
     settings: ODriveSettings
@@ -204,6 +210,12 @@ class ODriveCanDriver(MotorDriver):
         if left == right:
             return [f"[driver.odrive_can] left_node_id and right_node_id must differ "
                     f"(both are {left})"]
+        watchdog = values.get("watchdog_timeout_s", 0.5)
+        keepalive = values.get("keepalive_period_s", 0.1)
+        if watchdog > 0 and keepalive > watchdog / 2:
+            return [f"[driver.odrive_can] keepalive_period_s = {keepalive:g} must be at most "
+                    f"half of watchdog_timeout_s = {watchdog:g}, or the watchdog trips while the "
+                    "daemon runs"]
         return []
 
     # -- unit conversion --------------------------------------------------------------------

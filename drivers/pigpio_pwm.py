@@ -13,6 +13,7 @@ from typing import Any, ClassVar, TypeVar
 
 from base.options import Options
 from drivers.base import DriverFault, EncoderReading, MotorDriver, inversion_options, option
+from drivers.pigpio_deadman import Deadman
 from drivers.pigpio_protocol import (
     EITHER_EDGE,
     HARDWARE_DUTY_FULL,
@@ -133,6 +134,7 @@ class PigpioSettings(BridgeSettings):
     hardware_pwm: bool
     pwm_range: int
     glitch_filter_us: int
+    deadman_s: float
 
 
 # -- connection helpers (shared with the l298n driver) ---------------------------------------------
@@ -185,6 +187,9 @@ class PigpioDriver(MotorDriver):
         "glitch_filter_us": option(int, 100, "ignore encoder level changes shorter than this, us",
                                    minval=0, maxval=300000),
         **PIGPIOD_LINK_OPTIONS,
+        "deadman_s": option(float, 0.5, "a script in pigpiod zeroes the motor pins when the "
+                            "driver has not written for this long (a frozen or killed "
+                            "daemon), s; 0 = off", minval=0.0, maxval=10.0),
     }
     SETTINGS = PigpioSettings
     settings: PigpioSettings
@@ -197,6 +202,7 @@ class PigpioDriver(MotorDriver):
         check_pins(s, self._pin_keys(), self.name())
         self.hw_pins = self._hardware_pwm_pins()
         self.decoders = (QuadratureDecoder(), QuadratureDecoder())
+        self.deadman = Deadman(s.deadman_s)
         self._decoder_lock = threading.Lock()
         self._write_lock = threading.Lock()  # duty writes: the worker thread and emergency_stop()
         self._pi: Any = None
@@ -257,6 +263,9 @@ class PigpioDriver(MotorDriver):
                 self._setup_side(pi, side)
             self._callbacks = [self._setup_encoder(pi, i, s) for i, s in enumerate(self.sides)
                                if s.encoder is not None]
+            self.deadman.start(pi, [(side.pwm, self.settings.pwm_frequency
+                                     if side.pwm in self.hw_pins else 0) for side in self.sides],
+                               [pin for side in self.sides for pin in (side.in1, side.in2)])
         except Exception as exc:
             drop_pigpio(pi, peer_alive=True)
             raise DriverFault(f"pigpiod at {self._where()}: setup failed: {exc}") from exc
@@ -310,6 +319,10 @@ class PigpioDriver(MotorDriver):
     def _disconnect(self) -> None:
         pi, self._pi = self._pi, None
         self._callbacks = []
+        if pi is not None and self.fault is None:
+            with contextlib.suppress(Exception):
+                self.deadman.stop(pi)
+        self.deadman.script_id = None
         if pi is not None:
             drop_pigpio(pi, peer_alive=self.fault is None)
 
@@ -332,6 +345,8 @@ class PigpioDriver(MotorDriver):
         import pigpio
 
         try:
+            if self.deadman.feed(pi):
+                self._written = {}  # the script may have zeroed the pins: write them all
             for side, duty in zip(self.sides, duties, strict=True):
                 self._write_side(pi, side, duty)
         except DriverFault:
@@ -411,6 +426,7 @@ class PigpioDriver(MotorDriver):
             "encoder_counts": [d.count for d in self.decoders] if self.settings.encoders
             else None,
             "encoder_errors": sum(d.errors for d in self.decoders),
+            "deadman_s": self.deadman.seconds if self.deadman.script_id is not None else None,
         }
 
     # -- emergency path (any thread) -----------------------------------------------------------

@@ -10,7 +10,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from drivers.pigpio_protocol import (
     HARDWARE_DUTY_FULL,
@@ -23,6 +23,7 @@ from drivers.pigpio_protocol import (
 )
 from drivers.quadrature import quadrature_levels
 from sim.motor_model import MotorPair, WheelMotor
+from sim.pigpio_script import ScriptHost
 
 # -- wire format (pure: no I/O) -------------------------------------------------------------------
 
@@ -36,6 +37,7 @@ CMD_BR1, CMD_BR2, CMD_BC1, CMD_BC2, CMD_BS1, CMD_BS2 = 10, 11, 12, 13, 14, 15
 CMD_TICK, CMD_HWVER, CMD_NO, CMD_NB, CMD_NP, CMD_NC = 16, 17, 18, 19, 20, 21
 CMD_PRG, CMD_PFG, CMD_PRRG, CMD_PIGPV = 22, 23, 24, 26
 CMD_GDC, CMD_GPW, CMD_HP, CMD_FG, CMD_FN, CMD_NOIB = 83, 84, 86, 97, 98, 99
+CMD_PROC, CMD_PROCD, CMD_PROCR, CMD_PROCS, CMD_PROCP, CMD_PROCU = 38, 39, 40, 41, 45, 117
 
 PI_BAD_USER_GPIO, PI_BAD_GPIO, PI_BAD_MODE, PI_BAD_LEVEL, PI_BAD_PUD = -2, -3, -4, -5, -6
 PI_BAD_PULSEWIDTH, PI_BAD_DUTYCYCLE, PI_BAD_WDOG_TIMEOUT, PI_BAD_DUTYRANGE = -7, -8, -15, -21
@@ -194,6 +196,7 @@ class GpioBank:
         self.on_output = on_output or (lambda: None)
         self.on_command: Callable[[Request, float], None] | None = None
         self.handlers = self._handlers()
+        self.scripts = ScriptHost(self._script_gpio, self.lock)
 
     # -- helpers used by the motor mapping and the encoder generator -------------------------
 
@@ -250,7 +253,25 @@ class GpioBank:
             CMD_PRG: self._prg, CMD_PFG: self._pfg, CMD_PRRG: self._prrg,
             CMD_GDC: self._gdc, CMD_GPW: self._gpw, CMD_HP: self._hp,
             CMD_FG: self._fg, CMD_FN: self._fn,
+            CMD_PROC: lambda r, e, c: self.scripts.store(e),
+            CMD_PROCR: lambda r, e, c: self.scripts.run(r.p1, e),
+            CMD_PROCU: lambda r, e, c: self.scripts.update(r.p1, e),
+            CMD_PROCS: lambda r, e, c: self.scripts.stop(r.p1),
+            CMD_PROCD: lambda r, e, c: self.scripts.delete(r.p1),
+            CMD_PROCP: self._procp,
         }
+
+    def _procp(self, req: Request, ext: bytes, conn: Connection) -> int:
+        count, data = self.scripts.status(req.p1)
+        conn.reply_ext = data
+        return count
+
+    def _script_gpio(self, name: str, values: list[int]) -> int:
+        """A GPIO command given by a running script (under the bank lock)."""
+        cmd = {"w": CMD_WRITE, "pwm": CMD_PWM, "hp": CMD_HP}[name]
+        ext = struct.pack("<I", values[2] & 0xFFFFFFFF) if name == "hp" else b""
+        req = Request(cmd, values[0] & 0xFFFFFFFF, values[1] & 0xFFFFFFFF, len(ext))
+        return self.handlers[cmd](req, ext, cast("Connection", None))  # they use no socket
 
     def _gpio(self, gpio: int, user: bool = False) -> int | None:
         limit = 31 if user else 53
@@ -434,6 +455,8 @@ class Connection:
         self.send_lock = threading.Lock()
         self.notify_handle: int | None = None
         self.closed = False
+        #: bytes a command's answer carries after the reply header (PROCP)
+        self.reply_ext = b""
 
     def send(self, data: bytes) -> bool:
         with self.send_lock:
@@ -540,6 +563,7 @@ class PigpiodEmulator:
         if self._accepter is not None:
             self._accepter.join(timeout=2.0)
             self._accepter = None
+        self.bank.scripts.stop_all()  # pigpiod's scripts end with it
         self.bank.stop_pwm()
 
     def close(self) -> None:
@@ -622,7 +646,8 @@ class PigpiodEmulator:
                 if self.unresponsive:
                     continue
                 result = self.bank.execute(req, ext, conn)
-                if not conn.send(encode_reply(req, result)):
+                reply, conn.reply_ext = encode_reply(req, result) + conn.reply_ext, b""
+                if not conn.send(reply):
                     return
         finally:
             self._forget(conn)

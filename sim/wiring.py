@@ -85,7 +85,7 @@ def _start_serial(motors: MotorPair, workdir: Path, options: Mapping[str, Any]) 
     from sim.arduino_emulator import ArduinoEmulator
 
     board = ArduinoEmulator(workdir / "arduino", motors, pid_rate=options["pid_rate"],
-                            boot_s=ARDUINO_BOOT_S).start()
+                            boot_s=ARDUINO_BOOT_S, auto_stop_s=options["auto_stop_s"]).start()
     counts = motors.left.counts_per_rev
     reach = {"port": str(board.link), "counts_per_rev": counts, "reset_wait_s": 0.05,
              "poll_rate": 50.0}
@@ -125,7 +125,8 @@ def _start_odrive(motors: MotorPair, workdir: Path, options: Mapping[str, Any]) 
     # the axes' directions are the MotorPair's wiring (mounted from the section)
     odrive = ODriveEmulator("virtual", channel, motors=motors, directions=(1, 1),
                             node_ids=(options["left_node_id"], options["right_node_id"]),
-                            gear_ratio=options["gear_ratio"]).start()
+                            gear_ratio=options["gear_ratio"],
+                            watchdog_timeout_s=options["watchdog_timeout_s"]).start()
     return Emulated(odrive, {"interface": "virtual", "channel": channel}, odrive.stop,
                     in_process_only=True)
 

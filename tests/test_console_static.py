@@ -92,6 +92,39 @@ async def test_gzip_etag_and_head(server: TestServer) -> None:
             assert response.status == 200 and await response.read() == b""
 
 
+@pytest.mark.parametrize(("if_none_match", "status"), [
+    ("*", 304), ('W/"x", *', 304), ('"other"', 200), ('"a", "b"', 200)])
+async def test_if_none_match_star_matches_any_representation(
+        server: TestServer, if_none_match: str, status: int) -> None:
+    """RFC 9110 13.1.2: ``*`` matches whatever representation exists, so a GET gets 304."""
+    async with aiohttp.ClientSession() as session, session.get(
+            server.make_url("/console/app.js"), headers={"If-None-Match": if_none_match}) as r:
+        assert r.status == status
+
+
+async def test_a_weak_etag_matches_for_if_none_match(server: TestServer) -> None:
+    url = server.make_url("/console/app.js")
+    async with aiohttp.ClientSession() as session:
+        async with session.get(url) as response:
+            etag = response.headers["ETag"]
+        async with session.get(url, headers={"If-None-Match": f'"x", W/{etag}'}) as response:
+            assert response.status == 304
+
+
+@pytest.mark.parametrize(("accept", "gzipped"), [
+    ("gzip;q=0", False), ("gzip; q=0.0, identity", False), ("*;q=0", False),
+    ("br, gzip;q=0", False), ("gzip;q=0.5", True), ("*", True), ("x-gzip", True),
+    ("GZIP;Q=1", True), ("gzip;q=nonsense", False), ("*, gzip;q=0", False),
+    ("identity", False)])
+async def test_gzip_only_when_its_q_value_is_above_zero(
+        server: TestServer, accept: str, gzipped: bool) -> None:
+    async with aiohttp.ClientSession(auto_decompress=False) as session, session.get(
+            server.make_url("/console/app.js"), headers={"Accept-Encoding": accept}) as r:
+        assert ("Content-Encoding" in r.headers) is gzipped, r.headers
+        body = await r.read()
+    assert (gzip.decompress(body) if gzipped else body) == (STATIC / "app.js").read_bytes()
+
+
 @pytest.mark.parametrize("target", [
     "/console/../daemon/app.py", "/console/%2e%2e/__init__.py", "/console/..%2f__init__.py",
     "/console/static/app.js", "/console/", "/console", "/index.html", "/console/app.js/",

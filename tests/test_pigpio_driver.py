@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
-from sim.pigpiod_emulator import CMD_HP, CMD_PWM, CMD_WRITE
+from sim.pigpiod_emulator import CMD_HP, CMD_PROCU, CMD_PWM, CMD_WRITE
 from sim.wiring import EMULATORS
 from tests.support.async_daemon_subprocess import (
     AsyncDaemonSubprocess,
@@ -136,7 +136,28 @@ async def test_unchanged_pins_are_not_rewritten(tmp_path: Path) -> None:
             sent = the_rig.emulator.command_log()[before:]
         finally:
             await driver.close()
-        assert [(cmd, gpio) for cmd, gpio, _ in sent] == [(CMD_HP, 12)]
+        # the deadman script's feed (PROCU), then only the pin that changed
+        assert [(cmd, gpio) for cmd, gpio, _ in sent] == [(CMD_PROCU, 0), (CMD_HP, 12)]
+
+
+async def test_the_deadman_script_in_pigpiod_stops_an_unfed_robot(tmp_path: Path) -> None:
+    """A daemon that stops writing (frozen, killed) leaves pigpiod's PWM running; the script
+    the driver left in pigpiod zeroes the motor pins after deadman_s, and the next write after
+    the gap sets every pin again."""
+    with running_rig(tmp_path) as the_rig:
+        driver = make_driver(the_rig, watch_interval=0.0, deadman_s=0.2)
+        await driver.open()
+        try:
+            await driver.set_wheel_speeds(5.0, 5.0)
+            assert close_to(the_rig.observed_targets(), (5.0, 5.0), 0.02)
+            await eventually(lambda: the_rig.observed_targets() == (0.0, 0.0),
+                             "the deadman script zeroing the pins")
+            assert driver.deadman.trips(driver._pi) == 1
+            await driver.set_wheel_speeds(5.0, 5.0)
+            assert close_to(the_rig.observed_targets(), (5.0, 5.0), 0.02)
+            assert driver.health()["deadman_s"] == 0.2
+        finally:
+            await driver.close()
 
 
 async def test_encoders_track_the_motors_in_both_directions(tmp_path: Path) -> None:
@@ -194,7 +215,7 @@ async def test_odometry_1m_straight_and_90_degree_turn_match_ground_truth(
     fast = EMULATORS["pigpio"].motors(max_speed_rad_s=FULL_DUTY_SPEED,
                                       clock=lambda: 2.0 * time.monotonic())  # 2x real time
     with running_rig(tmp_path, fast) as the_rig:
-        driver = make_driver(the_rig)
+        driver = make_driver(the_rig, deadman_s=0.0)  # no loop feeds it here
         await driver.open()
         try:
             truth, odom = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)

@@ -431,6 +431,21 @@ async def raw_session(robot: InProcessDaemon, frames: bytes) -> bytes:
     return data
 
 
+async def test_an_http_0_9_request_is_refused_and_the_connection_closed(
+        robot: InProcessDaemon) -> None:
+    """A request line without a version (HTTP/0.9: no headers, no Host to check) was answered
+    like any other, with 426; now it is refused as on the HTTP port, and the socket closed."""
+    port = int(robot.ws_url.rstrip("/").rsplit(":", 1)[1])
+    for request in (b"GET /\r\n\r\n", b"GET /?token=x\r\n\r\n"):
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(request)
+        data = await asyncio.wait_for(reader.read(), 10.0)  # to EOF: the server closed it
+        writer.close()
+        status = data.split(b"\r\n", 1)[0]
+        assert b" 400 " in status and b"426" not in data, data
+        assert b"HTTP/0.9 is not supported" in data
+
+
 async def test_unmasked_frames_from_a_client_close_the_connection(
         robot: InProcessDaemon) -> None:
     """RFC 6455 5.1: a server must close the connection on an unmasked client frame; aiohttp

@@ -39,7 +39,7 @@ def mark(run: dict[str, Any], label: str) -> dict[str, Any]:
 @pytest.mark.parametrize("world", ["wall", "obstacle", "corner"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_full_speed_drive_stops_short_and_can_back_away(world: str, seed: int) -> None:
-    run = metrics("--seconds", "8", "--seed", str(seed), "--world",
+    run = metrics("--seconds", "9", "--seed", str(seed), "--world",
                   str(SCENARIOS / f"{world}.toml"), "--script",
                   str(SCENARIOS / "full_speed_then_back.toml"))
     assert run["collisions"] == 0

@@ -211,3 +211,24 @@ def test_at_a_terminal_a_person_turns_the_wheels_by_hand(tmp_path: Path) -> None
     assert result["left"]["counts_per_rev"] == pytest.approx(1440, rel=0.02)
     assert result["right"]["diagnosis"] == "ok" and result["fix"] == []
     assert any("swap the left motor's two wires" in step for step in result["rewire"])
+
+
+async def test_the_step_response_sets_the_reaction_budget(tmp_path: Path) -> None:
+    """Slow hobby gear motors (0.25 s time constant) and the simulated default (0.05 s): the
+    measured lag and the reaction_time_s line that follows from it (docs/safety.md)."""
+    configs = []
+    for name, tau in (("slow", 0.25), ("fast", 0.05)):
+        (tmp_path / name).mkdir()
+        configs.append(config_for(tmp_path / name, "serial", [],
+                                  f"motor_time_constant = {tau}\n"))
+    slow, fast = await asyncio.gather(*(run_in_sim(config) for config in configs))
+    for result, tau in ((slow, 0.25), (fast, 0.05)):
+        response = result["response"]
+        assert response["measured"], result
+        for side in ("left", "right"):
+            assert response[side]["stop_lag_s"] == pytest.approx(tau, abs=0.05), response
+        assert response["reaction_time_s"] >= tau + 0.05, response
+        assert response["lines"] == ["[collision_monitor]",
+                                     f"reaction_time_s = {response['reaction_time_s']:g}"]
+    assert slow["response"]["reaction_time_s"] <= 0.4
+    assert fast["response"]["reaction_time_s"] <= 0.2

@@ -16,7 +16,7 @@ from typing import Any
 from daemon.bringup import motors
 from daemon.bringup.motors import NO_HAND_TURN, SIDES
 from daemon.config import Config, ConfigError, build_driver
-from daemon.settings import DriverSettings
+from daemon.settings import DriverSettings, RobotSettings
 from drivers import DriverError
 from sim.motor_model import MotorPair
 
@@ -121,7 +121,8 @@ async def _test(config: Config, observer: motors.Observer,
         driver.listeners.append(pair.set_targets)  # type: ignore[attr-defined]
     await driver.open()
     try:
-        return await motors.run(driver, config.driver_options(), observer)
+        return await motors.run(driver, config.driver_options(), observer,
+                                config.get(RobotSettings).wheel_radius)
     finally:
         await driver.close()
 

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from daemon.bringup import response
 from daemon.bringup.diagnosis import (
     SIDES,
     Finding,
@@ -52,9 +53,10 @@ class Step:
     runaway: bool
 
 
-async def run(driver: MotorDriver, options: Mapping[str, Any],
-              observer: Observer) -> dict[str, Any]:
-    """The whole test on an opened driver; returns the report (see :func:`report`)."""
+async def run(driver: MotorDriver, options: Mapping[str, Any], observer: Observer,
+              wheel_radius: float = 0.05) -> dict[str, Any]:
+    """The whole test on an opened driver; returns the report (see :func:`report`), with the
+    wheels' step response (``response``) when they are well."""
     speed = min(SPIN_RAD_S, 0.5 * driver.max_wheel_speed)
     if await driver.read_encoders() is None:
         steps = {name: await spin(driver, wheels, speed) for name, wheels in _plan()}
@@ -72,7 +74,10 @@ async def run(driver: MotorDriver, options: Mapping[str, Any],
                            step.moved[1 - index], seen)
     steps["both"] = await spin(driver, (1.0, 1.0), speed)
     findings = [diagnose(side, spins[side], hand.get(side)) for side in SIDES]
-    return report(driver.name(), options, findings, spins, hand, steps)
+    out = report(driver.name(), options, findings, spins, hand, steps)
+    wheels = await response.measure(driver, speed) if out["ok"] else None
+    out["response"] = response.report(wheels, wheel_radius)
+    return out
 
 
 def _plan() -> list[tuple[str, tuple[float, float]]]:
@@ -123,6 +128,8 @@ async def spin(driver: MotorDriver, wheels: tuple[float, float], speed: float) -
         await driver.set_wheel_speeds(*commanded)
         while time.monotonic() - start < SPIN_S and not runaway:
             await asyncio.sleep(SAMPLE_S)
+            await driver.set_wheel_speeds(*commanded)  # as the control loop would: it feeds
+            # the device's deadman (the pigpio driver's script, the ODrive's watchdog)
             runaway = before is not None and _running_away(await _reading(driver), before,
                                                            start, speed)
     finally:
@@ -235,4 +242,19 @@ def render(result: dict[str, Any]) -> str:
         lines.append(f"  rewire: {step}")
     if result["ok"] and "watch" not in result:
         lines.append("all is well: the motors and encoders agree")
+    lines += _render_response(result.get("response", {}))
     return "\n".join(lines)
+
+
+def _render_response(info: dict[str, Any]) -> list[str]:
+    if not info.get("measured"):
+        return []
+    lines = ["step response (both wheels, then a stop):"]
+    for side in SIDES:
+        w = info[side]
+        lines.append(f"  {side:<5} {w['speed_rad_s']:.2f} rad/s; lags {w['start_lag_s']:.3f} s "
+                     f"starting, {w['stop_lag_s']:.3f} s stopping; slowed at "
+                     f"{w['deceleration_m_s2']:.2f} m/s² from this speed, unloaded")
+    lines.append("the collision monitor's reaction budget for these motors (docs/safety.md):")
+    lines += [f"    {line}" for line in info["lines"]]
+    return lines

@@ -56,6 +56,42 @@ def load(name: str) -> StaticFile:
                       CONTENT_TYPES[name.rsplit(".", 1)[1]], f'"{digest}"')
 
 
+def none_match(fields: Sequence[str], etag: str) -> bool:
+    """RFC 9110 If-None-Match: ``*`` matches any current representation; otherwise the list
+    of entity tags is compared weakly (``W/"x"`` matches ``"x"``)."""
+    tags = [tag.strip() for field in fields for tag in field.split(",")]
+    return any(tag == "*" or tag.removeprefix("W/") == etag for tag in tags if tag)
+
+
+def accepts_gzip(fields: Sequence[str]) -> bool:
+    """RFC 9110 Accept-Encoding: gzip (or x-gzip) listed with a q-value above 0, or ``*``
+    above 0 when gzip is not listed; ``gzip;q=0`` refuses it. A q-value that does not parse
+    counts as 0 (the file is sent as it is, which every client takes)."""
+    weights: dict[str, float] = {}
+    for field in fields:
+        for item in field.split(","):
+            coding, _, params = item.partition(";")
+            coding = coding.strip().lower()
+            if coding:
+                weights[coding] = _q_value(params)
+    for name in ("gzip", "x-gzip"):
+        if name in weights:
+            return weights[name] > 0
+    return weights.get("*", 0.0) > 0
+
+
+def _q_value(params: str) -> float:
+    for param in params.split(";"):
+        key, _, value = param.partition("=")
+        if key.strip().lower() == "q":
+            try:
+                q = float(value.strip())
+            except ValueError:
+                return 0.0
+            return q if 0.0 <= q <= 1.0 else 0.0
+    return 1.0
+
+
 def content_security_policy(ws_port: int | None) -> str:
     """Only the console's own files run; it may talk to this host's HTTP and rosbridge ports."""
     sockets = f" ws://*:{ws_port} wss://*:{ws_port}" if ws_port else ""
@@ -90,11 +126,11 @@ class Console:
 
     def answer(self, request: web.Request, static: StaticFile) -> web.StreamResponse:
         headers = {**self.headers, "ETag": static.etag}
-        if static.etag in request.headers.get("If-None-Match", ""):
+        if none_match(request.headers.getall("If-None-Match", []), static.etag):
             return web.Response(status=304, headers=headers)
         headers["Content-Type"] = static.content_type
         body = static.body
-        if "gzip" in request.headers.get("Accept-Encoding", ""):
+        if accepts_gzip(request.headers.getall("Accept-Encoding", [])):
             body, headers["Content-Encoding"] = static.gzipped, "gzip"
         return web.Response(body=body, headers=headers)
 

@@ -93,6 +93,11 @@ class Lockstep:
         self.start_mode = autonomy
         self.sender = Sender()
         self.lidar = LidarFeed(1.0 / sim.lidar_rate)
+        #: the event loop is blocked until this time (script ``stall``)
+        self.stalled_until = -math.inf
+        #: when the collision monitor first had to brake (a limit or a stop)
+        self.first_brake: float | None = None
+        self.control.supervisor.clock = self.clock
         self.coverage = Coverage(self.world.world, sim.footprint_radius)
         self.marks: list[dict[str, Any]] = []
         self.min_clearance = math.inf
@@ -101,6 +106,7 @@ class Lockstep:
         self.truth_at_cast: dict[float, tuple[float, float, float]] = {}
         self.map_out = map_out
         self._step_index, self._next_tick = 0, 0.0
+        self.control.supervisor.beat()
         self.mapping = MappingProbe(config, self.plugs, points, self.clock, self.world.world,
                                     self.truth_at_cast) if mapping else None
         self.navigation = NavigationComponent(config, self.plugs, lidar=True, points=points,
@@ -152,8 +158,11 @@ class Lockstep:
             self._lidar_at(t)
             ticked = t + 1e-9 >= self._next_tick
             if ticked:
-                await self.control.tick(self._next_tick)
+                if t + 1e-9 >= self.stalled_until:  # a scripted stall: the loop is blocked
+                    await self._tick(self._next_tick)
                 self._next_tick += period
+            if self.control.supervisor.enabled:
+                self.control.supervisor.check()  # the supervisor's thread, in virtual time
             self.world.step()
             self._track()
             self._step_index += 1
@@ -165,13 +174,21 @@ class Lockstep:
         await self.control.stop()
         self.world.close()
 
+    async def _tick(self, deadline: float) -> None:
+        self.control.supervisor.beat()
+        moving = self.control.linear.velocity != 0.0 or self.control.angular.velocity != 0.0
+        await self.control.tick(deadline)
+        if self.first_brake is None and moving and \
+                self.control.guard_action in ("limit", "stop"):
+            self.first_brake = deadline
+
     async def _script_until(self, t: float, final: bool = False) -> None:
         while self.script and self.script[0].t <= t + 1e-9:
             step = self.script.pop(0)
             self._mark(step.label, t)
             await self._apply(step, t)
-        if final:
-            return
+        if final or t + 1e-9 < self.stalled_until:
+            return  # a blocked loop reads no commands (the client re-sends later)
         sender = self.sender
         if sender.twist is not None and t + 1e-9 >= sender.next_send:
             applied = await self.control.submit(SCRIPT_SOURCE, sender.twist, t_recv=t)
@@ -190,6 +207,8 @@ class Lockstep:
                 await self.control.engage_estop("script")
             else:
                 self.control.release_estop()
+        elif step.action == "stall":
+            self.stalled_until = t + step.value
         elif step.action == "autonomy":
             self.autonomy.request(step.value, "script")
         elif step.action == "lidar":
@@ -201,7 +220,8 @@ class Lockstep:
 
     def _lidar_at(self, t: float) -> None:
         feed = self.lidar
-        while feed.pending and feed.pending[0][0] <= t + 1e-9:
+        blocked = t + 1e-9 < self.stalled_until
+        while feed.pending and feed.pending[0][0] <= t + 1e-9 and not blocked:
             _, scan = feed.pending.pop(0)
             feed.delivered += 1
             self.bus.publish(SCAN, scan)
@@ -289,6 +309,9 @@ class Lockstep:
         if safety is None:
             return {"enabled": False}
         return {"enabled": True, "action": safety.action, "changes": safety.changes,
+                "first_brake_s": None if self.first_brake is None else round(
+                    self.first_brake, 4),
+                "stall_stops": self.control.supervisor.stall_stops,
                 "entries": dict(safety.entries),
                 "time_s": {k: round(v, 3) for k, v in safety.time_in.items()},
                 "stop_margin_m": safety.settings.stop_margin}

@@ -10,7 +10,7 @@ from daemon.control.commands import CommandError, Twist, parse_twist
 from sim.world import finite_number, load_document
 
 #: the actions a step can take; exactly one per step
-ACTIONS = ("cmd_vel", "stop", "estop", "autonomy", "lidar", "mark")
+ACTIONS = ("cmd_vel", "stop", "estop", "autonomy", "lidar", "stall", "mark")
 DEFAULT_RATE_HZ = 10.0
 
 
@@ -23,7 +23,9 @@ class Step:
     """One timed action. ``cmd_vel`` is re-sent at ``rate`` Hz until the next ``cmd_vel`` or
     ``stop`` step (as a teleop client does); ``stop`` ends the sending (the deadman then
     brakes); ``estop`` latches/releases; ``autonomy`` sets the mode; ``lidar`` is ``stall`` or
-    ``resume``; ``mark`` only records the ground truth under a label."""
+    ``resume``; ``stall`` blocks the event loop for that many seconds (no tick, command or
+    revolution is handled; the stall supervisor still runs); ``mark`` only records the
+    ground truth under a label."""
 
     t: float
     action: str
@@ -98,6 +100,11 @@ def _value(action: str, value: Any, where: str) -> Any:
                           f"got {json.dumps(value)}")
     if action == "mark" and not isinstance(value, str):
         raise ScriptError(f"{where}: expected a label string")
+    if action == "stall":
+        seconds = _number(value, where)
+        if not 0 < seconds <= 60:
+            raise ScriptError(f"{where}: expected seconds in (0, 60], got {seconds}")
+        return seconds
     return value
 
 

@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from aiohttp import WSCloseCode, web
+from aiohttp import HttpVersion10, WSCloseCode, web
 
 from base.config import Config
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
@@ -60,7 +60,7 @@ class RosbridgeServer(BaseComponent):
         #: the robot's topics join when it starts (every component has declared its own)
         self.graph = BridgeGraph((), latest=ctx.bus.latest)
         self.clients: dict[int, ClientSession] = {}
-        self.refused = {"host": 0, "origin": 0, "token": 0, "guessing": 0, "full": 0,
+        self.refused = {"http09": 0, "host": 0, "origin": 0, "token": 0, "guessing": 0, "full": 0,
                         "idle": 0}
         self.connections = 0
         self.bound_port: int | None = None
@@ -131,6 +131,11 @@ class RosbridgeServer(BaseComponent):
     # -- admission ----------------------------------------------------------------------------
 
     async def _handle(self, request: web.Request) -> web.StreamResponse:
+        if request.version < HttpVersion10:  # no headers, no Host: nothing to check;
+            http09 = self._refuse("http09", 400, "HTTP/0.9 is not supported: connect with a "
+                                  "WebSocket (HTTP/1.1)")  # refused, as on the HTTP port,
+            http09.force_close()  # and the connection closed
+            return http09
         if self.security.guessing(request.headers, request.query, request.remote):
             return self._refuse("guessing", 429, "too many wrong tokens from this address; "
                                 "wait a second")

@@ -16,9 +16,11 @@ from daemon.control.clock import Clock
 from daemon.control.guard import Guarded
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.safety.braking import BrakingCheck
 from daemon.safety.footprint import Footprint
 from daemon.safety.monitor import ACTIONS, CollisionMonitor, MonitorSettings
 from daemon.safety.settings import CollisionMonitorSettings
+from daemon.safety.sweep import path_direction
 from daemon.settings import ControlSettings, LimitsSettings
 from daemon.telemetry import SCAN
 from daemon.topics import Topic, TopicOut
@@ -46,12 +48,21 @@ def monitor_settings(config: Config) -> MonitorSettings:
         slowdown_margin=max(cm.slowdown_margin_m, cm.stop_margin_m),
         slowdown_ratio=cm.slowdown_ratio,
         time_before_collision=cm.time_before_collision_s,
-        reaction_time=cm.reaction_time_s + 1.0 / config.get(ControlSettings).update_rate,
+        reaction_time=cm.reaction_time_s + unattended_s(config.get(ControlSettings)),
+        motor_lag=cm.reaction_time_s,
         min_points=cm.min_points, source_timeout=cm.source_timeout_s,
         stale_action=cm.stale_action,
         linear_deceleration=limits.linear_x_emergency_deceleration,
         angular_deceleration=limits.angular_z_emergency_deceleration,
         max_linear=limits.linear_x_max_velocity, max_angular=limits.angular_z_max_velocity)
+
+
+def unattended_s(control: ControlSettings) -> float:
+    """How long the wheels may keep their last command with nobody to change it: until the
+    stall supervisor zeroes them when the event loop stops (``stall_stop_s``, at least two
+    control periods, as the loop enforces), else one control period."""
+    period = 1.0 / control.update_rate
+    return max(2.0 * period, control.stall_stop_s) if control.stall_stop_s > 0 else period
 
 
 def horizon_warning(settings: MonitorSettings) -> str | None:
@@ -120,6 +131,7 @@ class SafetyComponent(BaseComponent):
         control, bus = plugs.control, plugs.bus
         self.settings = monitor_settings(config)
         self.monitor = CollisionMonitor(self.settings)
+        self.braking = BrakingCheck(self.settings.motor_lag)
         self.points = points or scan_points(config)
         self.clock = control.clock
         self.wall_clock = wall_clock
@@ -152,6 +164,10 @@ class SafetyComponent(BaseComponent):
 
     def observe(self, now: float, x: float, y: float, theta: float) -> None:
         self.monitor.observe(now, x, y, theta)
+        if self.control.wheel_guard.measured is not None:  # only what encoders measured
+            commanded = path_direction(self.control.linear.velocity,
+                                       self.control.angular.velocity)[1]
+            self.braking.observe(now, commanded, (x, y, theta))
 
     def on_scan(self, scan: LaserScan) -> None:
         """A revolution from the bus; its stamp (wall clock of the first ray) is turned into
@@ -207,9 +223,14 @@ class SafetyComponent(BaseComponent):
     def health(self) -> dict[str, Any]:
         now = self.clock()
         stale = self.monitor.stale(now)
-        return {"status": "degraded" if stale else "ok", **self.status(),
-                "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
-                "entries": dict(self.entries)}
+        slow_brakes = self.braking.reason()
+        out = {"status": "degraded" if stale or slow_brakes else "ok", **self.status(),
+               "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
+               "entries": dict(self.entries),
+               "braking": self.braking.health(self.control.wheel_guard.measured is not None)}
+        if slow_brakes and not stale:
+            out["reason"] = slow_brakes
+        return out
 
 
 def disabled_status() -> dict[str, Any]:

@@ -18,6 +18,10 @@ ACTIONS = ("none", "slowdown", "limit", "stop")  # least to most severe
 POSE_HISTORY = 256  # odometry poses kept for placing a revolution (~5 s at 50 Hz)
 #: once stopped short of the stop zone, motion toward it resumes only with this much room (m)
 STOP_HYSTERESIS = 0.03
+#: an approach limit below this speed (travel units per s) stops the robot instead: near the
+#: stop zone the limit falls as room / reaction time, and creeping the last centimetres
+#: would take seconds
+CREEP_SPEED = 0.05
 
 
 @dataclass(frozen=True)
@@ -30,6 +34,7 @@ class MonitorSettings:
     slowdown_ratio: float = 0.5
     time_before_collision: float = 1.0
     reaction_time: float = 0.12  # from deciding to slow down until the wheels do
+    motor_lag: float = 0.1  # of that, the wheels' time constant (the rest: the loop may stall)
     min_points: int = 1
     source_timeout: float = 0.5
     stale_action: str = "stop"
@@ -83,6 +88,31 @@ class Table:
     open_travel: float = 0.0
 
 
+class WheelLag:
+    """The speed the wheels are assumed to have: the commanded path speed through a first-order
+    lag of ``time_constant`` s. A motor that lags its command keeps running faster than the
+    command while it brakes; a lag at least as slow as the real one overestimates that speed,
+    which is the safe side (the run-time check in :mod:`daemon.safety.braking` compares it
+    with the encoders)."""
+
+    def __init__(self, time_constant: float) -> None:
+        self.time_constant = time_constant
+        self.speed = 0.0
+        self._command = 0.0
+        self._last: float | None = None
+
+    def follow(self, command: float, now: float) -> None:
+        """The command in force from ``now`` on (the previous one held until then)."""
+        if self._last is not None and now > self._last:
+            tau = self.time_constant
+            keep = math.exp(-(now - self._last) / tau) if tau > 0 else 0.0
+            self.speed = self._command + (self.speed - self._command) * keep
+        self._last = max(now, self._last) if self._last is not None else now
+        self._command = command
+        if self.time_constant <= 0:
+            self.speed = command
+
+
 class CollisionMonitor:
     """Limits a target twist so the robot stays out of obstacles seen by the lidar.
 
@@ -117,6 +147,7 @@ class CollisionMonitor:
         self.scans = 0
         self.bin_computations = 0
         self._stopped = False
+        self._wheels = WheelLag(settings.motor_lag)
         #: the twists of the last check that needed the sweep (None: open space)
         self._in_use: tuple[tuple[float, float], tuple[float, float]] | None = None
 
@@ -220,6 +251,7 @@ class CollisionMonitor:
     def limit(self, linear: float, angular: float, current_linear: float,
               current_angular: float, now: float) -> Verdict:
         """The safe version of the target twist, given the current (commanded) velocity."""
+        self._wheels.follow(path_direction(current_linear, current_angular)[1], now)
         if self.stale(now):
             return self._stale(linear, angular, current_linear, current_angular, now)
         target = self._path(linear, angular)
@@ -229,7 +261,9 @@ class CollisionMonitor:
             return Verdict(linear, angular, False, "none", "")
         table = self._refresh()
         travel = self._travel(table, current_linear, current_angular, now)
-        fastest = max(target.sigma if target else 0.0, current.sigma if current else 0.0)
+        measured = self._wheels.speed
+        fastest = max(target.sigma if target else 0.0, current.sigma if current else 0.0,
+                      measured)
         if (table.open_travel - travel) > fastest * self.settings.time_before_collision:
             self._stopped = False  # nothing any path could reach in time: no sweep needed
             self._in_use = None
@@ -237,9 +271,11 @@ class CollisionMonitor:
         self._in_use = ((linear, angular), (current_linear, current_angular))
         self._compute(table, (target.bins if target else []) +
                       (current.bins if current and current is not target else []))
-        fraction, action, reason, hard = self._judge(table, target, travel, self._stopped)
+        fraction, action, reason, hard = self._judge(table, target, travel, self._stopped,
+                                                     measured)
         # the motion as it is now may need the emergency deceleration whatever the target
-        unsafe_now = hard if current is target else self._judge(table, current, travel)[3]
+        unsafe_now = hard if current is target else \
+            self._judge(table, current, travel, measured=measured)[3]
         self._stopped = action == "stop"
         if action in ("none", "slowdown") and unsafe_now:
             action, reason = "limit", "braking: the current motion runs into an obstacle"
@@ -287,11 +323,13 @@ class CollisionMonitor:
             moved += math.hypot(current_linear, SCALE * current_angular) * (now - t_pose)
         return moved
 
-    def _judge(self, table: Table, path: Path | None, travel: float,
-               stopped: bool = False) -> tuple[float, str, str, bool]:
+    def _judge(self, table: Table, path: Path | None, travel: float, stopped: bool = False,
+               measured: float = 0.0) -> tuple[float, str, str, bool]:
         """The fraction of a path's speed that is safe, the action, why, and whether keeping
         the speed would need more than the emergency deceleration can give (``stopped``: the
-        last target was stopped; it needs a little more room to move on)."""
+        last target was stopped; it needs a little more room to move on; ``measured``: the
+        speed the wheels are assumed to have, which a slow motor keeps above the command while
+        braking)."""
         if path is None:
             return 1.0, "none", "", False
         s = self.settings
@@ -300,12 +338,17 @@ class CollisionMonitor:
             other = table.bins[path.bins[1]]
             stop_free, slow_free = min(stop_free, other[0]), min(slow_free, other[1])
         room = stop_free - travel
-        if room <= (STOP_HYSTERESIS if stopped else 0.0):
+        hysteresis = STOP_HYSTERESIS if stopped else 0.0
+        if room <= hysteresis:
             return 0.0, "stop", "obstacle in the stop zone in the way", True
+        deceleration = self._deceleration(path.psi)
+        if room <= hysteresis + _braking_room(CREEP_SPEED, deceleration, s.reaction_time):
+            # the approach limit would creep the last centimetres for seconds: stop here
+            return 0.0, "stop", f"approach: stopped {room:.2f} m short of the stop zone", True
         sigma = path.sigma
         allowed, action, reason, hard = sigma, "none", "", False
-        if room <= sigma * s.time_before_collision:
-            cap = _braking_speed(room, self._deceleration(path.psi), s.reaction_time)
+        if room <= max(sigma, measured) * s.time_before_collision:
+            cap = _braking_speed(room, deceleration, s.reaction_time, measured, s.motor_lag)
             if cap < sigma:
                 allowed, action, hard = cap, "limit", True
                 reason = f"approach: {room:.2f} m to the stop zone"
@@ -362,11 +405,25 @@ class CollisionMonitor:
         return self.table.zone
 
 
-def _braking_speed(room: float, deceleration: float, reaction: float) -> float:
-    """Fastest speed from which the robot, reacting after ``reaction`` s and then braking at
-    ``deceleration``, stops within ``room``: v*reaction + v²/(2a) = room."""
+def _braking_room(speed: float, deceleration: float, reaction: float) -> float:
+    """The room the robot needs to stop from ``speed``: it reacts, then brakes."""
+    return speed * reaction + speed * speed / (2.0 * deceleration)
+
+
+def _braking_speed(room: float, deceleration: float, reaction: float,
+                   measured: float = 0.0, lag: float = 0.0) -> float:
+    """Fastest commanded speed ``v`` from which the robot stops within ``room``: the command
+    holds for ``reaction - lag`` s, then ramps down at ``deceleration``, and the wheels follow
+    it ``lag`` s behind, which costs ``lag`` times their speed: the faster of ``v`` and the
+    ``measured`` speed (a motor that lags its command is still faster while it brakes).
+    v*(reaction - lag) + v²/(2a) + lag*max(v, measured) = room."""
     a = deceleration
-    return a * (-reaction + math.sqrt(reaction * reaction + 2.0 * room / a))
+    v = a * (-reaction + math.sqrt(reaction * reaction + 2.0 * room / a))
+    if v >= measured:
+        return v
+    hold = reaction - lag
+    rest = max(0.0, room - lag * measured)
+    return a * (-hold + math.sqrt(hold * hold + 2.0 * rest / a))
 
 
 def _wrap(angle: float) -> float:

@@ -38,9 +38,11 @@ COLLISION_MONITOR_OPTIONS: Options = {
     "time_before_collision_s": Option(float, 1.0, "approach: project the commanded motion "
                                       "this far ahead and limit speed so the robot can stop "
                                       "before the stop zone", above=0.0, maxval=10.0),
-    "reaction_time_s": Option(float, 0.1, "approach: delay from a lower target to the wheels "
-                              "slowing (motor and driver response), s; one control period "
-                              "is added", minval=0.0, maxval=2.0),
+    "reaction_time_s": Option(float, 0.3, "approach: delay from a lower target to the wheels "
+                              "following it (the motors' time constant plus the driver's "
+                              "latency and a margin; `arbiterd test-motors` measures it), s; "
+                              "[control] stall_stop_s is added (one control period without "
+                              "the stall supervisor)", minval=0.0, maxval=2.0),
     "min_points": Option(int, 1, "lidar points needed inside a zone before it counts (noise "
                          "filter)", minval=1, maxval=100),
     "source_timeout_s": Option(float, 0.5, "a scan older than this is stale: stale_action "
