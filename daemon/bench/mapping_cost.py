@@ -146,7 +146,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
 
 
 def run(quick: bool) -> list[BenchResult]:
-    revolutions = 300 if quick else 3000
+    revolutions = 300 if quick else 1500
     decode_s, map_s, keys = revolution_costs(revolutions)
     decode_ms = float(np.median(decode_s)) * 1e3
     map_ms = float(np.median(map_s)) * 1e3
