@@ -66,7 +66,7 @@ class MapperConfig:
     field_max_distance: float = 0.5
     loop_min_travel: float = 10.0
     loop_search_radius: float = 4.0
-    loop_window: tuple[float, float] = (1.5, math.radians(15))
+    loop_window: tuple[float, float] = (2.5, math.radians(25))
     loop_submap_keys: int = 12
     loop_min_score: float = 0.55
     loop_every: int = 2
