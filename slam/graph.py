@@ -35,6 +35,23 @@ class PoseGraph:
         x, y, t = self.poses[i]
         return (float(x), float(y), float(t))
 
+    def drop_robust_outliers(self, distance: float, angle: float) -> int:
+        """Remove the robust edges (loop closures) that the optimised poses disagree with by
+        more than ``distance`` m or ``angle`` rad; returns how many went."""
+        keep = []
+        for edge in self._edges:
+            i, j, z, _, robust = edge
+            if robust:
+                err, _, _ = edge_errors(self.poses, np.array([i]), np.array([j]),
+                                        np.array([z], dtype=np.float64))
+                if float(np.hypot(err[0, 0], err[0, 1])) > distance or \
+                        abs(float(err[0, 2])) > angle:
+                    continue
+            keep.append(edge)
+        dropped = len(self._edges) - len(keep)
+        self._edges = keep
+        return dropped
+
     def optimize(self, iterations: int = 10, robust_scale: float = 3.0) -> float:
         """Gauss-Newton until the update is tiny; returns the final weighted squared error."""
         if not self._edges or len(self.poses) < 2:

@@ -66,7 +66,7 @@ class MapperConfig:
     field_max_distance: float = 0.5
     loop_min_travel: float = 10.0
     loop_search_radius: float = 4.0
-    loop_window: tuple[float, float] = (1.5, math.radians(15))
+    loop_window: tuple[float, float] = (2.5, math.radians(25))
     loop_submap_keys: int = 12
     loop_min_score: float = 0.55
     loop_every: int = 2
@@ -77,6 +77,19 @@ class MapperConfig:
     relocalize_window: tuple[float, float] = (1.0, math.radians(30))
     lost_after: int = 5
     max_trajectory: int = 1_000_000
+    search_penalty: float = 0.05
+    prior_weights: tuple[float, float] = (0.0, 0.0)
+    refine_tolerance: float = 0.0
+    prior_scale: float = 0.0
+    prior_points: float = 20.0
+    prior_window: int = 200
+    loop_trust: tuple[float, float] = (math.inf, math.inf)
+    loop_confirm: tuple[float, float] = (0.15, math.radians(1.5))
+    loop_confirm_keys: int = 10
+    loop_outlier: tuple[float, float] = (math.inf, math.inf)
+    loop_bounded: bool = True
+    weak_score: float = 0.0
+    weak_gate: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -153,6 +166,8 @@ class Mapper:
         self._trajectory: list[tuple[float, int, Pose2]] = []
         self._counts = Counters()
         self._lost = False
+        self._corrections: list[tuple[float, float]] = []
+        self._held_loop: tuple[int, int, Pose2, Pose2] | None = None
         self._refused_in_a_row = 0
         self._wide_search = config.mode == "localize"
         self._fixed = (DistanceField.from_grid(self._grid, config.field_max_distance)
@@ -204,6 +219,11 @@ class Mapper:
         if self._graph.node_count < 2:
             return
         self._graph.optimize()
+        limit = self.config.loop_outlier
+        if math.isfinite(limit[0]) and self._graph.drop_robust_outliers(*limit):
+            self._counts.extra["dropped_loops"] = self._counts.extra.get(
+                "dropped_loops", 0) + 1
+            self._graph.optimize()
         self._pending_loops = 0
         self._counts.optimizations += 1
         self._pose = compose(self._graph.pose(len(self._keys) - 1), self._rel_to_key)
@@ -326,11 +346,51 @@ class Mapper:
             self._submap_age = 0
             self._submap = self._field_of(range(max(0, len(self._keys) - self.config.submap_keys),
                                                 len(self._keys)))
-        lin, ang = self.config.track_window
-        found = match(self._submap, points, predicted,
-                      windows(lin, ang, self.config.match_resolution),
-                      self.config.score_sigma)
+        cfg = self.config
+        lin, ang = cfg.track_window
+        sigmas = self._prediction_sigmas()
+        weights = cfg.prior_weights
+        if sigmas is not None:
+            scale = cfg.score_sigma ** 2 / cfg.prior_points
+            weights = (scale / sigmas[0] ** 2, scale / sigmas[1] ** 2)
+        found = match(self._submap, points, predicted, windows(lin, ang, cfg.match_resolution),
+                      cfg.score_sigma, penalty=cfg.search_penalty, prior_weights=weights,
+                      tolerance=cfg.refine_tolerance, prior_sigmas=sigmas)
+        if cfg.min_score <= found.score < cfg.weak_score and self._implausible(predicted, found):
+            # a weak match (clutter, people, little structure) that moves the pose further
+            # from the prediction than matches here usually do: the odometry is kept
+            self._counts.extra["weak_refused"] = self._counts.extra.get("weak_refused", 0) + 1
+            return None
+        if found.score >= cfg.min_score:
+            shift = between(predicted, found.pose)
+            self._corrections.append((math.hypot(shift[0], shift[1]), abs(shift[2])))
+            if len(self._corrections) > cfg.prior_window:
+                del self._corrections[0]
         return found if found.score >= self.config.min_score else None
+
+    def _implausible(self, predicted: Pose2, found: Match) -> bool:
+        """Whether the match corrects the prediction by more than ``weak_gate`` x the median
+        correction of the recent matches, in translation or in rotation."""
+        cfg = self.config
+        if len(self._corrections) < cfg.prior_window // 4:
+            return False
+        shifts = np.asarray(self._corrections)
+        shift = between(predicted, found.pose)
+        return (math.hypot(shift[0], shift[1]) > max(
+            0.01, cfg.weak_gate * float(np.median(shifts[:, 0])))
+            or abs(shift[2]) > max(math.radians(0.25),
+                                   cfg.weak_gate * float(np.median(shifts[:, 1]))))
+
+    def _prediction_sigmas(self) -> tuple[float, float] | None:
+        """How far off the odometry prediction typically is, learnt from the last matches:
+        ``prior_scale`` x the median correction (None until there are enough matches, or
+        with prior_scale = 0)."""
+        cfg = self.config
+        if cfg.prior_scale <= 0 or len(self._corrections) < cfg.prior_window // 4:
+            return None
+        shifts = np.asarray(self._corrections)
+        return (max(0.005, cfg.prior_scale * float(np.median(shifts[:, 0]))),
+                max(math.radians(0.1), cfg.prior_scale * float(np.median(shifts[:, 1]))))
 
     def _field_of(self, keys: range | list[int]) -> DistanceField:
         world = [transform_points(self._graph.pose(k), self._keys[k].points) for k in keys]
@@ -383,11 +443,33 @@ class Mapper:
         pose = self._graph.pose(index)
         found = match(submap, self._keys[index].points.astype(np.float64), pose,
                       windows(cfg.loop_window[0], cfg.loop_window[1], cfg.match_resolution),
-                      cfg.score_sigma)
+                      cfg.score_sigma, bounded=cfg.loop_bounded)
         if found.score < cfg.loop_min_score:
             return
-        self._graph.add_edge(candidate, index, between(self._graph.pose(candidate), found.pose),
-                             cfg.loop_sigmas, robust=True)
+        closure = (candidate, index, between(self._graph.pose(candidate), found.pose),
+                   compose(found.pose, inverse(pose)))
+        shift = between(pose, found.pose)
+        if math.hypot(shift[0], shift[1]) <= cfg.loop_trust[0] and \
+                abs(shift[2]) <= cfg.loop_trust[1]:
+            self._add_loop(closure)
+            return
+        # a large correction is taken only once a second closure nearby agrees with it
+        held = self._held_loop
+        self._held_loop = closure
+        if held is None or index - held[1] > cfg.loop_confirm_keys:
+            return
+        disagree = between(compose(held[3], pose), compose(closure[3], pose))
+        if math.hypot(disagree[0], disagree[1]) <= cfg.loop_confirm[0] and \
+                abs(disagree[2]) <= cfg.loop_confirm[1]:
+            self._add_loop(held)
+            self._add_loop(closure)
+            self._held_loop = None
+            self._counts.extra["confirmed_loops"] = self._counts.extra.get(
+                "confirmed_loops", 0) + 1
+
+    def _add_loop(self, closure: tuple[int, int, Pose2, Pose2]) -> None:
+        candidate, index, relative, _ = closure
+        self._graph.add_edge(candidate, index, relative, self.config.loop_sigmas, robust=True)
         self._counts.loop_closures += 1
         if not self._pending_loops:
             self._first_pending_key = index

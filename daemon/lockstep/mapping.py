@@ -10,7 +10,7 @@ import numpy as np
 from base.config import Config
 from daemon.component import Plugs
 from daemon.control.clock import VirtualClock
-from daemon.mapping.component import MAP_POSE, MappingComponent
+from daemon.mapping.component import MAP_POSE, MappingComponent, maps_directory
 from daemon.mapping.mapfile import MapData, save_map
 from daemon.mapping.messages import MapPose
 from daemon.mapping.runner import snapshot_of
@@ -41,7 +41,8 @@ class MappingProbe:
         robot = config.get(RobotSettings)
         self.settings = config.get(MappingSettings)
         self.component = MappingComponent(
-            self.settings, plugs, points, maps_dir=Path("."), inline=True, wall_clock=clock,
+            self.settings, plugs, points, inline=True, wall_clock=clock,
+            maps_dir=maps_directory(self.settings) if self.settings.directory else Path("."),
             base_frame_id=robot.base_frame_id, odom_frame_id=robot.odom_frame_id)
         self.world = world
         start = world.start
@@ -49,6 +50,8 @@ class MappingProbe:
         self.truth_at_cast = truth_at_cast
         self.mapped, self.odometry = PoseErrors(), PoseErrors()
         self.true_poses: list[Pose2] = []
+        #: per scored revolution: (stamp s, position error m, heading error rad)
+        self.series: list[tuple[float, float, float]] = []
         plugs.subscribe(MAP_POSE, self._score)
 
     async def start(self) -> None:
@@ -63,6 +66,10 @@ class MappingProbe:
         self.true_poses.append(truth)
         self.mapped.add(message.result.pose, true_in_start)
         self.odometry.add(odom, true_in_start)
+        est = message.result.pose
+        self.series.append((message.stamp, math.hypot(est[0] - true_in_start[0],
+                                                      est[1] - true_in_start[1]),
+                            abs(math.remainder(est[2] - true_in_start[2], math.tau))))
 
     def grid(self) -> MapData | None:
         runner = self.component.runner
