@@ -527,6 +527,8 @@ async function navigateScenario(browser) {
 
   await page.click("#figure-eight");
   await navState("following");
+  await until("the figure-eight's plan drawn", () =>
+    Number(document.getElementById("view").dataset.planPoints) > 100); // /plan comes by rosbridge
   const figurePlan = await page.$eval("#view", (v) => Number(v.dataset.planPoints));
   await page.click("#nav-cancel");
   await navState("canceled");
