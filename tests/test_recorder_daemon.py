@@ -189,8 +189,15 @@ def test_http_control_listing_and_download(daemon_subprocess: StartDaemonSubproc
     assert status == 422 and "enabled" in body["error"]
     status, body = daemon.post("/api/record", {"enabled": True}, token="s3cret-t0ken")
     assert status == 200 and body["recording"] is True
-    (entry,) = daemon.get("/api/recordings")[1]["recordings"]
-    assert entry["recording"] is True and entry["size"] > 0
+
+    def listed() -> dict[str, Any]:
+        (entry,) = daemon.get("/api/recordings")[1]["recordings"]
+        return entry  # type: ignore[no-any-return]
+
+    entry = listed()
+    assert entry["recording"] is True
+    first = entry["size"]  # the writer flushes as it goes: wait until it wrote more
+    wait_for(lambda: listed()["size"] > max(first, 0), "the recording growing", within_s=10)
     status, body = daemon.post("/api/record", {"enabled": False}, token="s3cret-t0ken")
     assert status == 200 and body["recording"] is False
     (entry,) = daemon.get("/api/recordings")[1]["recordings"]
