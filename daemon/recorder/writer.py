@@ -338,7 +338,8 @@ class FlightRecorder:
             self._enforce_cap()
 
     def _close(self) -> None:
-        file, self._file = self._file, None
+        """Finish the file, then forget it: ``current`` is None only once it is complete."""
+        file = self._file
         if file is None:
             return
         try:
@@ -347,6 +348,8 @@ class FlightRecorder:
         except OSError as exc:
             self._fail(f"cannot finish {file.path}: {exc.strerror or exc}")
             file.abandon()
+        finally:
+            self._file = None
 
     def _enforce_cap(self) -> None:
         """Delete the oldest recordings until all of them fit in ``max_total_bytes``."""
