@@ -12,6 +12,7 @@ from drivers.mock_servo import MOCK_SERVO_OPTIONS
 from drivers.pca9685_protocol import DEFAULT_ADDRESS
 from drivers.pca9685_servo import PCA9685_OPTIONS
 from drivers.pigpio_servo import SERVO_OPTIONS
+from drivers.servo_array import CalibrationSettings
 from drivers.servo_pulses import SERVO_HZ
 
 JOINT_COUNT = 4  # three pitching joints, then the gripper
@@ -94,23 +95,15 @@ ARM_OPTIONS: Options = {
 
 
 @dataclass(frozen=True)
-class ArmSettings(SectionSettings, section="arm", options=ARM_OPTIONS):
-    """The [arm] section, read once. Device keys are read by the device itself."""
+class ArmSettings(CalibrationSettings, SectionSettings, section="arm", options=ARM_OPTIONS):
+    """The [arm] section, read once (the servo calibration fields come from the drivers'
+    CalibrationSettings). Device keys are read by the device itself."""
 
     enabled: bool
     backend: str
     host: str
     port: int
     pins: list[int]
-    joints: list[str]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    joint_min_pulse_us: list[int]
-    joint_max_pulse_us: list[int]
-    offsets_us: list[int]
-    reversed: list[bool]
     timeout_s: float
     bus: str
     address: int
