@@ -116,7 +116,7 @@ pytestmark = pytest.mark.timeout(300)
 def pi(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FakePi]:
     """A fake Pi reachable over ssh, with a first release deployed and healthy."""
     work = tmp_path_factory.mktemp("deploy")
-    built = wheels(tmp_path_factory.mktemp("wheels"))
+    built = wheels(tmp_path_factory)
     root = work / "pi-root"
     http_port = free_port()
     write_config(root, http_port)

@@ -51,7 +51,7 @@ SYSTEM_FILES = {
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory: pytest.TempPathFactory) -> Wheels:
-    return wheels(tmp_path_factory.mktemp("wheels"))
+    return wheels(tmp_path_factory)
 
 
 def install_sh(*args: str, wheelhouse: Path | None = None, user: bool = False,
@@ -107,6 +107,19 @@ def snapshot(root: Path) -> dict[str, tuple[int, int, int, str]]:
         target = os.readlink(path) if path.is_symlink() else ""
         snap[str(path.relative_to(root))] = (st.st_mode, st.st_size, st.st_mtime_ns, target)
     return snap
+
+
+def changed_paths(before: dict[str, tuple[int, int, int, str]],
+                  after: dict[str, tuple[int, int, int, str]]) -> list[str]:
+    """The paths added, removed or changed between two snapshots, named in a short list."""
+    added = sorted(after.keys() - before.keys())
+    removed = sorted(before.keys() - after.keys())
+    changed = sorted(k for k in before.keys() & after.keys() if before[k] != after[k])
+    if not (added or removed or changed):
+        return []
+    return ([f"+ {k}" for k in added[:10]] + [f"- {k}" for k in removed[:10]]
+            + [f"~ {k}: {before[k]} -> {after[k]}" for k in changed[:10]]
+            + [f"({len(added)} added, {len(removed)} removed, {len(changed)} changed)"])
 
 
 def disk_mode(path: Path) -> str:
@@ -188,7 +201,8 @@ def test_second_run_changes_nothing(staged: tuple[Path, subprocess.CompletedProc
     root, _ = staged
     before = snapshot(root)
     again = install(root, built)
-    assert snapshot(root) == before
+    changes = changed_paths(before, snapshot(root))
+    assert not changes, "\n".join([*changes, again.stdout])
     token = (root / "etc/arbiterd/token").read_text().strip()
     assert token not in again.stdout
     recorded = actions(root)

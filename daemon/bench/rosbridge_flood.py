@@ -59,15 +59,57 @@ class LoopProbe:
             self.longest_stall_s = max(self.longest_stall_s, overrun)
 
 
+CANARY = """
+import signal, sys, time
+stop = []
+signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+print("ready", flush=True)
+worst = 0.0
+while not stop:
+    t0 = time.monotonic()
+    time.sleep(0.002)
+    worst = max(worst, time.monotonic() - t0 - 0.002)
+print(worst * 1e3, flush=True)
+"""
+
+
+class MachineCanary:
+    """The in-run baseline of a loop stall: the longest a separate, idle process's 2 ms sleep
+    overran during the same stretch. It is what the machine's load alone does to a process,
+    whatever the daemon does."""
+
+    def __init__(self) -> None:
+        self.longest_gap_ms = 0.0
+        self._proc: asyncio.subprocess.Process | None = None
+
+    async def __aenter__(self) -> MachineCanary:
+        self._proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-c", CANARY, stdout=asyncio.subprocess.PIPE)
+        assert self._proc.stdout is not None
+        await self._proc.stdout.readline()
+        return self
+
+    async def __aexit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                        tb: TracebackType | None) -> None:
+        if self._proc is None or self._proc.stdout is None:
+            return
+        self._proc.terminate()
+        out, _ = await self._proc.communicate()
+        with contextlib.suppress(ValueError):
+            self.longest_gap_ms = float(out.decode().strip() or 0.0)
+
+
 @dataclass
 class Window:
-    """What the loop and the control tick did during one measured stretch."""
+    """What the loop and the control tick did during one measured stretch, and (the baseline)
+    the longest a separate idle process was kept waiting meanwhile."""
 
     longest_stall_ms: float
     tick_p99_ms: float
     tick_max_ms: float
     ticks: int
     detail: Any = None
+    machine_stall_ms: float = 0.0
 
 
 async def measure(daemon: Daemon, load: Awaitable[Any] | None, seconds: float) -> Window:
@@ -76,14 +118,14 @@ async def measure(daemon: Daemon, load: Awaitable[Any] | None, seconds: float) -
     latency.tick_late_ms.clear()
     ticks_before = latency.ticks
     detail = None
-    async with LoopProbe() as probe:
+    async with MachineCanary() as canary, LoopProbe() as probe:
         if load is None:
             await asyncio.sleep(seconds)
         else:
             detail = await load
     late = [ms / 1e3 for ms in latency.tick_late_ms]
     return Window(probe.longest_stall_s * 1e3, percentile_ms(late, 99), max(late, default=0) * 1e3,
-                  latency.ticks - ticks_before, detail)
+                  latency.ticks - ticks_before, detail, canary.longest_gap_ms)
 
 
 def rss_mb() -> float:
@@ -139,8 +181,9 @@ async def _run(quick: bool, minutes: float) -> list[BenchResult]:
     return _results(idle, loaded, seconds) + (_rss_results(*rss, minutes) if rss else [])
 
 
-FIGURES = (("longest loop stall", "longest_stall_ms"), ("tick lateness p99", "tick_p99_ms"),
-           ("tick lateness max", "tick_max_ms"))
+FIGURES = (("longest loop stall", "longest_stall_ms"),
+           ("longest wait of an idle process beside it", "machine_stall_ms"),
+           ("tick lateness p99", "tick_p99_ms"), ("tick lateness max", "tick_max_ms"))
 
 
 def _results(idle: list[Window], loaded: list[Window], seconds: float) -> list[BenchResult]:

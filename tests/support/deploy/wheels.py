@@ -1,12 +1,18 @@
-# Builds, once per test session, the arbiterd wheel and an offline wheelhouse of its dependencies.
+# Builds, once per test run (shared by pytest-xdist's workers), the arbiterd wheel and an offline
+# wheelhouse of its dependencies.
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+import pytest
 
 from tests.support.paths import REPO
 
@@ -55,25 +61,49 @@ def broken_source(work: Path) -> Path:
     return copy
 
 
-def wheels(work: Path) -> Wheels:
-    """The session's wheels, built on first use under ``work``."""
-    if "wheels" not in _cache:
-        wheel = build_wheel(REPO, work / "good")
-        house = work / "wheelhouse"
-        house.mkdir()
-        shutil.copy(wheel, house)
-        pip("wheel", "-w", str(house), str(wheel))
-        # what a release venv bootstraps with, and what an offline source build needs
-        pip("download", "-d", str(house), "pip", "setuptools>=77", "wheel")
-        broken = build_wheel(broken_source(work), work / "broken")
-        _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=house, broken_wheel=broken)
+def shared_dir(factory: pytest.TempPathFactory) -> Path:
+    """A folder every xdist worker of this run sees (the run's base temp without them)."""
+    base = factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@contextlib.contextmanager
+def exclusive(folder: Path) -> Iterator[None]:
+    """Holds folder's lock file: one process at a time builds what is in it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
+def wheels(factory: pytest.TempPathFactory) -> Wheels:
+    """The run's wheels, built by the first process to ask for them."""
+    if "wheels" in _cache:
+        return _cache["wheels"]
+    work = shared_dir(factory) / "arbiterd-wheels"
+    with exclusive(work):
+        if not (work / "built").exists():
+            wheel = build_wheel(REPO, work / "good")
+            house = work / "wheelhouse"
+            house.mkdir()
+            shutil.copy(wheel, house)
+            pip("wheel", "-w", str(house), str(wheel))
+            # what a release venv bootstraps with, and what an offline source build needs
+            pip("download", "-d", str(house), "pip", "setuptools>=77", "wheel")
+            build_wheel(broken_source(work), work / "broken")
+            (work / "built").touch()
+    (wheel,) = (work / "good").glob("arbiterd-*.whl")
+    (broken,) = (work / "broken").glob("arbiterd-*.whl")
+    _cache["wheels"] = Wheels(wheel=wheel, wheelhouse=work / "wheelhouse", broken_wheel=broken)
     return _cache["wheels"]
 
 
 def add_ros2_extra(built: Wheels) -> None:
     """Adds the ros2 extra's wheels (the Cyclone DDS binding, built against Debian's library
     the way ./install.sh dev builds it) to the wheelhouse, once."""
-    if "ros2" not in _cache:
-        pip("wheel", "-w", str(built.wheelhouse), f"{built.wheel}[ros2]",
-            env={"CYCLONEDDS_HOME": str(Path(sys.prefix) / "cyclonedds-home")})
-        _cache["ros2"] = built
+    with exclusive(built.wheelhouse.parent):
+        marker = built.wheelhouse.parent / "ros2-added"
+        if not marker.exists():
+            pip("wheel", "-w", str(built.wheelhouse), f"{built.wheel}[ros2]",
+                env={"CYCLONEDDS_HOME": str(Path(sys.prefix) / "cyclonedds-home")})
+            marker.touch()
