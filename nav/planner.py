@@ -84,8 +84,7 @@ def _block_centre(block: tuple[int, int], pool: int, shape: tuple[int, ...]) -> 
             min(block[1] * pool + pool // 2, shape[1] - 1))
 
 
-@lru_cache(maxsize=2)
-def _graph(h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def grid_graph(h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The 8-connected grid's edges in CSR order: source, target, length, row pointers."""
     index = np.arange(h * w).reshape(h, w)
     sources, targets, lengths = [], [], []
@@ -100,6 +99,10 @@ def _graph(h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     source, target = source[order], target[order]
     length = np.concatenate(lengths)[order]
     return source, target, length, np.searchsorted(source, np.arange(h * w + 1))
+
+
+#: the planner's grid keeps its shape: its graph is built once
+_graph = lru_cache(maxsize=2)(grid_graph)
 
 
 def cheapest_path(costs: np.ndarray, start: tuple[int, int],

@@ -95,3 +95,27 @@ async def test_a_goal_from_foxglove_drives_the_robot_there(
     wait_for(lambda: abs(status(daemon)["ground_truth"]["v"]) < 0.01, "the robot stopped")
     health = daemon.get("/api/health")
     assert health[0] == 200 and "navigation" in health[1]["components"], health
+
+
+def test_exploring_over_http_drives_to_frontiers_until_switched_off(
+        daemon_subprocess: StartDaemonSubprocess) -> None:
+    daemon = daemon_subprocess('[sim]\ndriver = "mock"\nworld_file = "apartment"\n',
+                               args=("--sim",))
+    wait_for(lambda: status(daemon)["safety"]["zone"] != "unknown", "the first revolution")
+    code, body = daemon.post("/api/autonomy", {"mode": "explore"})
+    assert code == 200 and body["mode"] == "explore", body
+    assert body["exploration"]["state"] == "exploring", body
+
+    def exploring() -> dict[str, Any] | None:
+        explored = daemon.get("/api/autonomy")[1]["exploration"]
+        return explored if explored["goals"] >= 2 and explored["explored_m2"] > 10 else None
+
+    explored = wait_for(exploring, "two frontier goals and the area seen", within_s=60)
+    assert explored["state"] == "exploring", explored
+    brief = status(daemon)["navigation"]
+    assert brief["exploration"]["state"] == "exploring" and brief["state"] != "idle", brief
+    code, body = daemon.post("/api/autonomy", {"mode": "off"})
+    assert code == 200 and body["mode"] == "off", body
+    assert body["exploration"]["state"] == "canceled", body
+    assert daemon.get("/api/goal")[1]["state"] == "canceled"
+    assert "exploring (requested over HTTP)" in daemon.log()

@@ -20,6 +20,7 @@ from daemon.control.commands import Twist
 from daemon.http_api import ApiError, json_response, read_json_object
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.navigation.component import EXPLORATION, NavigationComponent
 from daemon.safety.component import StatePublisher, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
 from daemon.settings import LimitsSettings
@@ -32,7 +33,7 @@ log = logging.getLogger("arbiterd.autonomy")
 
 SOURCE = "autonomy"
 PRIORITY = 0  # below every client
-MODES = ("off", "wander")
+MODES = ("off", "wander", "explore")
 #: the behaviour's state, on change and once a second
 STATE: BusKey[dict[str, Any]] = BusKey("autonomy_state")
 PUBLISH_EVERY_S = 1.0
@@ -110,7 +111,9 @@ class AutonomyComponent(BaseComponent):
         if mode == "off":
             return None
         if not self.lidar:
-            return "wander needs the lidar: enable [lidar]"
+            return f"{mode} needs the lidar: enable [lidar]"
+        if mode == "explore" and self._navigation() is None:
+            return "explore needs the navigation component: enable [navigation]"
         if self.control.arbiter.estop_engaged:
             return "e-stop engaged: release it first"
         if self.control.fault:
@@ -123,7 +126,7 @@ class AutonomyComponent(BaseComponent):
         now = self.clock()
         if mode == self.mode:
             return
-        self.mode = mode
+        previous, self.mode = self.mode, mode
         if mode == "wander":
             self._invalidations = self.control.invalidations
             self._stall_invalidations = self.control.stall_invalidations
@@ -134,8 +137,21 @@ class AutonomyComponent(BaseComponent):
         else:
             self.wander.stop(now, reason)
             self.control.arbiter.drop(SOURCE)
-        log.info("autonomy %s (%s)", mode, reason)
+        navigation = self._navigation()
+        if previous == "explore" and navigation is not None:
+            navigation.stop_exploring(reason)
+        if mode == "explore":
+            refusal = "no navigation component" if navigation is None else \
+                navigation.start_exploring(reason)
+            if refusal:
+                log.error("autonomy explore refused: %s", refusal)
+                self.mode = "off"
+        log.info("autonomy %s (%s)", self.mode, reason)
         self.publisher.publish(now)
+
+    def _navigation(self) -> NavigationComponent | None:
+        """The navigation component, which explores for the mode ``explore``."""
+        return self.bus.latest(EXPLORATION)
 
     def request(self, mode: str, reason: str = "requested") -> str | None:
         """Switch the mode if it may be switched now; why not, else None."""
@@ -147,7 +163,7 @@ class AutonomyComponent(BaseComponent):
         return refusal
 
     async def on_mode_message(self, message: Inbound) -> Refusal | None:
-        """``/autonomy/mode`` (std_msgs/String): ``wander`` or ``off``."""
+        """``/autonomy/mode`` (std_msgs/String): ``wander``, ``explore`` or ``off``."""
         refusal = self.request(str(message.msg["data"]), message.sender)
         return None if refusal is None else Refusal(refusal)
 
@@ -197,6 +213,9 @@ class AutonomyComponent(BaseComponent):
         if self._resume_at is not None and last is not None \
                 and now - last > HEALTHY_GAP_PERIODS * self.control.period_s:
             self._resume_at = now + RESUME_AFTER_STALL_S  # a late tick: the wait starts over
+        if self.mode == "explore":
+            self._watch_exploration()
+            return
         if self.mode == "off" or now < self._next_decision:
             return
         self._next_decision = now + self.period - 1e-9
@@ -215,6 +234,16 @@ class AutonomyComponent(BaseComponent):
             log.debug("wander %s -> %s (%s)", previous, self.wander.state, self.wander.reason)
             self.publisher.publish(now)
 
+    def _watch_exploration(self) -> None:
+        """The navigation component drives while exploring; the mode ends with it."""
+        navigation = self._navigation()
+        if navigation is None or not navigation.exploring:
+            explorer = navigation.explorer if navigation is not None else None
+            why = "no navigation component" if explorer is None else \
+                f"exploration {explorer.state}" + (f": {explorer.reason}"
+                                                   if explorer.reason else "")
+            self.set_mode("off", why)
+
     def _held(self) -> bool:
         guard = self.control.guard
         action = getattr(guard, "action", "none")
@@ -224,10 +253,14 @@ class AutonomyComponent(BaseComponent):
         now = self.clock()
         wander = self.wander
         times = wander.times(now)
-        return {"mode": self.mode, "state": wander.state,
-                "time_in_state_s": round(max(0.0, now - wander.since), 3),
-                "transitions": wander.transitions, "reason": wander.reason,
-                "state_times_s": {k: round(v, 3) for k, v in times.items()}}
+        out = {"mode": self.mode, "state": wander.state,
+               "time_in_state_s": round(max(0.0, now - wander.since), 3),
+               "transitions": wander.transitions, "reason": wander.reason,
+               "state_times_s": {k: round(v, 3) for k, v in times.items()}}
+        navigation = self._navigation()
+        if navigation is not None and navigation.explorer.state != "idle":
+            out["exploration"] = navigation.exploration()
+        return out
 
     # -- HTTP ----------------------------------------------------------------------------------
 
@@ -241,8 +274,8 @@ class AutonomyComponent(BaseComponent):
             raise ApiError(422, f"invalid autonomy request: {unknown[0]}: unknown field")
         mode = body.get("mode")
         if mode not in MODES:
-            raise ApiError(422, "invalid autonomy request: mode: expected \"wander\" or "
-                           "\"off\"", {"got": mode})
+            raise ApiError(422, "invalid autonomy request: mode: expected \"wander\", "
+                           "\"explore\" or \"off\"", {"got": mode})
         refusal = self.request(mode, "requested over HTTP")
         if refusal:
             raise ApiError(409, f"autonomy refused: {refusal}")

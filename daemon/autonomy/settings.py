@@ -7,8 +7,9 @@ from base.config import SectionSettings
 from base.options import Option, Options
 
 AUTONOMY_OPTIONS: Options = {
-    "mode": Option(str, "off", "behaviour at start: off, or wander (drives by itself)",
-                   choices=("off", "wander")),
+    "mode": Option(str, "off", "behaviour at start: off, wander (drives by itself) or "
+                   "explore (frontier exploration: needs [navigation])",
+                   choices=("off", "wander", "explore")),
     "cruise_speed": Option(float, 0.6, "wander: forward speed in the open, m/s", above=0.0,
                            maxval=5.0),
     "turn_speed": Option(float, 1.5, "wander: turning rate in place, rad/s", above=0.0,

@@ -23,7 +23,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         "simulate", help="run the control loop, safety, autonomy and the simulated world in "
         "lockstep virtual time, faster than real time; print the run metrics")
     p.add_argument("--seconds", type=float, help="simulated seconds to run (required unless "
-                   "--goals)")
+                   "--goals or --explore)")
     p.add_argument("--seed", type=int, help="[sim] seed: obstacle placement, noise, wander")
     p.add_argument("--world", help="world file (.toml or .json) or built-in world name "
                    "(apartment, warehouse, loop) instead of the seeded arena")
@@ -46,6 +46,11 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--drift", action="store_true", help="with --goals: a base that drifts "
                    "(2 %% calibration errors, 2 %% slip, 5 %% lidar dropouts); add --mapping "
                    "to send the goals in the map frame")
+    p.add_argument("--explore", action="store_true", help="frontier exploration instead of a "
+                   "timed run: the autonomy's mode explore from an empty costmap in --world (by "
+                   "default apartment, then warehouse) until it is done; print per world the "
+                   "share of the reachable free area known (ground truth), the time and the "
+                   "collisions")
     p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
                    "change to stderr")
     return p
@@ -55,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger().setLevel(logging.INFO if args.verbose else logging.WARNING)
     if args.goals is not None:
         return run_goals(args)
+    if args.explore:
+        return run_explore(args)
     if args.seconds is None or not args.seconds > 0:
         print("arbiterd simulate: --seconds must be > 0", file=sys.stderr)
         return EXIT_USAGE
@@ -104,6 +111,24 @@ def run_goals(args: argparse.Namespace) -> int:
               f"error {r.get('error_m', 0):.3f} m path {r.get('path_m', 0):.2f} m "
               f"ratio {r.get('ratio')} {r['reason']}")
     print(json.dumps(summary["all"]))
+    return EXIT_OK
+
+
+def run_explore(args: argparse.Namespace) -> int:
+    """``--explore``: an exploration per world (``--world``, else apartment and warehouse)."""
+    from daemon.lockstep.explore import WORLDS, explore_run, format_row
+
+    rows = []
+    for world in [args.world] if args.world else list(WORLDS):
+        try:
+            rows.append(asyncio.run(explore_run(world, args.seed or 1)))
+        except (ConfigError, SimConfigError, WorldError, OSError, ValueError) as exc:
+            print(f"arbiterd simulate: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+        if not args.json:
+            print(format_row(rows[-1]), flush=True)
+    if args.json:
+        print(json.dumps({"explorations": rows}))
     return EXIT_OK
 
 

@@ -20,6 +20,7 @@ from daemon.http_api import ApiError, json_response, read_json_object
 from daemon.mapping.settings import MappingSettings
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import PATH, POINT_STAMPED, POSE_STAMPED, STRING
+from daemon.navigation.explore import Explorer, ExploreSettings, Go
 from daemon.navigation.messages import (
     GoalError,
     GoalRequest,
@@ -37,6 +38,7 @@ from daemon.settings import LimitsSettings, RobotSettings
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from nav.costmap import Costmap, CostParams, GridArea, centred_area
+from nav.frontier import Frontier, find_frontiers, known_free_m2
 from nav.planner import Plan, plan
 from nav.pursuit import PursuitSettings, figure_eight, transform
 from sensors.rplidar.settings import LidarSettings
@@ -52,6 +54,9 @@ PRIORITY = 1  # below every client, above the wander behaviour
 STATE: BusKey[dict[str, Any]] = BusKey("navigation_state")
 #: the path being followed, on every new plan
 PLAN: BusKey[PlanMessage] = BusKey("navigation_plan")
+#: the navigation component, published when it is built: the autonomy's mode ``explore``
+#: starts and stops its exploration through it
+EXPLORATION: BusKey[NavigationComponent] = BusKey("navigation_exploration")
 #: a scan older than this holds the robot (s)
 SCAN_TIMEOUT_S = 0.5
 #: revolutions kept for the next plan; older ones are dropped
@@ -62,6 +67,8 @@ HISTORY_S = 1.0
 #: UNSEEN_FAIL_S fails: it lies inside an obstacle or a closed room
 UNSEEN_NEAR_M = 5.0
 UNSEEN_FAIL_S = 10.0
+#: goal failures that are the robot's, not the goal's: they end an exploration
+ROBOT_PROBLEMS = ("e-stop", "driver fault", "no fresh lidar scan", "the planner failed")
 
 
 def navigator_settings(config: Config) -> NavigatorSettings:
@@ -141,6 +148,9 @@ class NavigationComponent(BaseComponent):
         plugs.add_status("navigation", self.brief)
         self.publisher = StatePublisher(plugs, STATE, self.status)
         self.mission: Mission | None = None  # the last mission (POST /api/mission)
+        #: frontier exploration (the autonomy's mode ``explore``): goals chosen by the robot
+        self.explorer = Explorer(ExploreSettings())
+        plugs.bus.publish(EXPLORATION, self)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -201,13 +211,18 @@ class NavigationComponent(BaseComponent):
         hint = "" if self.map_frame else " (the map frame needs [mapping] enabled)"
         raise GoalError(f"header.frame_id is {frame!r}: goals are taken in {frames}{hint}")
 
-    def request(self, request: GoalRequest, *, step_of: Mission | None = None) -> None:
+    def request(self, request: GoalRequest, *, step_of: Mission | None = None,
+                explorer: bool = False) -> None:
         """Start ``request``, replacing any goal (and a mission, unless it is ``step_of`` that
-        mission); a GoalError says why it cannot start."""
+        mission, and an exploration, unless the ``explorer`` sends it); a GoalError says why
+        it cannot start."""
         refusal = self.refusal()
         if refusal:
             raise GoalError(refusal)
         target = self._target(request)
+        if self.explorer.running and not explorer:
+            self.stop_exploring("replaced by a goal" if step_of is None
+                                else "replaced by a mission")
         if self.mission is not None and self.mission.running and step_of is not self.mission:
             self.mission.finish("canceled", "replaced by a new goal")
         if self.navigator.active:
@@ -292,8 +307,15 @@ class NavigationComponent(BaseComponent):
         log.info("mission %r: %d steps", mission.name, len(mission.steps))
 
     def _goal_ended(self) -> None:
-        """The navigator's goal ended: the mission records the step and starts the next one."""
-        mission, navigator = self.mission, self.navigator
+        """The navigator's goal ended: the explorer or the mission goes on."""
+        navigator = self.navigator
+        if self.explorer.running and not navigator.active:
+            reason = navigator.reason
+            problem = self.refusal() or self._failure() or \
+                (reason if reason.startswith(ROBOT_PROBLEMS) else None)
+            self.explorer.goal_ended(navigator.goals, navigator.state, reason, problem,
+                                     self.clock())
+        mission = self.mission
         if mission is None or not mission.running or mission.goal_number != navigator.goals \
                 or navigator.active:
             return
@@ -367,6 +389,8 @@ class NavigationComponent(BaseComponent):
         self._history.append((now, self._odom()))
         while self._history and self._history[0][0] < now - HISTORY_S:
             self._history.popleft()
+        if self.explorer.wants_look(now) and not self._planning:
+            self._look(now)
         navigator = self.navigator
         if not navigator.active or now < self._next_decision:
             return
@@ -427,6 +451,100 @@ class NavigationComponent(BaseComponent):
     def _held(self) -> bool:
         return getattr(self.control.guard, "action", "none") == "stop"
 
+    # -- exploration ---------------------------------------------------------------------------
+
+    @property
+    def exploring(self) -> bool:
+        return self.explorer.running
+
+    def start_exploring(self, reason: str) -> str | None:
+        """Start exploring from here (replacing any goal); why it cannot, or None."""
+        refusal = self.refusal()
+        if refusal:
+            return refusal
+        if self.explorer.running:
+            return None
+        self.cancel("replaced by exploration")
+        if self.mission is not None and self.mission.running:
+            self.mission.finish("canceled", "replaced by exploration")
+        now = self.clock()
+        self.explorer.start(now, self._here())
+        log.info("exploring (%s)", reason)
+        self.publisher.publish(now)
+        return None
+
+    def stop_exploring(self, reason: str) -> None:
+        """End the exploration ``canceled`` and stop its goal."""
+        explorer = self.explorer
+        if not explorer.running:
+            return
+        explorer.end("canceled", reason, self.clock())
+        log.info("exploration canceled: %s", reason)
+        if self.navigator.active and self.navigator.goals == explorer.goal_number:
+            self._end("canceled", reason)
+        else:
+            self.publisher.publish(self.clock())
+
+    def exploration(self) -> dict[str, Any]:
+        return self.explorer.status(self.clock())
+
+    def _look(self, now: float) -> None:
+        """Fold the revolutions in and find the frontiers (in a worker thread, as a plan)."""
+        scans = list(self._scans)
+        self._scans.clear()
+        start = self._here()
+        if self.inline:
+            self._looked(*self._look_job(scans, start))
+            return
+        self._planning = True
+        future = asyncio.get_running_loop().run_in_executor(None, self._look_job, scans, start)
+        self._tasks.add(future)
+        future.add_done_callback(self._look_done)
+
+    def _look_job(self, scans: list[tuple[Pose2, np.ndarray, np.ndarray]],
+                  start: Pose2) -> tuple[list[Frontier], float]:
+        for pose, xs, ys in scans:
+            self.costmap.add_scan(pose, xs, ys)
+        self.costs = costs = self.costmap.costs()
+        obstacles = self.costmap.obstacles()
+        found = find_frontiers(costs, self.costmap.seen, obstacles, self.area, start[:2],
+                               min_cells=self.explorer.settings.min_frontier_cells,
+                               block=self.settings.plan_block)
+        return found, known_free_m2(self.costmap.seen, obstacles, self.area.resolution)
+
+    def _look_done(self, future: asyncio.Future[Any]) -> None:
+        self._tasks.discard(future)
+        self._planning = False
+        if future.cancelled():
+            return
+        if future.exception() is not None:
+            log.error("looking for frontiers failed: %r", future.exception())
+            self.explorer.end("failed", f"looking for frontiers failed: {future.exception()!r}",
+                              self.clock())
+            return
+        self._looked(*future.result())
+
+    def _looked(self, frontiers: list[Frontier], explored_m2: float) -> None:
+        explorer, navigator = self.explorer, self.navigator
+        now = self.clock()
+        state = explorer.state
+        following = navigator.active and navigator.goals == explorer.goal_number
+        go = explorer.looked(now, frontiers, explored_m2, following)
+        if go is not None:
+            self._go(go, now)
+        if explorer.state != state:
+            log.info("exploration %s -> %s%s", state, explorer.state,
+                     f" ({explorer.reason})" if explorer.reason else "")
+            self.publisher.publish(now)
+
+    def _go(self, go: Go, now: float) -> None:
+        try:
+            self.request(GoalRequest(self.frame, go.x, go.y, go.yaw), explorer=True)
+        except GoalError as exc:
+            self.explorer.refused(go, str(exc), now)
+            return
+        self.explorer.sent(self.navigator.goals)
+
     # -- reports -------------------------------------------------------------------------------
 
     def status(self) -> dict[str, Any]:
@@ -449,12 +567,18 @@ class NavigationComponent(BaseComponent):
                           "max_m": round(progress.tracking.worst, 4)})
         if self.mission is not None:
             out["mission"] = self.mission.report()
+        if self.explorer.state != "idle":
+            out["exploration"] = self.exploration()
         return out
 
     def brief(self) -> dict[str, Any]:
         status = self.status()
         keys = ("state", "reason", "distance_remaining_m", "eta_s")
-        return {k: status[k] for k in keys if k in status}
+        out = {k: status[k] for k in keys if k in status}
+        if "exploration" in status:
+            explored = status["exploration"]
+            out["exploration"] = {k: explored[k] for k in ("state", "reason", "explored_m2")}
+        return out
 
     def health(self) -> dict[str, Any]:
         # without a lidar nothing is wrong with the robot: goals are refused, saying why

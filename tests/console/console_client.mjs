@@ -339,7 +339,7 @@ async function faultScenario(browser) {
   await phone.context.close();
 }
 
-// Everything beyond driving: wander, the recorder and its recordings, odometry and simulation
+// Everything beyond driving: wander, explore, the recorder and its recordings, odometry and simulation
 // reset, the log tail and the health details.
 async function controlsScenario(browser) {
   const { page, context, errors } = await newPage(browser, { viewport: LAPTOP });
@@ -385,6 +385,17 @@ async function controlsScenario(browser) {
     await page.click("#wander");
   }
   await polled("wander off", async () => (await autonomyMode()) === "off");
+
+  // explore on: the exploration's state is shown; then off again
+  await page.click("#explore");
+  await until("exploring switched on", () =>
+    /^exploring:/.test(document.getElementById("robot-message").textContent));
+  const exploreOn = await text(page, "#wander-state");
+  const exploreMode = await autonomyMode();
+  if (await page.$eval("#explore", (e) => e.getAttribute("aria-pressed")) === "true") {
+    await page.click("#explore");
+  }
+  await polled("exploring off", async () => (await autonomyMode()) === "off");
   await page.click("#record");
   await until("the recording listed, finished", () => {
     const link = document.querySelector("#recordings a");
@@ -410,7 +421,7 @@ async function controlsScenario(browser) {
       ? s : null;
   });
   report("controls", {
-    wanderOn, recordState, health, magic, moved, afterOdom, afterSim: afterSim.pose,
+    wanderOn, exploreOn, exploreMode, recordState, health, magic, moved, afterOdom, afterSim: afterSim.pose,
     truth: afterSim.ground_truth, logLines: await page.$$eval("#log li", (l) => l.length),
     message: await text(page, "#robot-message"), errors: [...errors],
   });

@@ -1,6 +1,6 @@
 # The web console end to end: Debian's Chromium (playwright-core on Node) against
 # `arbiterd run --sim`, driving with keys, joystick and touch; e-stop; token; a faulted driver;
-# wander, recorder, resets, log and health details; screenshots.
+# wander, explore, recorder, resets, log and health details; screenshots.
 from __future__ import annotations
 
 import json
@@ -236,6 +236,8 @@ def test_console_controls_beyond_driving(tmp_path: Path) -> None:
     controls = steps["controls"]
     assert controls["errors"] == [], log
     assert controls["wanderOn"].startswith("wander · "), controls
+    assert controls["exploreOn"].startswith("explore · exploring · "), controls
+    assert controls["exploreMode"] in ("explore", "off"), controls  # it may be done already
     assert ".mcap · " in controls["recordState"], controls
     health = controls["health"]
     assert "nearest obstacle" in health["collision_monitor"], health
@@ -250,6 +252,7 @@ def test_console_controls_beyond_driving(tmp_path: Path) -> None:
     assert controls["logLines"] > 0 and "simulation reset" in controls["message"]
     assert "odometry reset to" in log and "flight recorder: writing" in log
     assert "autonomy wander (requested over HTTP)" in log
+    assert "autonomy explore (requested over HTTP)" in log
     phone = steps["controlsPhone"]
     assert phone["hint"] is False and phone["errors"] == [], phone
     _keep_shots(shots, "console-controls-laptop.png", "console-controls-phone.png")

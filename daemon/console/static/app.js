@@ -48,7 +48,7 @@ let commandSeq = 0;
 const drive = new Drive(sendCommand);
 const logTail = new LogTail($("log"));
 const robot = new RobotPanel({
-  wander: $("wander"), wanderState: $("wander-state"), record: $("record"),
+  wander: $("wander"), explore: $("explore"), wanderState: $("wander-state"), record: $("record"),
   recordState: $("record-state"), odomReset: $("odom-reset"), simReset: $("sim-reset"),
   message: $("robot-message"), recordings: $("recordings"), refresh: $("recordings-refresh"),
 }, api, { onRefused: (what) => tokenProblem(what), onOdometryReset: () => view.clearTrail() });

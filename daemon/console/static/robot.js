@@ -1,4 +1,4 @@
-// The robot panel: wander on/off, the flight recorder and its recordings (download), odometry
+// The robot panel: wander and explore on/off, the flight recorder and its recordings (download), odometry
 // and simulation reset. Each button is one HTTP call; what the robot says back is shown.
 
 export function fileSize(bytes) {
@@ -11,13 +11,14 @@ export function fileSize(bytes) {
 export const baseName = (path) => String(path || "").split("/").pop();
 
 export class RobotPanel {
-  // el: {wander, wanderState, record, recordState, odomReset, simReset, message, recordings,
+  // el: {wander, explore, wanderState, record, recordState, odomReset, simReset, message, recordings,
   //      refresh}; api: the HTTP client; onRefused(what): the daemon asked for a token.
   constructor(el, api, { onRefused = () => {}, onOdometryReset = () => {} } = {}) {
     Object.assign(this, { el, api, onRefused, onOdometryReset });
     this.autonomy = null; // the last /autonomy/state
     this.recording = null; // the recorder's health
     el.wander.addEventListener("click", () => this.toggleWander());
+    el.explore.addEventListener("click", () => this.toggleExplore());
     el.record.addEventListener("click", () => this.toggleRecord());
     el.odomReset.addEventListener("click", () => this.resetOdometry());
     el.simReset.addEventListener("click", () => this.resetSimulation());
@@ -45,15 +46,30 @@ export class RobotPanel {
     return null;
   }
 
-  // -- wander (POST /api/autonomy; its state arrives on /autonomy/state) ----------------------
+  // -- wander and explore (POST /api/autonomy; the state arrives on /autonomy/state) ----------
 
   setAutonomy(state) {
     this.autonomy = state;
     const on = state.mode === "wander";
     this.el.wander.setAttribute("aria-pressed", String(on));
     this.el.wander.textContent = on ? "stop wander" : "wander";
-    this.el.wanderState.textContent = `${state.mode} · ${state.state}` +
-      (state.reason ? ` · ${state.reason}` : "");
+    const exploring = state.mode === "explore";
+    this.el.explore.setAttribute("aria-pressed", String(exploring));
+    this.el.explore.textContent = exploring ? "stop exploring" : "explore";
+    const x = state.exploration;
+    this.el.wanderState.textContent = x && (exploring || state.mode === "off")
+      ? `explore · ${x.state} · ${x.explored_m2.toFixed(1)} m² known` +
+        (x.reason ? ` · ${x.reason}` : "")
+      : `${state.mode} · ${state.state}` + (state.reason ? ` · ${state.reason}` : "");
+  }
+
+  async toggleExplore() {
+    const mode = this.autonomy?.mode === "explore" ? "off" : "explore";
+    const body = await this.post("/api/autonomy", { mode }, `switch exploring ${mode === "off" ? "off" : "on"}`);
+    if (body) {
+      this.setAutonomy(body);
+      this.say(mode === "explore" ? "exploring: the robot drives to the unexplored places, then back; any drive command takes over" : "exploring off");
+    }
   }
 
   async toggleWander() {
