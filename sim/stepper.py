@@ -261,6 +261,27 @@ class SimWorld:
             s = self.physics.state
             return s.x, s.y, s.theta
 
+    def place_object(self, x: float, y: float) -> None:
+        """A graspable object standing at (x, y); ValueError when it would stand inside a
+        wall or an obstacle, or under the robot."""
+        with self._cond:
+            radius = self.objects.place(x, y).radius  # checks it is finite
+            self.objects.items.pop()
+            if self.world.clearance(x, y) < radius:
+                raise ValueError(f"({x}, {y}) is inside a wall or an obstacle")
+            state = self.physics.state
+            if math.hypot(x - state.x, y - state.y) < self.geometry.footprint_radius + radius:
+                raise ValueError(f"({x}, {y}) is under the robot")
+            self.objects.place(x, y)
+
+    def clear_objects(self) -> None:
+        with self._cond:
+            self.objects.clear()
+
+    def objects_report(self) -> list[dict[str, Any]]:
+        with self._cond:
+            return self.objects.report()
+
     def reset(self, pose: Pose | None = None) -> GroundTruth:
         """Teleport the robot (default: the world's start pose) and start a new metrics run.
 

@@ -224,3 +224,22 @@ async def test_malformed_fetches_are_refused_naming_the_field(tmp_path: Path) ->
             assert answer.status == 200 and (await answer.json())["state"] == "IDLE"
         async with http.get(f"{url}/api/status") as answer:
             assert (await answer.json())["fetch"]["state"] == "IDLE"
+        # an object placed in the simulator, a fetch started, a second refused, a cancel
+        async with http.post(f"{url}/api/sim/objects", json={"x": 1.2, "y": "a"}) as answer:
+            assert answer.status == 422 and "y: expected a finite number" in \
+                (await answer.json())["error"]
+        async with http.post(f"{url}/api/sim/objects", json={"x": 1.2, "y": 0.0}) as answer:
+            assert answer.status == 200
+            assert (await answer.json())["objects"][0]["held"] is False
+        status, answer = await post(http, url, {"object": [1.2, 0.0], "drop": [-1.0, 0.0]})
+        assert status == 200 and answer["state"] == "NAV_TO_OBJECT", answer
+        assert answer["result"] == "running" and answer["held"] is False
+        status, answer = await post(http, url, {"object": [1.2, 0.0], "drop": [-1.0, 0.0]})
+        assert status == 409 and "a fetch is running (NAV_TO_OBJECT)" in answer["error"]
+        async with http.delete(f"{url}/api/fetch") as response:
+            answer = await response.json()
+        assert answer["state"] == "IDLE" and answer["result"] == "canceled"
+        assert answer["reason"] == ("NAV_TO_OBJECT: canceled over HTTP; navigation stopped, "
+                                    "the arm goes to home")
+        async with http.get(f"{url}/api/goal") as response:
+            assert (await response.json())["state"] == "canceled"
