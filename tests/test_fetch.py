@@ -17,6 +17,8 @@ from daemon.lockstep.fetch import FetchRun
 from daemon.lockstep.runner import Lockstep
 from sim.objects import Objects, Tool, cast_circles
 from tests.support.in_process_daemon import in_process_daemon
+from tests.support.rosbridge import connect
+from tests.support.wait import eventually
 
 #: in the warehouse's loading area, near the start (7, 0) facing -x
 OBJECT, DROP = (5.0, 1.5), (5.5, -2.5)
@@ -243,3 +245,41 @@ async def test_malformed_fetches_are_refused_naming_the_field(tmp_path: Path) ->
                                     "the arm goes to home")
         async with http.get(f"{url}/api/goal") as response:
             assert (await response.json())["state"] == "canceled"
+
+
+async def test_a_fetch_in_run_sim_moves_the_object_through_the_emulated_servos(
+        tmp_path: Path) -> None:
+    """Real time: the PCA9685 emulator's pulses are what the simulator's gripper does."""
+    arm = '[arm]\nenabled = true\nbackend = "pca9685"\n'
+    async with in_process_daemon(tmp_path, arm) as robot, aiohttp.ClientSession() as http, \
+            connect(robot.ws_url) as client:
+        url = robot.http_url
+        await client.send(op="subscribe", topic="/fetch/state")
+        async with http.post(f"{url}/api/sim/objects", json={"x": 1.3, "y": 0.0}) as answer:
+            assert answer.status == 200
+        status, answer = await post(http, url, {"object": [1.3, 0.0], "drop": [0.0, 1.2]})
+        assert status == 200, answer
+
+        async def ended() -> dict[str, Any] | None:
+            async with http.get(f"{url}/api/fetch") as response:
+                state: dict[str, Any] = await response.json()
+            return state if state["state"] == "IDLE" else None
+
+        state = await eventually(ended, "the fetch to end", within_s=120.0)
+        assert state["result"] == "succeeded", state["reason"]
+        async with http.get(f"{url}/api/sim/objects") as response:
+            [item] = (await response.json())["objects"]
+        assert not item["held"] and item["contacts"] == 0
+        assert math.hypot(item["x"] - 0.0, item["y"] - 1.2) <= 0.10
+
+        def fetch_state(m: dict[str, Any]) -> dict[str, Any] | None:
+            return json.loads(m["msg"]["data"]) if m.get("topic") == "/fetch/state" else None
+
+        await client.expect(lambda m: (fetch_state(m) or {}).get("result") == "succeeded",
+                            what="/fetch/state: succeeded")
+        seen: list[str] = []
+        for m in client.received:
+            state = fetch_state(m)
+            if state is not None and (not seen or seen[-1] != state["state"]):
+                seen.append(state["state"])
+        assert seen[-5:] == ["NAV_TO_OBJECT", "GRASP", "NAV_TO_DROP", "DELIVER", "IDLE"]
