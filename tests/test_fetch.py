@@ -11,6 +11,7 @@ import aiohttp
 import numpy as np
 import pytest
 
+from daemon.control.commands import Twist
 from daemon.fetch.component import STATE, FetchComponent
 from daemon.fetch.sequence import FetchError
 from daemon.lockstep.fetch import FetchRun
@@ -128,6 +129,12 @@ async def test_cancel_stops_navigation_and_sends_the_arm_home() -> None:
     assert "the arm goes to home" in sequence.reason
     assert f.lockstep.navigation is not None and not f.lockstep.navigation.navigator.active
     assert f.states[-1] == "IDLE"
+    f.request(OBJECT, DROP)  # a client's command ends it as it ends a goal
+    await f.lockstep.advance(1.0)
+    await f.lockstep.control.submit("teleop", Twist(0.0, 0.0), t_recv=f.lockstep.now)
+    assert sequence.result == "canceled"
+    assert sequence.reason.startswith("NAV_TO_OBJECT: teleop from teleop")
+    assert f.lockstep.navigation is not None and not f.lockstep.navigation.navigator.active
     await f.lockstep.finish()
 
 

@@ -180,6 +180,7 @@ class FetchComponent(BaseComponent):
                 grasp, deliver, safe, settings.approaches, miss)
         self._last_state = ""
         plugs.on_tick(self._tick)
+        plugs.on_command(self._on_command)
         plugs.add_status("fetch", self.brief)
         self.publisher = StatePublisher(plugs, STATE, self.status)
 
@@ -223,6 +224,11 @@ class FetchComponent(BaseComponent):
         if done:
             self._changed(self.clock())
         return done
+
+    def _on_command(self, source: str) -> None:
+        """A client's command (teleop) ends the fetch as it ends a navigation goal."""
+        if self.sequence is not None and self.sequence.active:
+            self.cancel(f"teleop from {source}")
 
     # -- the tick ----------------------------------------------------------------------------
 
