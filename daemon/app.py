@@ -143,6 +143,7 @@ class Daemon:
                 http.add_route(route.method, route.path, route.handler, access=route.access)
             ctx.topics.declare(component.name, component.topics())
             self.components.append(component)
+            ctx.components[spec.name] = component
             log.debug("component %s configured", spec.name)
         return ctx
 

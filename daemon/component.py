@@ -173,6 +173,9 @@ class DaemonContext:
     sim: SimRuntime | None = None
     #: extra fields of /api/robot_info and /robot_info, by name
     robot_info: HookMap[Callable[[], Any]] = field(default_factory=HookMap)
+    #: the components built so far (earlier rows of the table), by name: a behaviour that
+    #: drives other components (the fetch: navigation and the arm) finds them here
+    components: dict[str, Component] = field(default_factory=dict)
 
     def settings(self, settings: type[S]) -> S:
         return self.config.get(settings)

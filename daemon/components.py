@@ -6,6 +6,7 @@ from daemon.arm import component as arm
 from daemon.autonomy import component as autonomy
 from daemon.component import ComponentSpec
 from daemon.control import api as control
+from daemon.fetch import component as fetch
 from daemon.mapping import component as mapping
 from daemon.navigation import component as navigation
 from daemon.recorder import component as recorder
@@ -25,6 +26,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     mapping.COMPONENT,
     navigation.COMPONENT,
     arm.COMPONENT,
+    fetch.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import shutil
 import tempfile
 import time
@@ -129,7 +130,10 @@ class SimRuntime(BaseComponent):
 
     def routes(self) -> Sequence[Route]:
         return (Route("POST", "/api/sim/reset", self._post_reset, "drive"),
-                Route("GET", "/api/sim/metrics", self._get_metrics, "read"))
+                Route("GET", "/api/sim/metrics", self._get_metrics, "read"),
+                Route("GET", "/api/sim/objects", self._get_objects, "read"),
+                Route("POST", "/api/sim/objects", self._post_objects, "drive"),
+                Route("DELETE", "/api/sim/objects", self._delete_objects, "drive"))
 
     def topics(self) -> Sequence[Topic]:
         return (TopicOut("/odom_ground_truth", ODOMETRY, ODOM_GROUND_TRUTH, odometry_msg,
@@ -177,6 +181,32 @@ class SimRuntime(BaseComponent):
             self.control.reset_odometry(truth.x, truth.y, truth.theta,
                                         by=f"HTTP {request.remote or '?'} (sim reset)")
         return json_response({"ground_truth": truth.to_json()})
+
+    async def _get_objects(self, request: web.Request) -> web.Response:
+        return json_response({"objects": self.world.objects_report()})
+
+    async def _post_objects(self, request: web.Request) -> web.Response:
+        """Place a graspable object (sim/objects.py) at ``{"x", "y"}`` in the world's frame."""
+        body = await read_json_object(request, 4096)
+        unknown = sorted(set(body) - {"x", "y"})
+        if unknown:
+            raise ApiError(422, f"{unknown[0]}: unknown field (x, y)")
+        point = []
+        for key in ("x", "y"):
+            value = body.get(key)
+            if isinstance(value, bool) or not isinstance(value, int | float) \
+                    or not math.isfinite(value):
+                raise ApiError(422, f"{key}: expected a finite number, got {value!r}")
+            point.append(float(value))
+        try:
+            self.world.place_object(point[0], point[1])
+        except ValueError as exc:
+            raise ApiError(409, f"cannot place an object there: {exc}") from None
+        return json_response({"objects": self.world.objects_report()})
+
+    async def _delete_objects(self, request: web.Request) -> web.Response:
+        self.world.clear_objects()
+        return json_response({"objects": []})
 
     async def _get_metrics(self, request: web.Request) -> web.Response:
         return json_response(self.world.metrics_summary())

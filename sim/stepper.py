@@ -14,6 +14,7 @@ import numpy as np
 from sim.metrics import RunMetrics
 from sim.motor_model import MotorPair
 from sim.noise import Noise
+from sim.objects import Objects, ToolReader, cast_circles
 from sim.physics import DiffDrivePhysics, RobotGeometry, make_motors
 from sim.raycast import RayCaster, ray_angles
 from sim.settings import SimConfig, SimConfigError
@@ -94,6 +95,10 @@ class SimWorld:
         self.internal_scans = internal_scans
         self.latest_scan: np.ndarray | None = None
         self.latest_scan_time = 0.0
+        #: graspable objects (sim/objects.py), moved by :attr:`arm_tool` when an arm is on
+        self.objects = Objects()
+        #: where the arm's tool point is (set by whoever runs the arm), else None
+        self.arm_tool: ToolReader | None = None
         self.steps = 0
         self.overruns = 0
         self.error: str | None = None
@@ -126,11 +131,16 @@ class SimWorld:
             self.physics.step(self._dt)
             self.steps += 1
             state = self.physics.state
+            if self.objects.items:
+                self.objects.update(state.x, state.y, state.theta,
+                                    self.arm_tool() if self.arm_tool else None,
+                                    self.geometry.footprint_radius)
             self.metrics.record(self._dt, state.x, state.y, state.theta, state.v, state.w,
                                 state.travelled, state.collisions)
             if self.internal_scans and self.time + 1e-9 >= self._next_scan:
-                self.latest_scan = self.noise.lidar(self.lidar.cast(state.x, state.y,
-                                                                    state.theta))
+                self.latest_scan = self.noise.lidar(self._with_objects(
+                    self.lidar, self.lidar.cast(state.x, state.y, state.theta),
+                    (state.x, state.y, state.theta)))
                 self.latest_scan_time = self.time
                 self._next_scan = self.time + 1.0 / self.config.lidar_rate
             self._cond.notify_all()
@@ -222,12 +232,23 @@ class SimWorld:
             caster = RayCaster(self.world, -angles, self.config.range_min,
                                self.config.range_max)
             self._device_caster = caster
-        return self.noise.lidar(caster.cast(*self._pose()))
+        pose = self._pose()
+        return self.noise.lidar(self._with_objects(caster, caster.cast(*pose), pose))
 
     def scan(self) -> np.ndarray:
         """A full scan now: ``lidar_rays`` ranges counter-clockwise from straight ahead
         (the ROS LaserScan convention), with noise when enabled."""
-        return self.noise.lidar(self.lidar.cast(*self._pose()))
+        pose = self._pose()
+        return self.noise.lidar(self._with_objects(self.lidar, self.lidar.cast(*pose), pose))
+
+    def _with_objects(self, caster: RayCaster, ranges: np.ndarray,
+                      pose: tuple[float, float, float]) -> np.ndarray:
+        """The objects standing on the floor are seen too (a held one is lifted off it)."""
+        if not self.objects.items:
+            return ranges
+        with self._cond:
+            circles = self.objects.circles()
+        return cast_circles(ranges, circles, *pose, caster.angles, caster.range_max)
 
     def exact_range(self, angle_ccw: float) -> float:
         """The noise-free ray-cast distance along one angle (rad, counter-clockwise)."""
@@ -239,6 +260,27 @@ class SimWorld:
         with self._cond:
             s = self.physics.state
             return s.x, s.y, s.theta
+
+    def place_object(self, x: float, y: float) -> None:
+        """A graspable object standing at (x, y); ValueError when it would stand inside a
+        wall or an obstacle, or under the robot."""
+        with self._cond:
+            radius = self.objects.place(x, y).radius  # checks it is finite
+            self.objects.items.pop()
+            if self.world.clearance(x, y) < radius:
+                raise ValueError(f"({x}, {y}) is inside a wall or an obstacle")
+            state = self.physics.state
+            if math.hypot(x - state.x, y - state.y) < self.geometry.footprint_radius + radius:
+                raise ValueError(f"({x}, {y}) is under the robot")
+            self.objects.place(x, y)
+
+    def clear_objects(self) -> None:
+        with self._cond:
+            self.objects.clear()
+
+    def objects_report(self) -> list[dict[str, Any]]:
+        with self._cond:
+            return self.objects.report()
 
     def reset(self, pose: Pose | None = None) -> GroundTruth:
         """Teleport the robot (default: the world's start pose) and start a new metrics run.

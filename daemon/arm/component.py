@@ -4,7 +4,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,6 +12,7 @@ from aiohttp import web
 
 from base.config import Config
 from daemon.arm.controller import ArmController, ArmRefused
+from daemon.arm.kinematics import forward
 from daemon.arm.settings import ArmSettings
 from daemon.bus import BusKey
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Plugs, Route
@@ -22,6 +23,7 @@ from daemon.telemetry import COMMAND, CommandEvent
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from drivers.devices import DeviceError, create_device
 from drivers.servo_array import ServoArray
+from sim.objects import Tool
 
 log = logging.getLogger("arbiterd.arm")
 
@@ -206,6 +208,18 @@ class ArmComponent(BaseComponent):
     def state(self) -> dict[str, Any]:
         return self.arm.state(self.clock(), self.measured())
 
+    def tool(self) -> Tool:
+        """Where the tool point is (base_link) and the gripper's opening, from what the
+        servos were told (the emulated pulses' meaning under ``--sim``): the simulator's
+        objects are grasped and carried by it."""
+        return tool_at(self.arm.joints, self.joint_positions())
+
+    def joint_positions(self) -> dict[str, float]:
+        here = self.arm.written or self.arm.motion.position(self.clock())
+        measured = self.measured() or {}
+        return {j: here[j] if measured.get(j) is None else float(measured[j] or 0.0)
+                for j in self.arm.joints}
+
     # -- HTTP --------------------------------------------------------------------------------
 
     def routes(self) -> Sequence[Route]:
@@ -274,6 +288,13 @@ class ArmComponent(BaseComponent):
         return None
 
 
+def tool_at(joints: Sequence[str], positions: Mapping[str, float]) -> Tool:
+    """The tool point (forward kinematics) and the gripper's opening at ``positions``."""
+    j1, j2, j3, gripper = joints
+    tip = forward(positions[j1], positions[j2], positions[j3])
+    return Tool(tip.x, 0.0, positions[gripper])
+
+
 def build_servo(config: Config) -> ServoArray:
     """The [arm] section's servo device (built, not opened)."""
     settings = config.get(ArmSettings)
@@ -295,6 +316,7 @@ def create(ctx: DaemonContext) -> ArmComponent | None:
         emulator = ctx.sim.device_emulators.get("arm")
         component.readback = emulator.servo_pulse_us if emulator is not None \
             else lambda output: component_pulse(component, output)
+        ctx.sim.world.arm_tool = component.tool  # the world's objects follow the gripper
     return component
 
 

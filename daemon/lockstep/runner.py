@@ -10,6 +10,9 @@ from typing import Any
 import numpy as np
 
 from base.config import Config
+from daemon.arm.component import tool_at
+from daemon.arm.controller import ArmController
+from daemon.arm.settings import ArmSettings
 from daemon.autonomy.component import AutonomyComponent
 from daemon.bus import Bus
 from daemon.component import Plugs
@@ -17,6 +20,8 @@ from daemon.config import wheel_speed_clamp
 from daemon.control.clock import VirtualClock
 from daemon.control.commands import Twist
 from daemon.control.loop import ControlLoop
+from daemon.fetch.component import FetchComponent
+from daemon.fetch.settings import FetchSettings
 from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
 from daemon.lockstep.mapping import MappingProbe
@@ -26,6 +31,8 @@ from daemon.safety.component import SafetyComponent, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN
+from drivers.devices import create_device
+from drivers.servo_array import ServoArray
 from sensors.scan import LaserScan
 from sim.coverage import Coverage
 from sim.settings import SimConfig, SimSettings
@@ -69,7 +76,8 @@ class Lockstep:
 
     def __init__(self, config: Config, *, script: Sequence[Step] = (),
                  autonomy: str | None = None, mapping: bool = False,
-                 map_out: str | None = None, navigation: bool = False) -> None:
+                 map_out: str | None = None, navigation: bool = False,
+                 fetch: bool = False) -> None:
         self.config = config
         self._simulated_lidar(config)
         self.clock = VirtualClock()
@@ -111,7 +119,31 @@ class Lockstep:
                                     self.truth_at_cast) if mapping else None
         self.navigation = NavigationComponent(config, self.plugs, lidar=True, points=points,
                                               inline=True, wall_clock=self.clock) \
-            if navigation else None
+            if navigation or fetch else None
+        self.arm: ArmController | None = None
+        self.fetch: FetchComponent | None = None
+        if fetch:
+            self._build_fetch(config)
+
+    def _build_fetch(self, config: Config) -> None:
+        """The arm (mock servos, stepped in each tick) and the fetch behaviour over it and
+        navigation; the world's objects follow the arm's tool point."""
+        config.update("arm", {"enabled": True, "backend": "mock"})
+        settings = config.get(ArmSettings)
+        servo = create_device(settings.device, config["arm"], section="arm")
+        assert isinstance(servo, ServoArray)
+        arbiter = self.control.arbiter
+        arm = ArmController(settings, servo, self.clock(),
+                            lambda: (arbiter.estop_reason or "latched")
+                            if arbiter.estop_engaged else None)
+        self.arm = arm
+        objects = self.world.objects
+        self.world.arm_tool = lambda: tool_at(
+            arm.joints, arm.written or arm.motion.position(self.clock()))
+        self.fetch = FetchComponent(config.get(FetchSettings), self.plugs,
+                                    nav=self.navigation, arm=arm,
+                                    held=lambda: objects.held is not None,
+                                    miss=objects.miss)
 
     @staticmethod
     def _simulated_lidar(config: Config) -> None:
@@ -135,6 +167,9 @@ class Lockstep:
     async def begin(self) -> None:
         """Start the control loop (and the mapper, and the --autonomy mode) at time 0."""
         await self.control.start(realtime=False)
+        if self.arm is not None:
+            await self.arm.servo.open()
+            await self.arm.step(self.clock())
         if self.mapping is not None:
             await self.mapping.start()
         if self.start_mode:
@@ -178,6 +213,8 @@ class Lockstep:
         self.control.supervisor.beat()
         moving = self.control.linear.velocity != 0.0 or self.control.angular.velocity != 0.0
         await self.control.tick(deadline)
+        if self.arm is not None:
+            await self.arm.step(deadline)
         if self.first_brake is None and moving and \
                 self.control.guard_action in ("limit", "stop"):
             self.first_brake = deadline

@@ -176,6 +176,20 @@ class NavigationComponent(BaseComponent):
         """The robot's pose in :attr:`frame`."""
         return self._in_frame(self._odom())
 
+    def pose(self) -> Pose2:
+        """The robot's pose in :attr:`frame` (what goals and the costmap are in)."""
+        return self._here()
+
+    def refresh_costs(self) -> np.ndarray | None:
+        """Fold the revolutions waiting for the next plan into the costmap now (unless a plan
+        is running in the worker thread: then the last costs) and return the costs."""
+        if not self._planning and self._scans:
+            for pose, xs, ys in self._scans:
+                self.costmap.add_scan(pose, xs, ys)
+            self._scans.clear()
+            self.costs = self.costmap.costs()
+        return self.costs
+
     def _odom(self) -> Pose2:
         pose = self.control.odometry.reported
         return (pose.x, pose.y, pose.theta)
@@ -254,7 +268,8 @@ class NavigationComponent(BaseComponent):
         yaw = 0.0 if request.yaw is None else request.yaw
         x, y, _ = self.to_frame(request.frame, request.x, request.y, yaw)
         self._check_point(x, y)
-        return Target(request.frame, request.x, request.y, request.yaw)
+        return Target(request.frame, request.x, request.y, request.yaw,
+                      xy_tolerance=request.xy_tolerance, yaw_tolerance=request.yaw_tolerance)
 
     def _checked(self, target: Target) -> Target:
         assert target.path is not None

@@ -32,6 +32,9 @@ class GoalRequest:
     waypoints: tuple[tuple[float, float], ...] = ()
     path: str = ""
     size: float = 0.0
+    #: the goal's own tolerances (None: [navigation] xy_tolerance, yaw_tolerance)
+    xy_tolerance: float | None = None
+    yaw_tolerance: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -44,6 +44,9 @@ class Target:
     path: np.ndarray | None = None
     name: str = ""
     number: int = 0
+    #: tighter (or looser) than the settings' for this goal (m, rad), e.g. the fetch's
+    xy_tolerance: float | None = None
+    yaw_tolerance: float | None = None
 
 
 @dataclass
@@ -127,7 +130,12 @@ class Navigator:
 
     def _follow(self, points: np.ndarray, yaw: float | None, now: float) -> None:
         self.plan_points = np.asarray(points, dtype=float)
-        self.pursuit = Pursuit(self.settings.pursuit, densify(points, PATH_SPACING_M), yaw)
+        settings, target = self.settings.pursuit, self.target
+        if target is not None and target.xy_tolerance is not None:
+            settings = replace(settings, xy_tolerance=target.xy_tolerance)
+        if target is not None and target.yaw_tolerance is not None:
+            settings = replace(settings, yaw_tolerance=target.yaw_tolerance)
+        self.pursuit = Pursuit(settings, densify(points, PATH_SPACING_M), yaw)
         self._set("following", "", now)
 
     def end(self, state: str, reason: str, now: float) -> None:
