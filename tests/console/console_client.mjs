@@ -570,7 +570,43 @@ async function navigateScenario(browser) {
     reached: await text(page, "#nav-state"), toolAfter: await page.$eval("#view",
       (v) => v.dataset.goalTool), planAfter: await page.$eval("#view", (v) => v.dataset.planPoints),
     errors: [...errors] });
+  if (option("--fetch")) await fetchSteps(page, until, option("--fetch").split(",").map(Number));
   await context.close();
+}
+
+// Where the view draws the point (x, y) of its frame, in page coordinates.
+async function pageXY(page, x, y) {
+  const [a, b, c, d, e, f] = (await page.$eval("#view", (v) => v.dataset.transform))
+    .split(",").map(Number);
+  const box = await page.locator("#view").boundingBox();
+  const dpr = await page.evaluate(() => window.devicePixelRatio || 1);
+  return { x: box.x + (a * x + c * y + e) / dpr, y: box.y + (b * x + d * y + f) / dpr };
+}
+
+// The fetch tool: two taps (the object, the drop point) send POST /api/fetch; the state line
+// follows; cancel fetch ends it.
+async function fetchSteps(page, until, [ox, oy, dx, dy]) {
+  await page.waitForSelector("#fetch-tool", { state: "visible", timeout: 10000 });
+  await page.click("#fetch-tool");
+  const pressed = await page.$eval("#fetch-tool", (b) => b.getAttribute("aria-pressed"));
+  const object = await pageXY(page, ox, oy);
+  await page.mouse.click(object.x, object.y);
+  const prompt = await text(page, "#fetch-state");
+  const request = page.waitForRequest((r) => r.url().endsWith("/api/fetch") &&
+    r.method() === "POST", { timeout: 10000 });
+  const drop = await pageXY(page, dx, dy);
+  await page.mouse.click(drop.x, drop.y);
+  const sent = (await request).postDataJSON();
+  await until("the fetch under way", () => document.getElementById("fetch-state").dataset.state
+    === "NAV_TO_OBJECT");
+  const running = await text(page, "#fetch-state");
+  const cancelShown = await page.isVisible("#fetch-cancel");
+  await page.click("#fetch-cancel");
+  await until("the fetch canceled", () =>
+    /^fetch canceled/.test(document.getElementById("fetch-state").textContent));
+  report("fetch", { pressed, prompt, sent, running, cancelShown,
+    ended: await text(page, "#fetch-state"), api: await getJson("/api/fetch"),
+    toolAfter: await page.$eval("#fetch-tool", (b) => b.getAttribute("aria-pressed")) });
 }
 
 // The arm panel: a pose button moves the arm there (the side view follows), the gripper opens,

@@ -332,16 +332,18 @@ def test_console_sends_a_tapped_goal_and_the_robot_arrives(tmp_path: Path) -> No
     """[navigation] on: the figure-eight starts from its button (its plan drawn) and its cancel
     stops it; the "go to" tool and a tap on the view send the goal there (odometry frame, no
     heading), the plan is drawn, the state line follows until the robot is there (ground
-    truth)."""
+    truth); with [arm] on, the fetch tool's two taps send a fetch and its cancel ends it."""
     _require_browser()
     assert NODE is not None
     start, goal = (-1.0, -2.5), (0.0, -0.5)  # sim/worlds/apartment.toml: past the table
     target = (goal[0] - start[0], goal[1] - start[1])  # in the odometry frame (heading 0)
-    toml = '[sim]\ndriver = "mock"\nworld_file = "apartment"\n'
+    toml = '[sim]\ndriver = "mock"\nworld_file = "apartment"\n[arm]\nenabled = true\n'
+    fetch = (0.0, 0.0, *target)  # from the start point to where the goal took the robot
     with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
         _wait_healthy(daemon)
         client = subprocess.run([NODE, str(HERE / "console_client.mjs"), daemon.base_url + "/",
-                                 "navigate", "--goal", f"{target[0]},{target[1]}"], cwd=HERE,
+                                 "navigate", "--goal", f"{target[0]},{target[1]}",
+                                 "--fetch", ",".join(map(str, fetch))], cwd=HERE,
                                 capture_output=True, text=True, timeout=180, check=False)
         steps = {r["step"]: r for r in map(json.loads, filter(
             lambda line: line.startswith("{"), client.stdout.splitlines()))}
@@ -363,6 +365,14 @@ def test_console_sends_a_tapped_goal_and_the_robot_arrives(tmp_path: Path) -> No
     assert collisions == 0
     truth = reached["truth"]  # when the console said succeeded
     assert math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.10, truth
+    # the fetch tool: the object's tap, then the drop's, sent both; cancel fetch ended it
+    fetched = steps["fetch"]
+    assert fetched["pressed"] == "true" and fetched["prompt"] == "now tap where to drop it"
+    for key, (x, y) in (("object", fetch[:2]), ("drop", fetch[2:])):
+        assert math.hypot(fetched["sent"][key][0] - x, fetched["sent"][key][1] - y) < 0.05, fetched
+    assert fetched["running"].startswith("fetch: NAV_TO_OBJECT") and fetched["cancelShown"]
+    assert fetched["ended"].startswith("fetch canceled · NAV_TO_OBJECT: canceled over HTTP")
+    assert fetched["api"]["result"] == "canceled" and fetched["toolAfter"] == "false", fetched
 
 
 def test_console_moves_the_arm(tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ import { Joystick } from "./joystick.js";
 import { LogTail } from "./log.js";
 import { MapPanel } from "./map.js";
 import { NavPanel } from "./navigate.js";
+import { FetchPanel } from "./fetch.js";
 import { RobotPanel } from "./robot.js";
 import { TokenBox } from "./token.js";
 import { View, poseOf } from "./view.js";
@@ -60,6 +61,8 @@ const mapPanel = new MapPanel({ save: $("map-save"), message: $("map-message"),
 const navPanel = new NavPanel({ tool: $("goal-tool"), figure8: $("figure-eight"),
   cancel: $("nav-cancel"), state: $("nav-state") }, api, bridge, view,
 { onRefused: (what) => tokenProblem(what) });
+const fetchPanel = new FetchPanel({ tool: $("fetch-tool"), cancel: $("fetch-cancel"),
+  state: $("fetch-state") }, api, bridge, view, { onRefused: (what) => tokenProblem(what) });
 
 // -- connection, access and the banner ------------------------------------------------------
 
@@ -240,6 +243,7 @@ function healthArrived(health) {
   robot.setRecorder(health.components.recorder);
   mapPanel.health(health.components.mapping);
   navPanel.health(health.components.navigation);
+  fetchPanel.health(health.components.fetch);
   armPanel.health(health.components.arm);
   renderHealth({ status: $("health-status"), summary: $("health-summary"),
     table: $("components").tBodies[0] }, health);
