@@ -394,7 +394,7 @@ def health_when(manager: LidarManager, ok: Callable[[dict[str, Any]], bool],
     def check() -> dict[str, Any] | None:
         health = manager.snapshot()
         return health if ok(health) else None
-    found: dict[str, Any] = wait_for(check, what, within_s=10.0)
+    found: dict[str, Any] = wait_for(check, what, within_s=30.0)
     return found
 
 
