@@ -1,11 +1,18 @@
 // The real Foxglove Studio web app (the prebuilt bundle of @foxglove/studio-base 1.48.0, React 17)
 // in Debian's Chromium (WebGL through SwiftShader) against arbiterd's rosbridge, with a layout
 // holding one 3D panel that shows /map and /scan in frame `map`.
-//   node foxglove_app.mjs WS_URL HTTP_PORT SCREENSHOT.png
+//   node foxglove_app.mjs WS_URL HTTP_PORT SCREENSHOT.png [GOAL_JSON]
 // Serves a host page (App + RosbridgeDataSourceFactory + an in-memory layout storage) on
 // 127.0.0.1:HTTP_PORT, opens it with ?ds=rosbridge-websocket&ds.url=WS_URL&layoutId=…, waits
 // until the app's own topic table (its Data source sidebar) counts /map and /scan messages
 // received, then until the panel's pixels show the map, and writes the screenshot.
+// With GOAL_JSON ({"api", "frame", "target": [x, y], "distance": m, "clicks": [[x, y], [x, y]]})
+// the panel shows /scan and /plan in `frame`, looking straight down (2D camera) at `target` with `distance`
+// metres from its top edge to its bottom edge, its publish tool set to *Publish pose* on
+// /goal_pose; the mouse presses the panel's publish button, clicks the scene at clicks[0] (the
+// position) then at clicks[1] (the heading), and the script follows `api`/api/goal until the
+// navigation ends. The app's WebSocket frames are watched: what it advertised and published, and
+// every `status` op it received.
 // Prints one JSON object per step on stdout; exits 0 only when every step passed.
 import { createServer } from "node:http";
 import { readFile } from "node:fs/promises";
@@ -14,7 +21,8 @@ import path from "node:path";
 import { chromium } from "playwright-core";
 
 const require = createRequire(import.meta.url);
-const [wsUrl, httpPort, shotPath] = process.argv.slice(2);
+const [wsUrl, httpPort, shotPath, goalJson] = process.argv.slice(2);
+const GOAL = goalJson ? JSON.parse(goalJson) : null;
 const CHROMIUM = process.env.ARBITERD_CHROMIUM || "/usr/bin/chromium";
 // WebGL without a GPU: SwiftShader through ANGLE
 const ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
@@ -53,6 +61,14 @@ const LAYOUT = {
   playbackConfig: { speed: 1 },
   layout: "3D!arbiterd",
 };
+if (GOAL) { // the goal test: /scan in GOAL.frame, top-down, the pose tool on /goal_pose
+  const panel = LAYOUT.configById["3D!arbiterd"];
+  panel.followTf = GOAL.frame;
+  panel.cameraState = { ...panel.cameraState, distance: GOAL.distance,
+    targetOffset: [GOAL.target[0], GOAL.target[1], 0] };
+  panel.topics = { "/scan": { visible: true, pointSize: 4 }, "/plan": { visible: true } };
+  panel.publish = { ...panel.publish, type: "pose", poseTopic: "/goal_pose" };
+}
 
 const HOST_JS = `
 const layout = ${JSON.stringify({ id: LAYOUT_ID, name: "arbiterd map", permission: "CREATOR_WRITE",
@@ -164,32 +180,7 @@ async function countColours(page, png, clip) {
   }, { b64: png.toString("base64"), clip });
 }
 
-const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
-let page = null;
-const errors = [];
-try {
-  const context = await browser.newContext({ viewport: { width: 800, height: 500 } });
-  page = await context.newPage();
-  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
-  page.on("pageerror", (e) => errors.push(`pageerror: ${e.message}`));
-  page.on("response", (r) => { if (r.status() >= 400) errors.push(`${r.status()} ${r.url()}`); });
-  const query = new URLSearchParams({ ds: "rosbridge-websocket", "ds.url": wsUrl,
-    layoutId: LAYOUT_ID });
-  await page.goto(`http://127.0.0.1:${httpPort}/?${query}`);
-  const webgl = await page.evaluate(() => {
-    const gl = document.createElement("canvas").getContext("webgl2");
-    if (!gl) return null;
-    const info = gl.getExtension("WEBGL_debug_renderer_info");
-    return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : "webgl2";
-  });
-  report("webgl", { renderer: webgl });
-
-  await page.waitForFunction(`((t) => (t["/map"]?.received ?? 0) >= 1 &&
-    (t["/scan"]?.received ?? 0) >= 3)((${topicTable})())`, null, { timeout: 60000, polling: 250 })
-    .catch((e) => { throw new Error(`the app received /map and /scan: ${e.message}`); });
-  const topics = await page.evaluate(topicTable);
-  report("topics", { topics });
-
+async function drawMap(page) {
   const canvas = page.locator("canvas").first();
   await canvas.waitFor({ timeout: 30000 });
   const clip = await canvas.boundingBox();
@@ -215,6 +206,113 @@ try {
   const unknownType = text.split("\n").filter((l) => /unknown message type|no message definition|unsupported/i.test(l));
   report("rendered", { counts, clip, unknownType, errors: errors.slice(0, 20),
     topicErrors: text.split("\n").filter((l) => /error/i.test(l)).slice(0, 20) });
+}
+
+// The scene's point (x, y) in the display frame, in page pixels: the 2D camera looks down -z
+// at GOAL.target, x to the right, y up, GOAL.distance metres over the canvas' height.
+function pixelOf(box, [x, y]) {
+  const scale = box.height / GOAL.distance;
+  return { x: box.x + box.width / 2 + (x - GOAL.target[0]) * scale,
+    y: box.y + box.height / 2 - (y - GOAL.target[1]) * scale };
+}
+
+async function until(what, test, timeoutMs) {
+  const t0 = Date.now();
+  for (;;) {
+    const value = await test();
+    if (value) return value;
+    if (Date.now() - t0 > timeoutMs) throw new Error(`timed out waiting for ${what}`);
+    await new Promise((resolve) => setTimeout(resolve, 200));
+  }
+}
+
+async function sendGoal(page) {
+  // the publish control shows once the renderer has a fixed frame (the first /tf)
+  const button = page.getByTestId("publish-button");
+  await button.waitFor({ timeout: 60000 });
+  const before = await button.getAttribute("title");
+  await button.click();
+  await until("the publish tool armed", async () =>
+    (await button.getAttribute("title")) === "Click to cancel", 30000);
+  const box = await page.locator("canvas").first().boundingBox();
+  const [at, toward] = GOAL.clicks.map((p) => pixelOf(box, p));
+  await page.mouse.click(at.x, at.y); // the position
+  await page.mouse.move(toward.x, toward.y, { steps: 5 });
+  await page.mouse.click(toward.x, toward.y); // the heading
+  const published = await until("the app's publish on /goal_pose", () =>
+    frames.sent.find((f) => f.op === "publish" && f.topic === "/goal_pose"), 30000);
+  report("published", { title: before, box, pixels: [at, toward], msg: published.msg,
+    advertised: frames.sent.filter((f) => f.op === "advertise")
+      .map((f) => ({ topic: f.topic, type: f.type })) });
+  // the robot drives; the app stays connected, receiving everything, until navigation ends
+  const goal = await until("the navigation's end", async () => {
+    const body = await (await fetch(`${GOAL.api}/api/goal`)).json();
+    return ["succeeded", "failed", "canceled"].includes(body.state) ? body : null;
+  }, 150000);
+  report("navigation", { goal });
+  await page.screenshot({ path: shotPath, timeout: 90000 });
+  const text = await page.evaluate(() => document.body.innerText);
+  // the player's problems (the Data source sidebar's Problems tab): "No problems found" or a list
+  const tab = page.getByRole("tab", { name: /^Problems/ });
+  await tab.click();
+  const problems = await until("the Problems tab", async () => {
+    const shown = await page.evaluate(() => document.body.innerText);
+    const lines = shown.split("\n").map((l) => l.trim()).filter(Boolean);
+    const after = lines.slice(lines.lastIndexOf("Problems") + 1);
+    return shown.includes("No problems found") || (await tab.innerText()) !== "Problems"
+      ? { tab: await tab.innerText(), lines: after.slice(0, 20) } : null;
+  }, 30000);
+  report("app", { statuses: frames.statuses, received: frames.received, problems,
+    errors: errors.slice(0, 20),
+    unknownType: text.split("\n").filter((l) => /unknown message type|no message definition|unsupported/i.test(l)),
+    topics: await page.evaluate(topicTable) });
+}
+
+const browser = await chromium.launch({ executablePath: CHROMIUM, args: ARGS });
+let page = null;
+const errors = [];
+// the app's rosbridge traffic as JSON text frames (the binary ones are cbor-raw messages)
+const frames = { sent: [], statuses: [], received: {} }; // received: text ops by name
+const parse = (payload) => {
+  if (typeof payload !== "string") return null;
+  try { return JSON.parse(payload); } catch { return null; }
+};
+try {
+  const context = await browser.newContext({ viewport: { width: 800, height: 500 } });
+  page = await context.newPage();
+  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  page.on("pageerror", (e) => errors.push(`pageerror: ${e.message}`));
+  page.on("response", (r) => { if (r.status() >= 400) errors.push(`${r.status()} ${r.url()}`); });
+  page.on("websocket", (ws) => {
+    ws.on("framesent", ({ payload }) => {
+      const op = parse(payload);
+      if (op && op.op !== "call_service") frames.sent.push(op);
+    });
+    ws.on("framereceived", ({ payload }) => {
+      const op = parse(payload);
+      if (op?.op) frames.received[op.op] = (frames.received[op.op] ?? 0) + 1;
+      if (op?.op === "status") frames.statuses.push(op);
+    });
+  });
+  const query = new URLSearchParams({ ds: "rosbridge-websocket", "ds.url": wsUrl,
+    layoutId: LAYOUT_ID });
+  await page.goto(`http://127.0.0.1:${httpPort}/?${query}`);
+  const webgl = await page.evaluate(() => {
+    const gl = document.createElement("canvas").getContext("webgl2");
+    if (!gl) return null;
+    const info = gl.getExtension("WEBGL_debug_renderer_info");
+    return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : "webgl2";
+  });
+  report("webgl", { renderer: webgl });
+
+  const maps = GOAL ? 0 : 1; // the goal test runs without [mapping]
+  await page.waitForFunction(`((t) => (t["/map"]?.received ?? 0) >= ${maps} &&
+    (t["/scan"]?.received ?? 0) >= 3)((${topicTable})())`, null, { timeout: 60000, polling: 250 })
+    .catch((e) => { throw new Error(`the app received /map and /scan: ${e.message}`); });
+  const topics = await page.evaluate(topicTable);
+  report("topics", { topics });
+
+  await (GOAL ? sendGoal(page) : drawMap(page));
   report("done", { ok: true });
 } catch (error) {
   report("fail", { error: String(error?.stack ?? error) });

@@ -1,9 +1,11 @@
 # The real Foxglove Studio web app (@foxglove/studio-base 1.48.0's prebuilt bundle) in Debian's
-# Chromium, WebGL through SwiftShader, against `arbiterd run --sim` with [mapping] on: its 3D
-# panel, in frame `map`, receives /map and /scan and draws the map.
+# Chromium, WebGL through SwiftShader, against `arbiterd run --sim`: with [mapping] on its 3D
+# panel, in frame `map`, receives /map and /scan and draws the map; in the apartment its publish
+# tool, worked by the mouse, sends a goal on /goal_pose and the robot drives there.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -12,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from slam.pose import compose
 from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.net import free_port
 from tests.support.wait import wait_for
@@ -37,6 +40,22 @@ def _require_app() -> str:
     return NODE
 
 
+def _run_app(node: str, daemon: DaemonSubprocess, shot: Path,
+             *extra: str) -> dict[str, dict[str, Any]]:
+    """Runs foxglove_app.mjs against the daemon: its steps by name, once every step passed."""
+    result = subprocess.run([node, str(HERE / "foxglove_app.mjs"),
+                             f"ws://127.0.0.1:{daemon.ws_port}/", str(free_port()), str(shot),
+                             *extra], cwd=HERE, capture_output=True, text=True, timeout=300)
+    steps: dict[str, dict[str, Any]] = {}
+    for line in result.stdout.splitlines():
+        if line.startswith("{"):
+            record = json.loads(line)
+            steps[record["step"]] = record
+    assert result.returncode == 0 and "done" in steps, (
+        f"{result.stdout}\n{result.stderr}\n--- daemon ---\n{daemon.log()}")
+    return steps
+
+
 @pytest.mark.timeout(330)  # the app loads 56 MB of JavaScript, SwiftShader renders on the CPU
 def test_foxglove_3d_panel_shows_the_map_and_the_scan(tmp_path: Path) -> None:
     node = _require_app()
@@ -46,19 +65,8 @@ def test_foxglove_3d_panel_shows_the_map_and_the_scan(tmp_path: Path) -> None:
     with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
         wait_for(lambda: daemon.get("/api/health")[1]["components"]["mapping"]
                  .get("maps_published", 0) > 0, "the first /map", within_s=30, interval_s=0.1)
-        result = subprocess.run([node, str(HERE / "foxglove_app.mjs"),
-                                 f"ws://127.0.0.1:{daemon.ws_port}/", str(free_port()),
-                                 str(shot)], cwd=HERE, capture_output=True, text=True,
-                                timeout=300)
-        log = daemon.log()
+        steps = _run_app(node, daemon, shot)
         assert daemon.stop() == 0
-    steps: dict[str, dict[str, Any]] = {}
-    for line in result.stdout.splitlines():
-        if line.startswith("{"):
-            record = json.loads(line)
-            steps[record["step"]] = record
-    assert result.returncode == 0 and "done" in steps, (
-        f"{result.stdout}\n{result.stderr}\n--- daemon ---\n{log}")
     assert steps["webgl"]["renderer"], steps["webgl"]  # WebGL 2 works (SwiftShader)
     topics = steps["topics"]["topics"]  # the app's own table: datatype, messages received
     assert topics["/map"]["type"] == "nav_msgs/msg/OccupancyGrid", topics
@@ -75,3 +83,65 @@ def test_foxglove_3d_panel_shows_the_map_and_the_scan(tmp_path: Path) -> None:
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     if SHOT_TO:
         shutil.copy(shot, SHOT_TO)
+
+
+APARTMENT_START = (-1.0, -2.5, 0.0)  # sim/worlds/apartment.toml; odom starts here
+# in odom: the living room past the table, facing the bedrooms (world (0.0, -0.5)); the app
+# looks down at TARGET, DISTANCE metres over the panel's height
+# the position, then a point the heading faces (60 px clear of the panel's settings hint)
+CLICKS = ((1.0, 2.0), (1.0, 2.6))
+TARGET, DISTANCE = (0.5, 1.0), 6.0
+
+
+@pytest.mark.timeout(330)
+def test_a_goal_published_from_the_3d_panel_drives_the_robot_there(tmp_path: Path) -> None:
+    node = _require_app()
+    toml = '[sim]\ndriver = "mock"\nworld_file = "apartment"\n'
+    with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
+        wait_for(lambda: daemon.get("/api/status")[1]["safety"]["zone"] != "unknown",
+                 "the first revolution", within_s=30, interval_s=0.1)
+        spec = {"api": daemon.base_url, "frame": "odom", "target": TARGET,
+                "distance": DISTANCE, "clicks": CLICKS}
+        steps = _run_app(node, daemon, tmp_path / "foxglove-goal.png", json.dumps(spec))
+        wait_for(lambda: abs(daemon.get("/api/status")[1]["ground_truth"]["v"]) < 0.01,
+                 "the robot at rest", within_s=10, interval_s=0.1)
+        truth = daemon.get("/api/status")[1]["ground_truth"]
+        goal = daemon.get("/api/goal")[1]
+        collisions = daemon.get("/api/sim/metrics")[1]["collisions"]
+        log = daemon.log()
+        assert daemon.stop() == 0
+    print(json.dumps(steps, indent=1))  # shown when an assertion fails
+
+    # (a) the app advertised its three publish topics (in the short spelling, without /msg/)
+    # and published a PoseStamped in odom
+    published = steps["published"]
+    advertised = {a["topic"]: a["type"] for a in published["advertised"]}
+    assert advertised == {"/goal_pose": "geometry_msgs/PoseStamped",
+                          "/clicked_point": "geometry_msgs/PointStamped",
+                          "/initialpose": "geometry_msgs/PoseWithCovarianceStamped"}, advertised
+    msg = published["msg"]
+    assert msg["header"]["frame_id"] == "odom", msg
+    position, q = msg["pose"]["position"], msg["pose"]["orientation"]
+    yaw = 2 * math.atan2(q["z"], q["w"])
+    # where the mouse clicked: the 2D camera maps pixels to the scene within a pixel or two
+    assert math.hypot(position["x"] - CLICKS[0][0], position["y"] - CLICKS[0][1]) < 0.1, msg
+    assert abs(math.remainder(yaw - math.pi / 2, math.tau)) < 0.1, msg
+    # the daemon took that goal, as sent, and only that one
+    assert goal["goals"] == 1 and goal["goal"]["frame"] == "odom", goal
+    assert goal["goal"]["x"] == pytest.approx(position["x"], abs=1e-9), goal
+    assert goal["goal"]["y"] == pytest.approx(position["y"], abs=1e-9), goal
+    assert goal["goal"]["theta"] == pytest.approx(yaw, abs=1e-6), goal
+    # (b) the robot drove there: the goal in the world is where the robot truly is
+    assert steps["navigation"]["goal"]["state"] == "succeeded", steps["navigation"]
+    assert goal["state"] == "succeeded", goal
+    x, y, theta = compose(APARTMENT_START, (position["x"], position["y"], yaw))
+    assert math.hypot(truth["x"] - x, truth["y"] - y) <= 0.10, (truth, (x, y, theta))
+    assert abs(math.remainder(truth["theta"] - theta, math.tau)) <= 0.1, (truth, theta)
+    assert collisions == 0
+    # (c) no status error reached the app, nothing about an unknown type in its own lists
+    app = steps["app"]
+    assert app["received"].get("service_response", 0) >= 1, app  # the watch sees its replies
+    assert app["statuses"] == [], app["statuses"]
+    assert app["unknownType"] == [], app
+    assert app["problems"]["lines"][:1] == ["No problems found"], app["problems"]
+    assert "unknown message type" not in log
