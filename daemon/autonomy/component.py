@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 import math
 import random
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,7 +20,7 @@ from daemon.control.commands import Twist
 from daemon.http_api import ApiError, json_response, read_json_object
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
-from daemon.navigation.component import EXPLORATION, NavigationComponent
+from daemon.navigation.component import NavigationComponent
 from daemon.safety.component import StatePublisher, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
 from daemon.settings import LimitsSettings
@@ -71,7 +71,11 @@ class AutonomyComponent(BaseComponent):
     core = False
 
     def __init__(self, config: Config, plugs: Plugs, *, lidar: bool, seed: int | None = None,
-                 points: ScanPoints | None = None) -> None:
+                 points: ScanPoints | None = None,
+                 components: Mapping[str, object] | None = None) -> None:
+        #: the daemon's components by name, filled as they are built (navigation comes after
+        #: this one in the table): the mode explore drives navigation's explorer
+        self.components = components if components is not None else {}
         control = self.control = plugs.control
         self.bus = plugs.bus
         self.lidar = lidar
@@ -151,7 +155,8 @@ class AutonomyComponent(BaseComponent):
 
     def _navigation(self) -> NavigationComponent | None:
         """The navigation component, which explores for the mode ``explore``."""
-        return self.bus.latest(EXPLORATION)
+        navigation = self.components.get("navigation")
+        return navigation if isinstance(navigation, NavigationComponent) else None
 
     def request(self, mode: str, reason: str = "requested") -> str | None:
         """Switch the mode if it may be switched now; why not, else None."""
@@ -317,7 +322,7 @@ def _footprint_reach(cm: CollisionMonitorSettings) -> float:
 def create(ctx: DaemonContext) -> AutonomyComponent:
     """The autonomy component (always present; ``mode`` off until asked)."""
     return AutonomyComponent(ctx.config, ctx.plugs, lidar=ctx.settings(LidarSettings).enabled,
-                             points=ctx.scan_points)
+                             points=ctx.scan_points, components=ctx.components)
 
 
 COMPONENT = ComponentSpec("autonomy", create, AutonomySettings)

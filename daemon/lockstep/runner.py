@@ -95,8 +95,9 @@ class Lockstep:
         self.safety = (SafetyComponent(config, self.plugs, self.latency.metrics.registry,
                                        wall_clock=self.clock, points=points)
                        if config.get(CollisionMonitorSettings).enabled else None)
+        self.components: dict[str, object] = {}  # what the autonomy's mode explore drives
         self.autonomy = AutonomyComponent(config, self.plugs, lidar=True, seed=sim.seed,
-                                          points=points)
+                                          points=points, components=self.components)
         self.script = list(script)
         self.start_mode = autonomy
         self.sender = Sender()
@@ -120,6 +121,8 @@ class Lockstep:
         self.navigation = NavigationComponent(config, self.plugs, lidar=True, points=points,
                                               inline=True, wall_clock=self.clock) \
             if navigation or fetch else None
+        if self.navigation is not None:
+            self.components["navigation"] = self.navigation
         self.arm: ArmController | None = None
         self.fetch: FetchComponent | None = None
         if fetch:

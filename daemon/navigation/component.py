@@ -54,9 +54,6 @@ PRIORITY = 1  # below every client, above the wander behaviour
 STATE: BusKey[dict[str, Any]] = BusKey("navigation_state")
 #: the path being followed, on every new plan
 PLAN: BusKey[PlanMessage] = BusKey("navigation_plan")
-#: the navigation component, published when it is built: the autonomy's mode ``explore``
-#: starts and stops its exploration through it
-EXPLORATION: BusKey[NavigationComponent] = BusKey("navigation_exploration")
 #: a scan older than this holds the robot (s)
 SCAN_TIMEOUT_S = 0.5
 #: revolutions kept for the next plan; older ones are dropped
@@ -150,7 +147,6 @@ class NavigationComponent(BaseComponent):
         self.mission: Mission | None = None  # the last mission (POST /api/mission)
         #: frontier exploration (the autonomy's mode ``explore``): goals chosen by the robot
         self.explorer = Explorer(ExploreSettings())
-        plugs.bus.publish(EXPLORATION, self)
 
     # -- inputs --------------------------------------------------------------------------------
 
