@@ -149,6 +149,8 @@ SUITES: dict[str, Suite] = {
     "navigation": Suite("daemon.bench.navigation", "goals in `arbiterd simulate` against the "
                         "true world: success, collisions, path length vs the shortest; "
                         "figure-eight tracking; planning and follower cost"),
+    "navigation-tick": Suite("daemon.bench.navigation_tick", "tick lateness with a goal "
+                             "planned and followed beside navigation idle, in turns"),
     "localize": Suite("daemon.bench.localize", "localisation in a saved map from 1 m / 30° "
                       "off, 20 trials in `arbiterd simulate`: converged within 0.05 m in 5 s"),
     "mapping-cost": Suite("daemon.bench.mapping_cost", "mapper ms per 360-ray revolution "

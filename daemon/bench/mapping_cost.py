@@ -93,7 +93,7 @@ def _scan(caster: RayCaster, pose: Pose2, stamp: float) -> LaserScan:
                      0.1 / RAYS, 0.1, 0.15, 12.0, ranges, np.full(RAYS, 47, dtype=np.float32))
 
 
-async def _publish(daemon: Daemon, stop: asyncio.Event) -> None:
+async def publish_scans(daemon: Daemon, stop: asyncio.Event) -> None:
     """A 10 Hz lidar driving through the apartment (scans on the bus, as the lidar does)."""
     world = load_world(WORLD)
     caster = RayCaster(world, np.arange(RAYS) * (2 * math.pi / RAYS))
@@ -106,7 +106,8 @@ async def _publish(daemon: Daemon, stop: asyncio.Event) -> None:
             await asyncio.wait_for(stop.wait(), 1.0 / RATE_HZ)
 
 
-async def _lateness(daemon: Daemon, seconds: float) -> list[float]:
+async def tick_lateness(daemon: Daemon, seconds: float) -> list[float]:
+    """The control tick's lateness (s) over the next ``seconds``."""
     latency = daemon.latency
     latency.tick_late_ms.clear()
     await asyncio.sleep(seconds)
@@ -120,7 +121,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
         async with bench_daemon(Path(tmp), extra, serve_scan=True) as (daemon, _url):
             mapping = next(c for c in daemon.components if c.name == "mapping")
             stop = asyncio.Event()
-            scans = asyncio.create_task(_publish(daemon, stop))
+            scans = asyncio.create_task(publish_scans(daemon, stop))
             runner = mapping.runner
             off: list[float] = []
             on: list[float] = []
@@ -128,7 +129,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
             for i in range(max(2, round(2 * seconds / segment))):
                 # off: the component drops revolutions (no runner); on: they go to the worker
                 mapping.runner = runner if i % 2 == 1 else None
-                (on if i % 2 == 1 else off).extend(await _lateness(daemon, segment))
+                (on if i % 2 == 1 else off).extend(await tick_lateness(daemon, segment))
             mapping.runner = runner
             scans_done = mapping.counters.scans
             stop.set()
