@@ -34,3 +34,21 @@ export class Api {
     return response.blob();
   }
 }
+
+// Sends a request (a function returning Api.request's promise) and reports its answer to a
+// panel: ok(body) on 200, else show(the daemon's error text), after refused(what) on 401.
+export async function report(request, what, { ok, show, refused }) {
+  let answer;
+  try {
+    answer = await request();
+  } catch {
+    show("the robot does not answer");
+    return;
+  }
+  if (answer.status === 200) {
+    ok(answer.body);
+    return;
+  }
+  if (answer.status === 401) refused(what);
+  show(answer.body?.error || `HTTP ${answer.status}`);
+}

@@ -1,6 +1,8 @@
 // The fetch mission in the console: the "fetch" tool (tap where the object stands, then where
 // to drop it: POST /api/fetch), its state from /fetch/state and cancel (DELETE /api/fetch).
 
+import { report } from "./api.js";
+
 const STRING = "std_msgs/msg/String";
 const ENDED = new Set(["IDLE"]);
 
@@ -79,19 +81,8 @@ export class FetchPanel {
     await this.answer(() => this.api.request("DELETE", "/api/fetch"), "to cancel the fetch");
   }
 
-  async answer(request, what) {
-    let answer;
-    try {
-      answer = await request();
-    } catch {
-      this.show("the robot does not answer");
-      return;
-    }
-    if (answer.status === 200) {
-      this.stateArrived(answer.body);
-      return;
-    }
-    if (answer.status === 401) this.onRefused(what);
-    this.show(answer.body?.error || `HTTP ${answer.status}`);
+  answer(request, what) {
+    return report(request, what, { ok: (body) => this.stateArrived(body),
+      show: (text) => this.show(text), refused: this.onRefused });
   }
 }

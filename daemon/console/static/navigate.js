@@ -2,6 +2,8 @@
 // its heading: POST /api/goal), the plan from /plan drawn on the view, the state and progress
 // from /navigation/state, cancel (DELETE /api/goal) and the built-in figure-eight.
 
+import { report } from "./api.js";
+
 const PATH = "nav_msgs/msg/Path";
 const STRING = "std_msgs/msg/String";
 const ACTIVE = new Set(["planning", "following", "recovering"]);
@@ -85,19 +87,8 @@ export class NavPanel {
     await this.answer(() => this.api.request("DELETE", "/api/goal"), "to cancel the goal");
   }
 
-  async answer(request, what) {
-    let answer;
-    try {
-      answer = await request();
-    } catch {
-      this.show("the robot does not answer");
-      return;
-    }
-    if (answer.status === 200) {
-      this.stateArrived(answer.body);
-      return;
-    }
-    if (answer.status === 401) this.onRefused(what);
-    this.show(answer.body?.error || `HTTP ${answer.status}`);
+  answer(request, what) {
+    return report(request, what, { ok: (body) => this.stateArrived(body),
+      show: (text) => this.show(text), refused: this.onRefused });
   }
 }
