@@ -450,6 +450,21 @@ def cmd_map(args: argparse.Namespace) -> int:
     return map_cli.run_build(args, settings, directory)
 
 
+def cmd_mission(args: argparse.Namespace) -> int:
+    from daemon.navigation import cli as mission_cli
+
+    address = _daemon_address(args, "mission")
+    if isinstance(address, int):
+        return address
+    base, token = address
+    if args.url and args.config:  # the address given, the token from the config
+        try:
+            token = _load(args).token
+        except ConfigError as exc:
+            return _report_config_error(exc, args)
+    return mission_cli.run_mission(args.file, base, token, wait=not args.no_wait)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="arbiterd", description="ArbiterROS on-robot daemon")
     parser.add_argument("--version", action="version", version=f"arbiterd {__version__}")
@@ -506,7 +521,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_lidar(sub)
     record_cli.add_parser(sub).set_defaults(func=cmd_record)
     _add_map(sub)
+    _add_mission(sub)
     return parser
+
+
+def _add_mission(sub: Any) -> None:
+    from daemon.navigation import cli as mission_cli
+
+    mission_cli.add_parser(sub).set_defaults(func=cmd_mission, sim=False)
 
 
 def _add_map(sub: Any) -> None:

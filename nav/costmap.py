@@ -124,11 +124,15 @@ def cost_grid(obstacles: np.ndarray, seen: np.ndarray, resolution: float,
     DISTANCE_CELL_M the costs are worked out on pooled cells (an obstacle or a sighting
     anywhere in one counts for all of it) and spread back onto the cells."""
     pool = max(1, int(DISTANCE_CELL_M / resolution + 1e-9))
+    shrink = (pool - 1) * resolution * math.sqrt(2.0)
+    # distances beyond the footprint's reach and the band all cost the same: not worked out
+    reach = params.radius_m + max(params.inflation_m, 0.0) + shrink
+    limit = math.ceil(reach / (pool * resolution)) + 1
     if pool == 1:
-        return _costs(obstacle_distance(obstacles), seen, resolution, 0.0, params)
+        return _costs(obstacle_distance(obstacles, limit), seen, resolution, 0.0, params)
     h, w = obstacles.shape
-    coarse = _costs(obstacle_distance(pool_any(obstacles, pool)), pool_any(seen, pool),
-                    pool * resolution, (pool - 1) * resolution * math.sqrt(2.0), params)
+    coarse = _costs(obstacle_distance(pool_any(obstacles, pool), limit), pool_any(seen, pool),
+                    pool * resolution, shrink, params)
     return np.repeat(np.repeat(coarse, pool, axis=0), pool, axis=1)[:h, :w]
 
 
@@ -146,13 +150,32 @@ def _costs(cells: np.ndarray, seen: np.ndarray, resolution: float, shrink: float
     return costs
 
 
-def obstacle_distance(obstacles: np.ndarray) -> np.ndarray:
-    """Distance from each cell to the nearest obstacle cell, in cells (``inf`` without any)."""
-    from scipy import ndimage  # here, not at import: the daemon starts without scipy
-
+def obstacle_distance(obstacles: np.ndarray, limit: int | None = None) -> np.ndarray:
+    """Distance from each cell to the nearest obstacle cell, in cells (``inf`` without any).
+    With ``limit``, exact up to ``limit`` cells and only said to be more than it beyond (a
+    few vectorised passes instead of a whole Euclidean transform: the costs need no more)."""
     if not obstacles.any():
         return np.full(obstacles.shape, np.inf)
-    return np.asarray(ndimage.distance_transform_edt(~obstacles))
+    if limit is None:
+        from scipy import ndimage  # here, not at import: the daemon starts without scipy
+
+        return np.asarray(ndimage.distance_transform_edt(~obstacles))
+    # along each row: the distance to the nearest obstacle of that row (capped past limit)
+    h, w = obstacles.shape
+    far = 2 * (w + limit + 1)
+    cols = np.arange(w)
+    left = np.maximum.accumulate(np.where(obstacles, cols, -far), axis=1)
+    right = np.minimum.accumulate(np.where(obstacles, cols, far)[:, ::-1], axis=1)[:, ::-1]
+    along = np.minimum(np.minimum(cols - left, right - cols), limit + 1).astype(np.float32)
+    # then across rows: the nearest of the rows within limit (a nearer obstacle cannot lie
+    # farther away than that)
+    squares = along * along
+    best = squares.copy()
+    for dr in range(1, min(limit, h - 1) + 1):
+        step = np.float32(dr * dr)
+        np.minimum(best[dr:], squares[:-dr] + step, out=best[dr:])
+        np.minimum(best[:-dr], squares[dr:] + step, out=best[:-dr])
+    return np.sqrt(best.astype(np.float64))  # as the exact transform's
 
 
 def pool_any(cells: np.ndarray, pool: int) -> np.ndarray:

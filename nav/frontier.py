@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav.costmap import GridArea
-from nav.planner import grid_graph, pooled
+from nav.planner import block_graph, pooled
 
 #: unknown pockets of fewer cells than this, enclosed by known cells, count as known: the gaps
 #: between a revolution's rays far from the robot, not places to go and look at
@@ -149,18 +149,13 @@ def _block_costs(costs: np.ndarray, start: tuple[int, int], corner: tuple[int, i
     of ``costs`` (a crop whose first cell is ``corner``), in blocks; a block is counted
     reachable when a neighbour is (the planner makes its goal's block passable)."""
     from scipy import ndimage
-    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
     coarse = pooled(costs, block)
     h, w = coarse.shape
     s = ((start[0] - corner[0]) // block, (start[1] - corner[1]) // block)
     coarse[s] = max(float(coarse[s]), 1.0) if math.isfinite(float(coarse[s])) else 1.0
-    source, target, length, pointers = grid_graph(h, w)
-    flat = coarse.ravel().astype(np.float64)
-    weights = length * 0.5 * (flat[source] + flat[target])
-    graph = csr_matrix((weights, target, pointers), shape=(h * w, h * w))
-    distances = np.asarray(dijkstra(graph, indices=s[0] * w + s[1])).reshape(h, w)
+    distances = np.asarray(dijkstra(block_graph(coarse), indices=s[0] * w + s[1])).reshape(h, w)
     grown: np.ndarray = ndimage.minimum_filter(distances, size=3, mode="constant",
                                                cval=np.inf)
     return grown

@@ -1,9 +1,11 @@
-# Grid planning: Dijkstra on a pooled cost grid (scipy), then string-pulling on the fine grid.
+# Grid planning: Dijkstra on a pooled cost grid (scipy), guided by a coarser search first,
+# then string-pulling on the fine grid.
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -11,8 +13,16 @@ from nav.costmap import GridArea
 
 #: how far (cells) the planner looks for a free cell when the start is in a lethal one
 ESCAPE_CELLS = 6
-#: the 8 neighbours: row step, column step
-NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, -1), (-1, 0), (-1, -1), (-1, 1))
+#: the guided search (:func:`guided_path`): grids of at least this many blocks are searched
+#: first on blocks of 2 x 2 blocks, then within GUIDE_MARGIN of those of that way; the way
+#: found is kept when it costs at most GUIDE_SLACK times (plus GUIDE_EXTRA blocks) what the
+#: first search found, else the whole grid is searched
+GUIDE_MIN_BLOCKS = 4096
+GUIDE_MARGIN = 3
+GUIDE_SLACK, GUIDE_EXTRA = 1.1, 8.0
+#: the 8 neighbours: row step, column step (in the order of their cells' indices, which is
+#: the order scipy's search meets them in: equally cheap paths are told apart the same way)
+NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
 @dataclass(frozen=True)
@@ -55,7 +65,7 @@ def plan(costs: np.ndarray, area: GridArea, start: tuple[float, float],
     coarse = pooled(costs, pool)
     cs, cg = (s[0] // pool, s[1] // pool), (g[0] // pool, g[1] // pool)
     coarse[cs], coarse[cg] = max(costs[s], 1.0), max(costs[g], 1.0)
-    blocks, cost = cheapest_path(coarse, cs, cg)
+    blocks, cost = guided_path(coarse, cs, cg)
     if not blocks:
         return no_plan("no path to the goal: every way is blocked by known obstacles")
     cells = [s] + [_block_centre(b, pool, costs.shape) for b in blocks[1:-1]] + [g]
@@ -84,41 +94,55 @@ def _block_centre(block: tuple[int, int], pool: int, shape: tuple[int, ...]) -> 
             min(block[1] * pool + pool // 2, shape[1] - 1))
 
 
-def grid_graph(h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The 8-connected grid's edges in CSR order: source, target, length, row pointers."""
-    index = np.arange(h * w).reshape(h, w)
-    sources, targets, lengths = [], [], []
-    for dr, dc in NEIGHBOURS:
-        a = index[max(0, -dr):h - max(0, dr), max(0, -dc):w - max(0, dc)].ravel()
-        b = index[max(0, dr):h + min(0, dr), max(0, dc):w + min(0, dc)].ravel()
-        sources.append(a)
-        targets.append(b)
-        lengths.append(np.full(a.size, math.hypot(dr, dc)))
-    source, target = np.concatenate(sources), np.concatenate(targets)
-    order = np.lexsort((target, source))
-    source, target = source[order], target[order]
-    length = np.concatenate(lengths)[order]
-    return source, target, length, np.searchsorted(source, np.arange(h * w + 1))
+@lru_cache(maxsize=4)
+def _structure(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """The 8-connected grid's edges in CSR form, every cell with all 8 neighbours in the order
+    of NEIGHBOURS (one past the edge of the grid: the cell itself, at an infinite weight):
+    target of each edge, row pointers. The planner's grid keeps its shape: built once."""
+    index = np.arange(h * w, dtype=np.int32).reshape(h, w)
+    rows, cols = np.divmod(index, w)
+    targets = np.empty((h, w, len(NEIGHBOURS)), dtype=np.int32)
+    for k, (dr, dc) in enumerate(NEIGHBOURS):
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        targets[:, :, k] = np.where(inside, r * w + c, index)
+    pointers = np.arange(0, h * w * len(NEIGHBOURS) + 1, len(NEIGHBOURS), dtype=np.int32)
+    targets.setflags(write=False)
+    pointers.setflags(write=False)
+    return targets.reshape(-1), pointers
 
 
-#: the planner's grid keeps its shape: its graph is built once
-_graph = lru_cache(maxsize=2)(grid_graph)
+#: half the length of the step to each neighbour
+_HALF_STEPS = np.array([0.5 * math.hypot(dr, dc) for dr, dc in NEIGHBOURS])
+
+
+def block_graph(costs: np.ndarray) -> Any:
+    """The 8-connected graph of the cells of ``costs`` for scipy's csgraph: a step costs its
+    length times the mean cost of its two cells (``inf``: a step never taken)."""
+    from scipy.sparse import csr_matrix  # here, not at import: the daemon starts without scipy
+
+    h, w = costs.shape
+    targets, pointers = _structure(h, w)
+    padded = np.full((h + 2, w + 2), np.inf)
+    padded[1:-1, 1:-1] = costs
+    weights = np.empty((h, w, len(NEIGHBOURS)))
+    for k, (dr, dc) in enumerate(NEIGHBOURS):
+        np.add(padded[1:-1, 1:-1], padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w],
+               out=weights[:, :, k])
+    weights *= _HALF_STEPS
+    return csr_matrix((weights.reshape(-1), targets, pointers), shape=(h * w, h * w))
 
 
 def cheapest_path(costs: np.ndarray, start: tuple[int, int],
                   goal: tuple[int, int]) -> tuple[list[tuple[int, int]], float]:
     """Cells of the cheapest 8-connected path (start first) and its cost in cells; a step
     costs its length times the mean cost of its two cells. Empty when none exists."""
-    from scipy.sparse import csr_matrix  # here, not at import: the daemon starts without scipy
     from scipy.sparse.csgraph import dijkstra
 
-    h, w = costs.shape
-    source, target, length, pointers = _graph(h, w)
-    flat = costs.ravel().astype(np.float64)
-    weights = length * 0.5 * (flat[source] + flat[target])  # inf: a step never taken
-    graph = csr_matrix((weights, target, pointers), shape=(h * w, h * w))
+    w = costs.shape[1]
     s, g = start[0] * w + start[1], goal[0] * w + goal[1]
-    distances, predecessors = dijkstra(graph, indices=s, return_predecessors=True)
+    distances, predecessors = dijkstra(block_graph(costs), indices=s,
+                                       return_predecessors=True)
     if not math.isfinite(float(distances[g])):
         return [], math.inf
     path = [g]
@@ -126,6 +150,43 @@ def cheapest_path(costs: np.ndarray, start: tuple[int, int],
         path.append(int(predecessors[path[-1]]))
     path.reverse()
     return [divmod(cell, w) for cell in path], float(distances[g])
+
+
+def guided_path(costs: np.ndarray, start: tuple[int, int],
+                goal: tuple[int, int]) -> tuple[list[tuple[int, int]], float]:
+    """What :func:`cheapest_path` finds, searching less of a large grid: first the cheapest
+    way over blocks of 2 x 2 cells, each as cheap as its cheapest (every way between the
+    cells is still there, so none found means none exists), then the cheapest path over the
+    cells within GUIDE_MARGIN blocks of that way. When that costs clearly more than the first
+    search (which is about a lower bound), or finds nothing, the whole grid is searched."""
+    h, w = costs.shape
+    if h * w < GUIDE_MIN_BLOCKS:
+        return cheapest_path(costs, start, goal)
+    from scipy import ndimage
+
+    coarse = _min_pooled(costs)
+    way, bound = cheapest_path(coarse, (start[0] // 2, start[1] // 2),
+                               (goal[0] // 2, goal[1] // 2))
+    if not way:
+        return [], math.inf
+    near = np.zeros(coarse.shape, dtype=bool)
+    along = np.array(way)
+    near[along[:, 0], along[:, 1]] = True
+    near = ndimage.binary_dilation(near, np.ones((3, 3), dtype=bool), GUIDE_MARGIN)
+    near = np.repeat(np.repeat(near, 2, axis=0), 2, axis=1)[:h, :w]
+    path, cost = cheapest_path(np.where(near, costs, np.inf), start, goal)
+    if path and cost <= GUIDE_SLACK * 2.0 * bound + GUIDE_EXTRA:
+        return path, cost
+    return cheapest_path(costs, start, goal)
+
+
+def _min_pooled(costs: np.ndarray) -> np.ndarray:
+    """Blocks of 2 x 2 cells, each as cheap as its cheapest (edges padded)."""
+    h, w = costs.shape
+    padded = np.full((h + h % 2, w + w % 2), np.inf, dtype=costs.dtype)
+    padded[:h, :w] = costs
+    return np.minimum(np.minimum(padded[::2, ::2], padded[1::2, ::2]),
+                      np.minimum(padded[::2, 1::2], padded[1::2, 1::2]))
 
 
 def _escape(costs: np.ndarray, cell: tuple[int, int]) -> tuple[int, int] | None:
@@ -152,7 +213,8 @@ def shortcut(costs: np.ndarray, cells: list[tuple[int, int]]) -> list[tuple[int,
     cell is searched by doubling then halving the jump: a few line checks per kept cell."""
     if len(cells) < 3:
         return cells
-    along = np.array([float(costs[rc]) for rc in cells])
+    index = np.array(cells)
+    along = costs[index[:, 0], index[:, 1]].astype(np.float64)
     kept = [cells[0]]
     i, last = 0, len(cells) - 1
     while i < last:
@@ -182,8 +244,20 @@ def _straight(costs: np.ndarray, cells: list[tuple[int, int]], along: np.ndarray
 
 
 def _line_cost(costs: np.ndarray, a: tuple[int, int], b: tuple[int, int]) -> float:
-    """The dearest cell a straight line from the centre of ``a`` to that of ``b`` crosses."""
-    n = 2 * max(abs(b[0] - a[0]), abs(b[1] - a[1])) + 1
-    rows = np.rint(np.linspace(a[0], b[0], n)).astype(np.int64)
-    cols = np.rint(np.linspace(a[1], b[1], n)).astype(np.int64)
+    """The dearest cell a straight line from the centre of ``a`` to that of ``b`` crosses
+    (sampled twice per cell of its longer side, as ``np.linspace`` would, with fewer calls)."""
+    global _ramp
+    dr, dc = b[0] - a[0], b[1] - a[1]
+    steps = 2 * max(abs(dr), abs(dc))
+    if steps == 0:
+        return float(costs[a])
+    if len(_ramp) <= steps:
+        _ramp = np.arange(2 * steps + 1, dtype=np.float64)
+    ramp = _ramp[:steps + 1]
+    rows = np.rint(ramp * (dr / steps) + a[0]).astype(np.intp)
+    cols = np.rint(ramp * (dc / steps) + a[1]).astype(np.intp)
     return float(costs[rows, cols].max())
+
+
+#: 0, 1, 2, ... for the line samples (grown when a longer line comes)
+_ramp = np.arange(1025, dtype=np.float64)

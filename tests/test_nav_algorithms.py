@@ -135,3 +135,31 @@ def test_the_figure_eight_is_tracked_closely() -> None:
     _, errors = drive(pursuit, start, 120.0)
     assert pursuit.arrived
     assert math.sqrt(np.mean(np.square(errors))) < 0.05
+
+
+def test_the_bounded_obstacle_distance_is_exact_within_its_limit() -> None:
+    from nav.costmap import obstacle_distance
+
+    rng = np.random.default_rng(1)
+    for density in (0.002, 0.05):
+        obstacles = rng.random((60, 90)) < density
+        exact = obstacle_distance(obstacles)
+        bounded = obstacle_distance(obstacles, 6)
+        near = exact <= 6
+        assert np.allclose(bounded[near], exact[near])
+        assert (bounded[~near] > 6).all()
+
+
+def test_the_guided_search_finds_the_way_through_a_narrow_gap_and_knows_when_there_is_none(
+) -> None:
+    from nav.planner import cheapest_path, guided_path
+
+    costs = np.ones((100, 100))
+    costs[50, :] = np.inf  # a wall across the grid, one gap far to the side
+    costs[50, 91] = 1.0
+    found, cost = guided_path(costs, (10, 10), (90, 10))
+    _, best_cost = cheapest_path(costs, (10, 10), (90, 10))
+    assert (50, 91) in found and found[0] == (10, 10) and found[-1] == (90, 10)
+    assert best_cost <= cost <= 1.1 * best_cost
+    costs[50, 91] = np.inf
+    assert guided_path(costs, (10, 10), (90, 10)) == ([], math.inf)

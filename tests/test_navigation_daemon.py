@@ -1,15 +1,21 @@
 # `arbiterd run --sim`: a goal published on /goal_pose over rosbridge the way Foxglove does drives
-# the robot there (ground truth); bad goals over rosbridge and HTTP are refused; it keeps running.
+# the robot there (ground truth); bad goals over rosbridge and HTTP are refused; it keeps running;
+# `arbiterd mission FILE` runs a mission file's steps on it, and names a bad step.
 from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 from daemon.messages.definitions import POINT_STAMPED, POSE_STAMPED, POSE_WITH_COVARIANCE_STAMPED
 from slam.pose import between
 from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
 from tests.support.net import http
+from tests.support.paths import REPO
 from tests.support.rosbridge import Client, connect
 from tests.support.wait import wait_for
 
@@ -119,3 +125,57 @@ def test_exploring_over_http_drives_to_frontiers_until_switched_off(
     assert body["exploration"]["state"] == "canceled", body
     assert daemon.get("/api/goal")[1]["state"] == "canceled"
     assert "exploring (requested over HTTP)" in daemon.log()
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "daemon.cli", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def test_a_mission_file_with_a_bad_step_is_refused_naming_the_step_and_field(
+        tmp_path: Path) -> None:
+    bad = tmp_path / "tour.toml"
+    bad.write_text('name = "tour"\n[[steps]]\nx = 1.0\ny = 0.0\n[[steps]]\nx = "far"\n'
+                   'y = 0.0\n')
+    nobody = "--url", "127.0.0.1:9"  # nothing is sent: the file is checked first
+    result = run_cli("mission", str(bad), *nobody)
+    assert result.returncode == 1
+    assert f"{bad}: steps[1].x: expected a finite number" in result.stderr, result.stderr
+    as_json = tmp_path / "tour.json"
+    as_json.write_text(json.dumps({"steps": [{"x": 1.0, "y": 0.0}, {"x": 1.0, "y": 0.0,
+                                                                    "speed": 2}]}))
+    result = run_cli("mission", str(as_json), *nobody)
+    assert result.returncode == 1 and "steps[1].speed: unknown field" in result.stderr
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[[steps]\nx = 1\n")
+    result = run_cli("mission", str(broken), *nobody)
+    assert result.returncode == 1 and "not valid TOML" in result.stderr, result.stderr
+    good = tmp_path / "good.toml"
+    good.write_text("[[steps]]\nx = 1\ny = 0\n")
+    result = run_cli("mission", str(good), *nobody)
+    assert result.returncode == 69 and "cannot reach" in result.stderr, result.stderr
+
+
+def test_a_mission_file_drives_the_robot_through_its_steps(
+        daemon_subprocess: StartDaemonSubprocess, tmp_path: Path) -> None:
+    daemon = daemon_subprocess('[sim]\ndriver = "mock"\nworld_file = "apartment"\n'
+                               '[security]\ntoken = "m1ssion-t0ken"\n', args=("--sim",))
+    wait_for(lambda: status(daemon)["safety"]["zone"] != "unknown", "the first revolution")
+    first = between(START, (-0.5, -2.5, 0.0))  # 0.5 m ahead
+    x, y, yaw = between(START, GOAL)
+    mission = tmp_path / "living-room.toml"
+    mission.write_text(f'name = "living room"\n[[steps]]\nx = {first[0]}\ny = {first[1]}\n'
+                       f'frame = "odom"\n[[steps]]\nx = {x}\ny = {y}\ntheta = {yaw}\n'
+                       'frame = "odom"\n')
+    result = run_cli("mission", str(mission), "--config", str(daemon.config_path))
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == "mission 'living room': 2 steps started", lines
+    assert lines[1].startswith("step 1/2 succeeded in "), lines
+    assert lines[2].startswith("step 2/2 succeeded in "), lines
+    assert lines[3] == "mission 'living room' succeeded", lines
+    wait_for(lambda: abs(status(daemon)["ground_truth"]["v"]) < 0.01, "the robot at rest")
+    truth = status(daemon)["ground_truth"]
+    assert math.hypot(truth["x"] - GOAL[0], truth["y"] - GOAL[1]) <= 0.10, truth
+    assert daemon.get("/api/sim/metrics")[1]["collisions"] == 0
