@@ -12,24 +12,14 @@ from daemon.config import load_config
 from daemon.control.commands import Twist
 from daemon.lockstep.explore import known_share, reachable_area
 from daemon.lockstep.runner import Lockstep
-from daemon.navigation.component import NavigationComponent
 from daemon.navigation.messages import GoalRequest
+from tests.support.navigation import apartment_lockstep, nav_of
 
 
 @pytest.fixture
 async def apartment() -> AsyncIterator[Lockstep]:
-    config = load_config(None, sim=True, env={})
-    config.update("sim", {"world_file": "apartment", "seed": 3})
-    lockstep = Lockstep(config, navigation=True)
-    await lockstep.begin()
-    await lockstep.advance(0.3)
-    yield lockstep
-    await lockstep.finish()
-
-
-def nav_of(lockstep: Lockstep) -> NavigationComponent:
-    assert lockstep.navigation is not None
-    return lockstep.navigation
+    async with apartment_lockstep() as lockstep:
+        yield lockstep
 
 
 def test_simulate_explore_knows_the_apartment_and_comes_back_without_a_collision(

@@ -9,31 +9,20 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from daemon.config import load_config
 from daemon.control.commands import Twist
 from daemon.lockstep.runner import Lockstep
-from daemon.navigation.component import NavigationComponent
 from daemon.navigation.messages import GoalError, GoalRequest, goal_of_pose_stamped
 from daemon.navigation.mission import mission_of_json
 from slam.pose import Pose2, between
+from tests.support.navigation import apartment_lockstep, nav_of
 
 APARTMENT_START: Pose2 = (-1.0, -2.5, 0.0)
 
 
 @pytest.fixture
 async def apartment() -> AsyncIterator[Lockstep]:
-    config = load_config(None, sim=True, env={})
-    config.update("sim", {"world_file": "apartment", "seed": 3})
-    lockstep = Lockstep(config, navigation=True)
-    await lockstep.begin()
-    await lockstep.advance(0.3)
-    yield lockstep
-    await lockstep.finish()
-
-
-def nav_of(lockstep: Lockstep) -> NavigationComponent:
-    assert lockstep.navigation is not None
-    return lockstep.navigation
+    async with apartment_lockstep() as lockstep:
+        yield lockstep
 
 
 async def go(lockstep: Lockstep, world_goal: Pose2, seconds: float = 60.0) -> float:
