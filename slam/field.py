@@ -7,6 +7,7 @@ import numpy as np
 
 from slam.grid import OccupancyGrid
 
+_EMPTY = np.zeros(0)
 SEARCH_PAD = 80  # zero-likelihood border cells around a field; searches reach at most half of it
 
 
@@ -40,6 +41,7 @@ class DistanceField:
                             exact_xy[1][rows, cols] - cy[:, None])
         self.distance = np.minimum(dist, max_distance).astype(np.float32)
         self._likelihood: dict[float, np.ndarray] = {}
+        self._table: np.ndarray | None = None
 
     @classmethod
     def from_points(cls, world_xy: np.ndarray, resolution: float, margin: float,
@@ -71,20 +73,47 @@ class DistanceField:
 
     def lookup(self, world_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear distance and its gradient (d, dd/dx, dd/dy) at world points (N, 2)."""
-        u = (world_xy[:, 0] - self.origin_x) / self.resolution - 0.5
-        v = (world_xy[:, 1] - self.origin_y) / self.resolution - 0.5
-        c0, r0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        u = (world_xy[:, 0] - self.origin_x) * (1.0 / self.resolution) - 0.5
+        v = (world_xy[:, 1] - self.origin_y) * (1.0 / self.resolution) - 0.5
+        return self.lookup_cells(u, v)
+
+    def lookup_cells(self, u: np.ndarray, v: np.ndarray,
+                     gradient: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``lookup`` at points given in cell units measured from the first cell's centre
+        (u = (x - origin_x) / resolution - 0.5, likewise v): one gather of the bilinear table
+        per point, no bounds masks. Without ``gradient`` the gradients are empty arrays."""
+        table = self._bilinear()
+        c0, r0 = np.floor(u), np.floor(v)
         fu, fv = u - c0, v - r0
-        inside = (c0 >= 0) & (c0 < self.width - 1) & (r0 >= 0) & (r0 < self.height - 1)
-        c0, r0 = np.where(inside, c0, 0), np.where(inside, r0, 0)
-        d = self.distance
-        d00, d01 = d[r0, c0], d[r0, c0 + 1]
-        d10, d11 = d[r0 + 1, c0], d[r0 + 1, c0 + 1]
-        value = (d00 * (1 - fu) + d01 * fu) * (1 - fv) + (d10 * (1 - fu) + d11 * fu) * fv
-        grad_x = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) / self.resolution
-        grad_y = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) / self.resolution
-        value = np.where(inside, value, self.max_distance)
-        return value, np.where(inside, grad_x, 0.0), np.where(inside, grad_y, 0.0)
+        # cells outside [0, width - 1) x [0, height - 1) read the table's border rows:
+        # max_distance, zero gradient
+        col = np.clip(c0, -1, self.width - 1).astype(np.intp)
+        row = np.clip(r0, -1, self.height - 1).astype(np.intp)
+        coef = table[(row + 1) * (self.width + 1) + (col + 1)]
+        a, b, c, e = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3]
+        value = a + b * fu + (c + e * fu) * fv
+        if not gradient:
+            return value, _EMPTY, _EMPTY
+        scale = 1.0 / self.resolution
+        return value, (b + e * fv) * scale, (c + e * fu) * scale
+
+    def _bilinear(self) -> np.ndarray:
+        """Per cell (r, c) of [-1, height - 1] x [-1, width - 1], flattened: the coefficients
+        (a, b, c, e) of d(fu, fv) = a + b fu + c fv + e fu fv between the centres of cells
+        (r, c) .. (r + 1, c + 1); the border rows and columns hold (max_distance, 0, 0, 0)."""
+        if self._table is None:
+            d = self.distance.astype(np.float64)
+            table = np.zeros((self.height + 1, self.width + 1, 4))
+            table[..., 0] = self.max_distance
+            if self.height > 1 and self.width > 1:
+                d00, d01, d10, d11 = d[:-1, :-1], d[:-1, 1:], d[1:, :-1], d[1:, 1:]
+                inner = table[1:-1, 1:-1]
+                inner[..., 0] = d00
+                inner[..., 1] = d01 - d00
+                inner[..., 2] = d10 - d00
+                inner[..., 3] = d11 - d10 - d01 + d00
+            self._table = table.reshape(-1, 4)
+        return self._table
 
     def likelihood(self, sigma: float) -> np.ndarray:
         """exp(-d² / 2 sigma²) per cell, float32, inside a border of SEARCH_PAD zero cells on
@@ -103,8 +132,16 @@ class DistanceField:
         """Mean likelihood of the points under the bilinear distance: 0 (nothing fits) .. 1."""
         if len(world_xy) == 0:
             return 0.0
-        d, _, _ = self.lookup(world_xy)
-        return float(np.mean(np.exp(-(d.astype(np.float64) ** 2) / (2 * sigma * sigma))))
+        u = (world_xy[:, 0] - self.origin_x) * (1.0 / self.resolution) - 0.5
+        v = (world_xy[:, 1] - self.origin_y) * (1.0 / self.resolution) - 0.5
+        return self.score_cells(u, v, sigma)
+
+    def score_cells(self, u: np.ndarray, v: np.ndarray, sigma: float) -> float:
+        """``score`` at points in the cell units of ``lookup_cells``."""
+        if len(u) == 0:
+            return 0.0
+        d, _, _ = self.lookup_cells(u, v, gradient=False)
+        return float(np.mean(np.exp(d * d * (-1.0 / (2 * sigma * sigma)))))
 
     def contains(self, x: float, y: float) -> bool:
         col = math.floor((x - self.origin_x) / self.resolution)

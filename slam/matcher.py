@@ -63,33 +63,37 @@ def correlative_search(field: DistanceField, points: np.ndarray, center: Pose2,
     # a mild preference for the centre of the window breaks ties on repetitive structure
     half = max(1, reach * cell_step)
     spread = (offsets[:, None] ** 2 + offsets[None, :] ** 2).reshape(-1) / half ** 2
-    # the offset of every shift from the prior (m²)
-    ox, oy = center[0] - prior[0], center[1] - prior[1]
-    offset_sq = (((offsets[:, None] * field.resolution + oy) ** 2
-                  + (offsets[None, :] * field.resolution + ox) ** 2).reshape(-1))
-    best: tuple[float, Pose2, float] = (-math.inf, center, 0.0)
-    for k in range(-turns, turns + 1):
-        theta = center[2] + k * window.angular_step
-        world = transform_points((center[0], center[1], theta), points)
-        col = np.floor((world[:, 0] - field.origin_x) / field.resolution).astype(np.int64)
-        row = np.floor((world[:, 1] - field.origin_y) / field.resolution).astype(np.int64)
-        col, row = col + SEARCH_PAD, row + SEARCH_PAD
-        # points that no shift brings into the field read a cell whose every shift is border
-        near = (col >= most) & (col < padded_w - most) & (row >= most) & (row < padded_h - most)
-        col, row = np.where(near, col, most), np.where(near, row, most)
-        scores = like[(row * padded_w + col)[None, :] + shifts[:, None]].mean(axis=1)
-        ranked = scores * (1.0 - penalty * (spread + (k / max(1, turns)) ** 2))
-        if prior_sigmas is not None:
-            mahalanobis = (offset_sq / prior_sigmas[0] ** 2
-                           + (wrap(theta - prior[2]) / prior_sigmas[1]) ** 2)
-            ranked = ranked / (1.0 + mahalanobis / 4.0)
-        i = int(np.argmax(ranked))
-        if ranked[i] > best[0]:
-            dy, dx = offsets[i // len(offsets)], offsets[i % len(offsets)]
-            best = (float(ranked[i]), (center[0] + dx * field.resolution,
-                                       center[1] + dy * field.resolution, wrap(theta)),
-                    float(scores[i]))
-    return best[1], best[2]
+    # every rotation at once: (turns, points) cells, then (turns, shifts) scores
+    ks = np.arange(-turns, turns + 1)
+    thetas = center[2] + ks * window.angular_step
+    cos, sin = np.cos(thetas)[:, None], np.sin(thetas)[:, None]
+    px, py = points[None, :, 0], points[None, :, 1]
+    inv = 1.0 / field.resolution
+    col = np.floor((px * cos - py * sin + (center[0] - field.origin_x)) * inv).astype(np.intp)
+    row = np.floor((px * sin + py * cos + (center[1] - field.origin_y)) * inv).astype(np.intp)
+    col += SEARCH_PAD
+    row += SEARCH_PAD
+    # points that no shift brings into the field read a cell whose every shift is border
+    near = (col >= most) & (col < padded_w - most) & (row >= most) & (row < padded_h - most)
+    base = np.where(near, row * padded_w + col, most * padded_w + most)
+    scores = like[base[:, None, :] + shifts[None, :, None]].mean(axis=2)
+    ranked = scores * (1.0 - penalty * (spread[None, :]
+                                        + ((ks / max(1, turns)) ** 2)[:, None]))
+    if prior_sigmas is not None:
+        ox, oy = center[0] - prior[0], center[1] - prior[1]
+        offset_sq = (((offsets[:, None] * field.resolution + oy) ** 2
+                      + (offsets[None, :] * field.resolution + ox) ** 2).reshape(-1))
+        turn_sq = np.array([wrap(float(t) - prior[2]) for t in thetas]) ** 2
+        mahalanobis = (offset_sq[None, :] / prior_sigmas[0] ** 2
+                       + turn_sq[:, None] / prior_sigmas[1] ** 2)
+        ranked = ranked / (1.0 + mahalanobis / 4.0)
+    # the first maximum: the lowest rotation, then the first shift, among equals
+    best = int(np.argmax(ranked))
+    k, i = divmod(best, len(shifts))
+    dy, dx = offsets[i // len(offsets)], offsets[i % len(offsets)]
+    pose = (center[0] + dx * field.resolution, center[1] + dy * field.resolution,
+            wrap(center[2] + int(ks[k]) * window.angular_step))
+    return pose, float(scores[k, i])
 
 
 def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
@@ -104,25 +108,36 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
     information = np.zeros((3, 3))
     px, py, pt = start if prior is None else prior
     lam = np.array([prior_weights[0], prior_weights[0], prior_weights[1]])
+    # points in cell units (u, v as DistanceField.lookup_cells takes them)
+    inv = 1.0 / field.resolution
+    cell_x, cell_y = points[:, 0] * inv, points[:, 1] * inv
+    base_u, base_v = -field.origin_x * inv - 0.5, -field.origin_y * inv - 0.5
+    jac = np.empty((len(points), 3))
+    ridge = np.diag([1e-6, 1e-6, 1e-6])
     for _ in range(iterations):
         c, s = math.cos(theta), math.sin(theta)
-        world = transform_points((x, y, theta), points)
-        d, gx, gy = field.lookup(world)
+        # the points rotated (cell units), then placed: u, v; the rotation is also the
+        # lever arm of the angle's derivative
+        rx, ry = cell_x * c - cell_y * s, cell_x * s + cell_y * c
+        d, gx, gy = field.lookup_cells(rx + (x * inv + base_u), ry + (y * inv + base_v))
         used = d < field.max_distance * 0.99
-        weight = np.where(d > robust_distance, robust_distance / np.maximum(d, 1e-9), 1.0) * used
-        jac = np.column_stack([gx, gy, gx * (-s * points[:, 0] - c * points[:, 1])
-                               + gy * (c * points[:, 0] - s * points[:, 1])])
         count = np.count_nonzero(used)
         if count < 6:
             break
-        information = (jac * weight[:, None]).T @ jac
-        gradient = (jac * weight[:, None]).T @ d
+        weight = np.where(d > robust_distance, robust_distance / np.maximum(d, 1e-9), 1.0)
+        weight *= used
+        jac[:, 0] = gx
+        jac[:, 1] = gy
+        jac[:, 2] = (gy * rx - gx * ry) * field.resolution
+        weighted = jac * weight[:, None]
+        information = weighted.T @ jac
+        gradient = weighted.T @ d
         if lam.any():  # the prior, in the units of the mean over the points
             offset = np.array([x - px, y - py, wrap(theta - pt)])
             information = information + np.diag(lam * count)
             gradient = gradient + lam * count * offset
-        step = np.linalg.solve(information + np.diag([1e-6, 1e-6, 1e-6]), -gradient)
-        x, y, theta = x + step[0], y + step[1], wrap(theta + step[2])
+        step = np.linalg.solve(information + ridge, -gradient)
+        x, y, theta = x + float(step[0]), y + float(step[1]), wrap(theta + float(step[2]))
         if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4:
             break
     pose = (float(x), float(y), float(theta))
