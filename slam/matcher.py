@@ -103,7 +103,13 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
     with Huber weights past ``robust_distance`` (points at the field's truncation count 0),
     plus ``prior_weights`` (per m², per rad²) x the squared offset from ``prior`` (the
     odometry prediction, as Cartographer's translation and rotation weights): along a
-    corridor, or wherever the scan says little, the pose stays with the prediction."""
+    corridor, or wherever the scan says little, the pose stays with the prediction.
+
+    On this field Gauss-Newton often overshoots and then swings between two poses (the
+    bilinear valleys at the walls are flatter than the V of a true distance); once a pose
+    comes back to within the stopping threshold (1e-4 m / rad) of the pose two steps
+    before, the remaining iterations are not run: their end is the member of the cycle the
+    iteration count lands on."""
     x, y, theta = start
     information = np.zeros((3, 3))
     px, py, pt = start if prior is None else prior
@@ -114,7 +120,9 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
     base_u, base_v = -field.origin_x * inv - 0.5, -field.origin_y * inv - 0.5
     jac = np.empty((len(points), 3))
     ridge = np.diag([1e-6, 1e-6, 1e-6])
-    for _ in range(iterations):
+    # per step: the pose it reached and the information it was linearised with
+    trail: list[tuple[float, float, float, np.ndarray]] = []
+    for i in range(iterations):
         c, s = math.cos(theta), math.sin(theta)
         # the points rotated (cell units), then placed: u, v; the rotation is also the
         # lever arm of the angle's derivative
@@ -140,6 +148,14 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
         x, y, theta = x + float(step[0]), y + float(step[1]), wrap(theta + float(step[2]))
         if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4:
             break
+        trail.append((x, y, theta, information))
+        if len(trail) >= 3:
+            bx, by, bt, _ = trail[-3]
+            if abs(x - bx) + abs(y - by) < 1e-4 and abs(wrap(theta - bt)) < 1e-4:
+                # a two-cycle: the remaining steps alternate between the last two poses
+                if (iterations - i - 1) % 2 == 1:
+                    x, y, theta, information = trail[-2]
+                break
     pose = (float(x), float(y), float(theta))
     return Match(pose, field.score(transform_points(pose, points), sigma), information)
 
