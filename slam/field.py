@@ -7,7 +7,6 @@ import numpy as np
 
 from slam.grid import OccupancyGrid
 
-_EMPTY = np.zeros(0)
 SEARCH_PAD = 80  # zero-likelihood border cells around a field; searches reach at most half of it
 
 
@@ -42,6 +41,7 @@ class DistanceField:
         self.distance = np.minimum(dist, max_distance).astype(np.float32)
         self._likelihood: dict[float, np.ndarray] = {}
         self._table: np.ndarray | None = None
+        self._table_last = np.zeros((2, 1))
 
     @classmethod
     def from_points(cls, world_xy: np.ndarray, resolution: float, margin: float,
@@ -73,46 +73,61 @@ class DistanceField:
 
     def lookup(self, world_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear distance and its gradient (d, dd/dx, dd/dy) at world points (N, 2)."""
-        u = (world_xy[:, 0] - self.origin_x) * (1.0 / self.resolution) - 0.5
-        v = (world_xy[:, 1] - self.origin_y) * (1.0 / self.resolution) - 0.5
-        return self.lookup_cells(u, v)
-
-    def lookup_cells(self, u: np.ndarray, v: np.ndarray,
-                     gradient: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``lookup`` at points given in cell units measured from the first cell's centre
-        (u = (x - origin_x) / resolution - 0.5, likewise v): one gather of the bilinear table
-        per point, no bounds masks. Without ``gradient`` the gradients are empty arrays."""
-        table = self._bilinear()
-        c0, r0 = np.floor(u), np.floor(v)
-        fu, fv = u - c0, v - r0
-        # cells outside [0, width - 1) x [0, height - 1) read the table's border rows:
-        # max_distance, zero gradient
-        col = np.clip(c0, -1, self.width - 1).astype(np.intp)
-        row = np.clip(r0, -1, self.height - 1).astype(np.intp)
-        coef = table[(row + 1) * (self.width + 1) + (col + 1)]
-        a, b, c, e = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3]
-        value = a + b * fu + (c + e * fu) * fv
-        if not gradient:
-            return value, _EMPTY, _EMPTY
+        value, grad = self.lookup_cells(self.to_cells(world_xy))
+        assert grad is not None
         scale = 1.0 / self.resolution
-        return value, (b + e * fv) * scale, (c + e * fu) * scale
+        return value, grad[0] * scale, grad[1] * scale
+
+    def to_cells(self, world_xy: np.ndarray) -> np.ndarray:
+        """World points (N, 2) in the units ``lookup_cells`` takes: (2, N), cells from the
+        centre of the cell (-1, -1), i.e. (x - origin_x) / resolution + 0.5."""
+        inv = 1.0 / self.resolution
+        return np.stack([(world_xy[:, 0] - self.origin_x) * inv + 0.5,
+                         (world_xy[:, 1] - self.origin_y) * inv + 0.5])
+
+    def lookup_cells(self, uv: np.ndarray,
+                     gradient: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear distance (m) at points ``uv`` (2, N) in the units of ``to_cells``, and
+        (``gradient``) its gradient in m per cell (2, N): one gather of the bilinear table a
+        point, no bounds masks. Outside the field: max_distance, zero gradient."""
+        table = self._bilinear()
+        whole = np.floor(uv)
+        frac = uv - whole
+        # cells outside [0, width - 1) x [0, height - 1) read the table's border:
+        # max_distance, zero gradient
+        np.maximum(whole, 0.0, out=whole)
+        np.minimum(whole, self._table_last, out=whole)
+        cell = whole.astype(np.intp)
+        coef = table[:, cell[1] * (self.width + 1) + cell[0]]
+        a, b, c, e = coef
+        fu, fv = frac
+        across = c + e * fu
+        value = a + b * fu + across * fv
+        if not gradient:
+            return value, None
+        grad = np.empty_like(uv)
+        np.multiply(e, fv, out=grad[0])
+        grad[0] += b
+        grad[1] = across
+        return value, grad
 
     def _bilinear(self) -> np.ndarray:
-        """Per cell (r, c) of [-1, height - 1] x [-1, width - 1], flattened: the coefficients
-        (a, b, c, e) of d(fu, fv) = a + b fu + c fv + e fu fv between the centres of cells
-        (r, c) .. (r + 1, c + 1); the border rows and columns hold (max_distance, 0, 0, 0)."""
+        """(4, cells): per cell (r, c) of [-1, height - 1] x [-1, width - 1], flattened
+        row-major, the coefficients (a, b, c, e) of d(fu, fv) = a + b fu + c fv + e fu fv
+        between the centres of cells (r, c) .. (r + 1, c + 1); the border rows and columns
+        hold (max_distance, 0, 0, 0)."""
         if self._table is None:
             d = self.distance.astype(np.float64)
-            table = np.zeros((self.height + 1, self.width + 1, 4))
-            table[..., 0] = self.max_distance
+            table = np.zeros((4, self.height + 1, self.width + 1))
+            table[0] = self.max_distance
             if self.height > 1 and self.width > 1:
                 d00, d01, d10, d11 = d[:-1, :-1], d[:-1, 1:], d[1:, :-1], d[1:, 1:]
-                inner = table[1:-1, 1:-1]
-                inner[..., 0] = d00
-                inner[..., 1] = d01 - d00
-                inner[..., 2] = d10 - d00
-                inner[..., 3] = d11 - d10 - d01 + d00
-            self._table = table.reshape(-1, 4)
+                table[0, 1:-1, 1:-1] = d00
+                table[1, 1:-1, 1:-1] = d01 - d00
+                table[2, 1:-1, 1:-1] = d10 - d00
+                table[3, 1:-1, 1:-1] = d11 - d10 - d01 + d00
+            self._table = table.reshape(4, -1)
+            self._table_last = np.array([[self.width], [self.height]], dtype=np.float64)
         return self._table
 
     def likelihood(self, sigma: float) -> np.ndarray:
@@ -132,15 +147,7 @@ class DistanceField:
         """Mean likelihood of the points under the bilinear distance: 0 (nothing fits) .. 1."""
         if len(world_xy) == 0:
             return 0.0
-        u = (world_xy[:, 0] - self.origin_x) * (1.0 / self.resolution) - 0.5
-        v = (world_xy[:, 1] - self.origin_y) * (1.0 / self.resolution) - 0.5
-        return self.score_cells(u, v, sigma)
-
-    def score_cells(self, u: np.ndarray, v: np.ndarray, sigma: float) -> float:
-        """``score`` at points in the cell units of ``lookup_cells``."""
-        if len(u) == 0:
-            return 0.0
-        d, _, _ = self.lookup_cells(u, v, gradient=False)
+        d, _ = self.lookup_cells(self.to_cells(world_xy), gradient=False)
         return float(np.mean(np.exp(d * d * (-1.0 / (2 * sigma * sigma)))))
 
     def contains(self, x: float, y: float) -> bool:

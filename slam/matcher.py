@@ -110,43 +110,60 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
     comes back to within the stopping threshold (1e-4 m / rad) of the pose two steps
     before, the remaining iterations are not run: their end is the member of the cycle the
     iteration count lands on."""
+    return _refine(field, points, start, sigma, iterations, robust_distance, prior,
+                   prior_weights)[0]
+
+
+def _refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
+            iterations: int = 12, robust_distance: float = 0.1, prior: Pose2 | None = None,
+            prior_weights: tuple[float, float] = (0.0, 0.0)) -> tuple[Match, float]:
+    """``refine``, and the score at ``start``."""
     x, y, theta = start
     information = np.zeros((3, 3))
     px, py, pt = start if prior is None else prior
     lam = np.array([prior_weights[0], prior_weights[0], prior_weights[1]])
-    # points in cell units (u, v as DistanceField.lookup_cells takes them)
+    # the points in cells (2, N); the field's gradient is per cell, so the Jacobian in
+    # cells is scaled back to metres in the 3x3 products
     inv = 1.0 / field.resolution
-    cell_x, cell_y = points[:, 0] * inv, points[:, 1] * inv
-    base_u, base_v = -field.origin_x * inv - 0.5, -field.origin_y * inv - 0.5
-    jac = np.empty((len(points), 3))
+    cells = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T) * inv
+    to_metres = np.array([inv, inv, 1.0])
+    outer = np.outer(to_metres, to_metres)
+    base_u, base_v = 0.5 - field.origin_x * inv, 0.5 - field.origin_y * inv
+    cutoff = field.max_distance * 0.99
+    jac = np.empty((3, cells.shape[1]))
     ridge = np.diag([1e-6, 1e-6, 1e-6])
+    start_score = math.nan
     # per step: the pose it reached and the information it was linearised with
     trail: list[tuple[float, float, float, np.ndarray]] = []
     for i in range(iterations):
         c, s = math.cos(theta), math.sin(theta)
-        # the points rotated (cell units), then placed: u, v; the rotation is also the
-        # lever arm of the angle's derivative
-        rx, ry = cell_x * c - cell_y * s, cell_x * s + cell_y * c
-        d, gx, gy = field.lookup_cells(rx + (x * inv + base_u), ry + (y * inv + base_v))
-        used = d < field.max_distance * 0.99
-        count = np.count_nonzero(used)
+        # the points rotated (cells); also the lever arm of the angle's derivative
+        rotated = np.array([[c, -s], [s, c]]) @ cells
+        d, grad = field.lookup_cells(rotated + np.array([[x * inv + base_u],
+                                                         [y * inv + base_v]]))
+        assert grad is not None
+        if i == 0:
+            start_score = _score(d, sigma)
+        used = d < cutoff
+        count = int(np.count_nonzero(used))
         if count < 6:
             break
-        weight = np.where(d > robust_distance, robust_distance / np.maximum(d, 1e-9), 1.0)
+        # Huber: 1 up to robust_distance, robust_distance / d past it; 0 at the truncation
+        weight = robust_distance / np.maximum(d, robust_distance)
         weight *= used
-        jac[:, 0] = gx
-        jac[:, 1] = gy
-        jac[:, 2] = (gy * rx - gx * ry) * field.resolution
-        weighted = jac * weight[:, None]
-        information = weighted.T @ jac
-        gradient = weighted.T @ d
+        jac[:2] = grad
+        np.multiply(grad[1], rotated[0], out=jac[2])
+        jac[2] -= grad[0] * rotated[1]
+        weighted = jac * weight
+        information = (weighted @ jac.T) * outer
+        gradient = (weighted @ d) * to_metres
         if lam.any():  # the prior, in the units of the mean over the points
             offset = np.array([x - px, y - py, wrap(theta - pt)])
             information = information + np.diag(lam * count)
             gradient = gradient + lam * count * offset
-        step = np.linalg.solve(information + ridge, -gradient)
-        x, y, theta = x + float(step[0]), y + float(step[1]), wrap(theta + float(step[2]))
-        if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4:
+        sx, sy, st = _solve3(information + ridge, gradient)
+        x, y, theta = x - sx, y - sy, wrap(theta - st)
+        if abs(sx) + abs(sy) < 1e-4 and abs(st) < 1e-4:
             break
         trail.append((x, y, theta, information))
         if len(trail) >= 3:
@@ -157,7 +174,36 @@ def refine(field: DistanceField, points: np.ndarray, start: Pose2, sigma: float,
                     x, y, theta, information = trail[-2]
                 break
     pose = (float(x), float(y), float(theta))
-    return Match(pose, field.score(transform_points(pose, points), sigma), information)
+    if math.isnan(start_score):
+        start_score = field.score(transform_points(start, points), sigma)
+    return Match(pose, field.score(transform_points(pose, points), sigma), information), \
+        start_score
+
+
+def _solve3(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
+    """x with a x = b for a symmetric 3x3 ``a`` (Cramer's rule on Python floats: a tenth of
+    np.linalg.solve's call overhead at this size)."""
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a.tolist()
+    b0, b1, b2 = b.tolist()
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0 or not math.isfinite(det):
+        x = np.linalg.lstsq(a, b, rcond=None)[0]
+        return float(x[0]), float(x[1]), float(x[2])
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    return ((c00 * b0 + c01 * b1 + c02 * b2) / det, (c01 * b0 + c11 * b1 + c12 * b2) / det,
+            (c02 * b0 + c12 * b1 + c22 * b2) / det)
+
+
+def _score(d: np.ndarray, sigma: float) -> float:
+    """DistanceField.score from the points' bilinear distances."""
+    if len(d) == 0:
+        return 0.0
+    return float(np.mean(np.exp(d * d * (-1.0 / (2 * sigma * sigma)))))
 
 
 def match(field: DistanceField, points: np.ndarray, prior: Pose2,
@@ -174,8 +220,8 @@ def match(field: DistanceField, points: np.ndarray, prior: Pose2,
     for window in windows:
         center, _ = correlative_search(field, sparse, center, window, prior, penalty,
                                        prior_sigmas)
-    refined = refine(field, points, center, sigma, prior=prior, prior_weights=prior_weights)
-    searched = field.score(transform_points(center, points), sigma)
+    refined, searched = _refine(field, points, center, sigma, prior=prior,
+                                prior_weights=prior_weights)
     # bounded: a refinement that leaves the first window slid into another basin (Gauss-Newton
     # is unbounded), the pose searched for is not there
     outer = windows[0] if windows else None
