@@ -9,6 +9,8 @@ import numpy as np
 from slam.field import SEARCH_PAD, DistanceField
 from slam.pose import Pose2, transform_points, wrap
 
+GATHER_BLOCK = 1 << 18  # cells one correlative gather reads at most (2 MB of indices)
+
 
 @dataclass(frozen=True)
 class SearchWindow:
@@ -76,7 +78,13 @@ def correlative_search(field: DistanceField, points: np.ndarray, center: Pose2,
     # points that no shift brings into the field read a cell whose every shift is border
     near = (col >= most) & (col < padded_w - most) & (row >= most) & (row < padded_h - most)
     base = np.where(near, row * padded_w + col, most * padded_w + most)
-    scores = like[base[:, None, :] + shifts[None, :, None]].mean(axis=2)
+    # in blocks of rotations, so a wide search (a loop closure's 25 x 1681 x 90) never holds
+    # more than GATHER_BLOCK indices at once
+    scores = np.empty((len(ks), len(shifts)), dtype=like.dtype)
+    per = max(1, GATHER_BLOCK // (len(shifts) * max(1, len(points))))
+    for first in range(0, len(ks), per):
+        block = base[first:first + per]
+        scores[first:first + per] = like[block[:, None, :] + shifts[None, :, None]].mean(axis=2)
     ranked = scores * (1.0 - penalty * (spread[None, :]
                                         + ((ks / max(1, turns)) ** 2)[:, None]))
     if prior_sigmas is not None:
