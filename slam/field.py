@@ -40,6 +40,8 @@ class DistanceField:
                             exact_xy[1][rows, cols] - cy[:, None])
         self.distance = np.minimum(dist, max_distance).astype(np.float32)
         self._likelihood: dict[float, np.ndarray] = {}
+        self._table: np.ndarray | None = None
+        self._table_last = np.zeros((2, 1))
 
     @classmethod
     def from_points(cls, world_xy: np.ndarray, resolution: float, margin: float,
@@ -71,20 +73,62 @@ class DistanceField:
 
     def lookup(self, world_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear distance and its gradient (d, dd/dx, dd/dy) at world points (N, 2)."""
-        u = (world_xy[:, 0] - self.origin_x) / self.resolution - 0.5
-        v = (world_xy[:, 1] - self.origin_y) / self.resolution - 0.5
-        c0, r0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-        fu, fv = u - c0, v - r0
-        inside = (c0 >= 0) & (c0 < self.width - 1) & (r0 >= 0) & (r0 < self.height - 1)
-        c0, r0 = np.where(inside, c0, 0), np.where(inside, r0, 0)
-        d = self.distance
-        d00, d01 = d[r0, c0], d[r0, c0 + 1]
-        d10, d11 = d[r0 + 1, c0], d[r0 + 1, c0 + 1]
-        value = (d00 * (1 - fu) + d01 * fu) * (1 - fv) + (d10 * (1 - fu) + d11 * fu) * fv
-        grad_x = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) / self.resolution
-        grad_y = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) / self.resolution
-        value = np.where(inside, value, self.max_distance)
-        return value, np.where(inside, grad_x, 0.0), np.where(inside, grad_y, 0.0)
+        value, grad = self.lookup_cells(self.to_cells(world_xy))
+        assert grad is not None
+        scale = 1.0 / self.resolution
+        return value, grad[0] * scale, grad[1] * scale
+
+    def to_cells(self, world_xy: np.ndarray) -> np.ndarray:
+        """World points (N, 2) in the units ``lookup_cells`` takes: (2, N), cells from the
+        centre of the cell (-1, -1), i.e. (x - origin_x) / resolution + 0.5."""
+        inv = 1.0 / self.resolution
+        return np.stack([(world_xy[:, 0] - self.origin_x) * inv + 0.5,
+                         (world_xy[:, 1] - self.origin_y) * inv + 0.5])
+
+    def lookup_cells(self, uv: np.ndarray,
+                     gradient: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear distance (m) at points ``uv`` (2, N) in the units of ``to_cells``, and
+        (``gradient``) its gradient in m per cell (2, N): one gather of the bilinear table a
+        point, no bounds masks. Outside the field: max_distance, zero gradient."""
+        table = self._bilinear()
+        whole = np.floor(uv)
+        frac = uv - whole
+        # cells outside [0, width - 1) x [0, height - 1) read the table's border:
+        # max_distance, zero gradient
+        np.maximum(whole, 0.0, out=whole)
+        np.minimum(whole, self._table_last, out=whole)
+        cell = whole.astype(np.intp)
+        coef = table[:, cell[1] * (self.width + 1) + cell[0]]
+        a, b, c, e = coef
+        fu, fv = frac
+        across = c + e * fu
+        value = a + b * fu + across * fv
+        if not gradient:
+            return value, None
+        grad = np.empty_like(uv)
+        np.multiply(e, fv, out=grad[0])
+        grad[0] += b
+        grad[1] = across
+        return value, grad
+
+    def _bilinear(self) -> np.ndarray:
+        """(4, cells): per cell (r, c) of [-1, height - 1] x [-1, width - 1], flattened
+        row-major, the coefficients (a, b, c, e) of d(fu, fv) = a + b fu + c fv + e fu fv
+        between the centres of cells (r, c) .. (r + 1, c + 1); the border rows and columns
+        hold (max_distance, 0, 0, 0)."""
+        if self._table is None:
+            d = self.distance.astype(np.float64)
+            table = np.zeros((4, self.height + 1, self.width + 1))
+            table[0] = self.max_distance
+            if self.height > 1 and self.width > 1:
+                d00, d01, d10, d11 = d[:-1, :-1], d[:-1, 1:], d[1:, :-1], d[1:, 1:]
+                table[0, 1:-1, 1:-1] = d00
+                table[1, 1:-1, 1:-1] = d01 - d00
+                table[2, 1:-1, 1:-1] = d10 - d00
+                table[3, 1:-1, 1:-1] = d11 - d10 - d01 + d00
+            self._table = table.reshape(4, -1)
+            self._table_last = np.array([[self.width], [self.height]], dtype=np.float64)
+        return self._table
 
     def likelihood(self, sigma: float) -> np.ndarray:
         """exp(-d² / 2 sigma²) per cell, float32, inside a border of SEARCH_PAD zero cells on
@@ -103,8 +147,8 @@ class DistanceField:
         """Mean likelihood of the points under the bilinear distance: 0 (nothing fits) .. 1."""
         if len(world_xy) == 0:
             return 0.0
-        d, _, _ = self.lookup(world_xy)
-        return float(np.mean(np.exp(-(d.astype(np.float64) ** 2) / (2 * sigma * sigma))))
+        d, _ = self.lookup_cells(self.to_cells(world_xy), gradient=False)
+        return float(np.mean(np.exp(d * d * (-1.0 / (2 * sigma * sigma)))))
 
     def contains(self, x: float, y: float) -> bool:
         col = math.floor((x - self.origin_x) / self.resolution)

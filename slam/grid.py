@@ -138,21 +138,28 @@ class OccupancyGrid:
 
     def _free_cells(self, origin: np.ndarray, ends: np.ndarray,
                     end_cells: np.ndarray) -> np.ndarray:
-        """Flat indices of the cells the rays cross before their end cell (repeats allowed)."""
+        """Flat indices of the cells the rays cross before their end cell (repeats allowed):
+        samples every half cell along each ray, as many as that ray's length needs (the rays
+        are ragged, flattened ray after ray: short rays cost no padding to the longest)."""
         step = self.resolution * 0.5
         delta = ends - origin
         length = np.hypot(delta[:, 0], delta[:, 1])
-        samples = int(np.ceil(length.max() / step)) + 1
-        t = np.arange(samples) * step  # metres along each ray
-        frac = t[None, :] / np.maximum(length[:, None], 1e-9)
-        valid = frac < 1.0
-        xs = origin[0] + delta[:, 0:1] * frac
-        ys = origin[1] + delta[:, 1:2] * frac
+        # samples k * step with k * step < length: one more k than needed, the test below
+        # drops it (the same samples as a rectangle padded to the longest ray)
+        counts = np.ceil(length / step).astype(np.int64) + 1
+        total = int(counts.sum())
+        ray = np.repeat(np.arange(len(counts)), counts)
+        starts = np.cumsum(counts) - counts
+        t = (np.arange(total) - np.repeat(starts, counts)) * step  # metres along the ray
+        frac = t / np.maximum(length[ray], 1e-9)
+        keep = frac < 1.0
+        xs = origin[0] + delta[ray, 0] * frac
+        ys = origin[1] + delta[ray, 1] * frac
         cols = np.floor((xs - self.origin_x) / self.resolution).astype(np.int64)
         rows = np.floor((ys - self.origin_y) / self.resolution).astype(np.int64)
-        valid &= ~((cols == end_cells[:, 0:1]) & (rows == end_cells[:, 1:2]))
-        valid &= (cols >= 0) & (cols < self.width) & (rows >= 0) & (rows < self.height)
-        return (rows[valid] * self.width + cols[valid]).astype(np.int64)
+        keep &= ~((cols == end_cells[ray, 0]) & (rows == end_cells[ray, 1]))
+        keep &= (cols >= 0) & (cols < self.width) & (rows >= 0) & (rows < self.height)
+        return (rows[keep] * self.width + cols[keep]).astype(np.int64)
 
     def _add(self, flat: np.ndarray, index: np.ndarray, amount: np.float32) -> None:
         """Add once per distinct cell (fancy assignment writes repeats once), clamp, keep != 0."""
