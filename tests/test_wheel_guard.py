@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import random
+import statistics
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -146,10 +147,12 @@ def test_no_false_trip_while_wandering(driver: str, tmp_path: Path) -> None:
                 samples.append((now["wheel_speeds_rad_s"], now["measured_wheel_speeds_rad_s"]))
         code, health = daemon.get("/api/health")
         assert code == 200 and health["components"]["control"]["wheel_guard"]["trips"] == 0
-    # the sim's encoder noise (odom_noise) makes single measurements jitter; their mean agrees
+    # single measurements jitter: the sim's encoder noise (odom_noise), and an emulator process
+    # a loaded machine starved catching up in one step (6.1 rad/s for 4.5 once in CI); their
+    # median agrees
     for side in ("left", "right"):
-        commanded = sum(c[side] for c, _ in samples) / len(samples)
-        measured = sum(m[side] for _, m in samples) / len(samples)
+        commanded = statistics.median(c[side] for c, _ in samples)
+        measured = statistics.median(m[side] for _, m in samples)
         assert close_to(measured, commanded, 0.4), (side, samples)
 
 
