@@ -63,11 +63,19 @@ class Costmap:
     """Evidence of obstacles per cell from lidar revolutions (returns add, rays clear) and the
     cost of crossing each cell for the planner."""
 
-    def __init__(self, area: GridArea, params: CostParams) -> None:
+    def __init__(self, area: GridArea, params: CostParams,
+                 cells: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """``cells``: the evidence (int8) and seen (bool) arrays to work in, (height, width)
+        each and zeroed (e.g. in memory shared with a worker process); by default its own."""
         self.area = area
         self.params = params
-        self.evidence = np.zeros((area.height, area.width), dtype=np.int8)
-        self.seen = np.zeros((area.height, area.width), dtype=bool)
+        shape = (area.height, area.width)
+        if cells is None:
+            cells = np.zeros(shape, dtype=np.int8), np.zeros(shape, dtype=bool)
+        self.evidence, self.seen = cells
+        if self.evidence.shape != shape or self.seen.shape != shape \
+                or self.evidence.dtype != np.int8 or self.seen.dtype != np.bool_:
+            raise ValueError(f"costmap cells must be int8 and bool arrays of shape {shape}")
 
     def add_scan(self, pose: tuple[float, float, float], xs: np.ndarray, ys: np.ndarray) -> None:
         """One revolution's returns (robot frame) taken at ``pose`` (the grid's frame)."""

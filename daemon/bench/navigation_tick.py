@@ -58,7 +58,7 @@ async def _run(quick: bool) -> list[BenchResult]:
                     note="same daemon, 360-ray scans of the apartment on the bus at 10 Hz"),
         BenchResult(SUITE, "tick lateness p99, navigation following a goal", round(p99_busy, 4),
                     "ms", f"<= idle + {LATENESS_TARGET_MS}", added <= LATENESS_TARGET_MS,
-                    f"{goals} goals 2 m away planned (worker thread), followed and recovered "
+                    f"{goals} goals 2 m away planned (planning process), followed and recovered "
                     f"from; idle/following in turns of {segment:g} s over {2 * seconds:g} s, "
                     f"50 Hz tick; replans in the last goal: {plans}"),
     ]

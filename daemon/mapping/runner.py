@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 import asyncio
-import multiprocessing
-import os
-import threading
-import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from daemon.mapping.mapfile import MapData
+from daemon.workers import worker_pool
 from slam.grid import OccupancyGrid
 from slam.mapper import Mapper, MapperConfig, ScanResult
 from slam.pose import Pose2
@@ -97,17 +93,7 @@ _WORKER: Mapper | None = None
 
 def _worker_start(config: MapperConfig, grid: MapData | None, pose: Pose2) -> None:
     global _WORKER
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="parent-watch",
-                     daemon=True).start()
     _WORKER = new_mapper(config, grid, pose)
-
-
-def _exit_with_parent(parent: int, every_s: float = 0.5) -> None:
-    """The worker ends when the daemon does, however it ended (SIGKILL included): no
-    orphan keeps a core busy."""
-    while os.getppid() == parent:
-        time.sleep(every_s)
-    os._exit(0)
 
 
 def _worker() -> Mapper:
@@ -141,9 +127,7 @@ class ProcessRunner:
 
     def __init__(self, config: MapperConfig, grid: MapData | None = None,
                  pose: Pose2 = (0.0, 0.0, 0.0)) -> None:
-        self.pool = ProcessPoolExecutor(
-            max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-            initializer=_worker_start, initargs=(config, grid, pose))
+        self.pool = worker_pool(_worker_start, config, grid, pose)
 
     async def _call(self, function: Callable[..., T], *args: Any) -> T:
         return await asyncio.get_running_loop().run_in_executor(self.pool, function, *args)

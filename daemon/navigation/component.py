@@ -31,6 +31,14 @@ from daemon.navigation.messages import (
 )
 from daemon.navigation.mission import Mission, mission_of_json
 from daemon.navigation.navigator import Navigator, NavigatorSettings, Target
+from daemon.navigation.planning import (
+    Looked,
+    Planned,
+    PlanningWorker,
+    fold,
+    fold_and_look,
+    fold_and_plan,
+)
 from daemon.navigation.settings import NavigationSettings
 from daemon.safety.component import StatePublisher, scan_points
 from daemon.safety.settings import CollisionMonitorSettings
@@ -38,8 +46,6 @@ from daemon.settings import LimitsSettings, RobotSettings
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from nav.costmap import Costmap, CostParams, GridArea, centred_area
-from nav.frontier import Frontier, find_frontiers, known_free_m2
-from nav.planner import Plan, plan
 from nav.pursuit import PursuitSettings, figure_eight, transform
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
@@ -100,7 +106,7 @@ class NavigationComponent(BaseComponent):
     follows the plan with Regulated Pure Pursuit; its commands go through the arbiter (above
     the wander behaviour, below every client), so the collision monitor and the limiter
     apply. Any client command cancels the goal; the e-stop or a driver fault fail it; a stale
-    scan holds the robot. Plans run in a worker thread (``inline``: in the tick, repeatable)."""
+    scan holds the robot. Plans run in a worker process (``inline``: in the tick, repeatable)."""
 
     name = "navigation"
     core = False
@@ -118,6 +124,8 @@ class NavigationComponent(BaseComponent):
         self.area: GridArea = centred_area(settings.resolution, settings.size_m)
         self.costmap = Costmap(self.area, cost_params(config))
         self.costs: np.ndarray | None = None
+        #: the planning process (None: plans run in the tick, ``inline``)
+        self.worker: PlanningWorker | None = None
         self.navigator = Navigator(navigator_settings(config))
         robot, mapping = config.get(RobotSettings), config.get(MappingSettings)
         self.odom_frame = robot.odom_frame_id
@@ -178,12 +186,10 @@ class NavigationComponent(BaseComponent):
 
     def refresh_costs(self) -> np.ndarray | None:
         """Fold the revolutions waiting for the next plan into the costmap now (unless a plan
-        is running in the worker thread: then the last costs) and return the costs."""
+        is running in the worker: then the last costs) and return the costs."""
         if not self._planning and self._scans:
-            for pose, xs, ys in self._scans:
-                self.costmap.add_scan(pose, xs, ys)
+            self.costs = fold(self.costmap, list(self._scans))
             self._scans.clear()
-            self.costs = self.costmap.costs()
         return self.costs
 
     def _odom(self) -> Pose2:
@@ -355,26 +361,18 @@ class NavigationComponent(BaseComponent):
         self._scans.clear()
         start, goal = self._here(), self._goal_in_frame()
         yaw = None if target.yaw is None else goal[2]
-        job = (scans, start, goal)
-        if self.inline:
-            self._take_plan(self._plan_job(*job), target.number, yaw)
+        block = self.settings.plan_block
+        if self.worker is None:
+            self._take_plan(fold_and_plan(self.costmap, scans, start, goal, block),
+                            target.number, yaw)
             return
         self._planning = True
-        future = asyncio.get_running_loop().run_in_executor(None, self._plan_job, *job)
+        future = asyncio.ensure_future(self.worker.plan(scans, start, goal, block))
         self._tasks.add(future)
         future.add_done_callback(lambda f: self._planned(f, target.number, yaw))
 
-    def _plan_job(self, scans: list[tuple[Pose2, np.ndarray, np.ndarray]], start: Pose2,
-                  goal: Pose2) -> Plan:
-        started = time.perf_counter()
-        for pose, xs, ys in scans:
-            self.costmap.add_scan(pose, xs, ys)
-        self.costs = costs = self.costmap.costs()
-        result = plan(costs, self.area, start[:2], goal[:2], self.settings.plan_block)
-        self.plan_ms = round(1000 * (time.perf_counter() - started), 1)
-        return result
-
-    def _planned(self, future: asyncio.Future[Any], number: int, yaw: float | None) -> None:
+    def _planned(self, future: asyncio.Future[Planned], number: int,
+                 yaw: float | None) -> None:
         self._tasks.discard(future)
         self._planning = False
         if future.cancelled():
@@ -385,11 +383,11 @@ class NavigationComponent(BaseComponent):
             return
         self._take_plan(future.result(), number, yaw)
 
-    def _take_plan(self, result: Plan, number: int, yaw: float | None) -> None:
+    def _take_plan(self, planned: Planned, number: int, yaw: float | None) -> None:
+        self.costs, self.plan_ms, result = planned.costs, planned.ms, planned.plan
         navigator = self.navigator
         state = navigator.state
-        navigator.planned(result, self.clock(), number, yaw)
-        if result.found and navigator.plan_points is result.points:  # taken: it is followed
+        if navigator.planned(result, self.clock(), number, yaw):
             self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, result.points))
         if navigator.state != state:
             self._state_changed(state)
@@ -500,30 +498,20 @@ class NavigationComponent(BaseComponent):
         return self.explorer.status(self.clock())
 
     def _look(self, now: float) -> None:
-        """Fold the revolutions in and find the frontiers (in a worker thread, as a plan)."""
+        """Fold the revolutions in and find the frontiers (in the worker, as a plan)."""
         scans = list(self._scans)
         self._scans.clear()
         start = self._here()
-        if self.inline:
-            self._looked(*self._look_job(scans, start))
+        job = (scans, start, self.explorer.settings.min_frontier_cells, self.settings.plan_block)
+        if self.worker is None:
+            self._looked(fold_and_look(self.costmap, *job))
             return
         self._planning = True
-        future = asyncio.get_running_loop().run_in_executor(None, self._look_job, scans, start)
+        future = asyncio.ensure_future(self.worker.look(*job))
         self._tasks.add(future)
         future.add_done_callback(self._look_done)
 
-    def _look_job(self, scans: list[tuple[Pose2, np.ndarray, np.ndarray]],
-                  start: Pose2) -> tuple[list[Frontier], float]:
-        for pose, xs, ys in scans:
-            self.costmap.add_scan(pose, xs, ys)
-        self.costs = costs = self.costmap.costs()
-        obstacles = self.costmap.obstacles()
-        found = find_frontiers(costs, self.costmap.seen, obstacles, self.area, start[:2],
-                               min_cells=self.explorer.settings.min_frontier_cells,
-                               block=self.settings.plan_block)
-        return found, known_free_m2(self.costmap.seen, obstacles, self.area.resolution)
-
-    def _look_done(self, future: asyncio.Future[Any]) -> None:
+    def _look_done(self, future: asyncio.Future[Looked]) -> None:
         self._tasks.discard(future)
         self._planning = False
         if future.cancelled():
@@ -533,9 +521,11 @@ class NavigationComponent(BaseComponent):
             self.explorer.end("failed", f"looking for frontiers failed: {future.exception()!r}",
                               self.clock())
             return
-        self._looked(*future.result())
+        self._looked(future.result())
 
-    def _looked(self, frontiers: list[Frontier], explored_m2: float) -> None:
+    def _looked(self, looked: Looked) -> None:
+        self.costs = looked.costs
+        frontiers, explored_m2 = looked.frontiers, looked.explored_m2
         explorer, navigator = self.explorer, self.navigator
         now = self.clock()
         state = explorer.state
@@ -652,11 +642,28 @@ class NavigationComponent(BaseComponent):
                 TopicOut("/navigation/state", STRING, STATE, json_string_msg,
                          "on change + 1 Hz"))
 
+    async def start(self) -> None:
+        if self.inline:
+            return
+        self.worker = worker = PlanningWorker(self.area, self.costmap.params)
+        self.costmap = worker.costmap
+        warm_up = asyncio.ensure_future(worker.ready())  # its imports, before the first goal
+        self._tasks.add(warm_up)
+        warm_up.add_done_callback(self._warmed_up)
+
+    def _warmed_up(self, future: asyncio.Future[bool]) -> None:
+        self._tasks.discard(future)
+        if not future.cancelled() and future.exception() is not None:
+            log.error("the planning worker did not start: %r", future.exception())
+
     async def stop(self) -> None:
         if self.navigator.active:
             self._end("canceled", "daemon stopping")
         for task in list(self._tasks):
             task.cancel()
+        if self.worker is not None:
+            worker, self.worker = self.worker, None
+            await asyncio.to_thread(worker.close)
 
 
 def create(ctx: DaemonContext) -> NavigationComponent | None:

@@ -161,26 +161,27 @@ class Navigator:
         """A plan was asked for; the next one not before a replan period."""
         self.next_plan = now + self.settings.replan_period_s
 
-    def planned(self, plan: Plan, now: float, number: int, yaw: float | None) -> None:
+    def planned(self, plan: Plan, now: float, number: int, yaw: float | None) -> bool:
         """A plan for goal ``number`` came back; ``yaw``: the goal's heading in the plan's
-        frame (None: any)."""
+        frame (None: any). Whether it is followed now."""
         target = self.target
         if target is None or number != target.number or not self.active \
                 or self.state == "recovering":
-            return
+            return False
         self.progress.replans += 1
         if not plan.found:
             if plan.final:
                 self.end("failed", plan.reason, now)
             else:
                 self.stuck(plan.reason, now)
-            return
+            return False
         first = self.pursuit is None
         self._follow(plan.points, yaw, now)
         assert self.pursuit is not None
         if first:
             self._set_deadline()
         self.next_plan = now + self.settings.replan_period_s
+        return True
 
     # -- stuck ---------------------------------------------------------------------------------
 
