@@ -253,12 +253,15 @@ class Daemon:
             loop.add_signal_handler(sig, self.request_shutdown, f"signal {sig.name}")
 
     async def _supervise(self) -> None:
-        """Once a second: recompute health state, publish it and /robot_info."""
+        """Once a second (with a control tick: no wake-up of its own): recompute health
+        state, publish it and /robot_info."""
+        assert self.ctx is not None
+        control = self.ctx.control
         while True:
             self._update_state()
             self._publish_health(self.health())
             self.bus.publish(ROBOT_INFO, self.robot_info())
-            await asyncio.sleep(1.0)
+            await control.sleep_to_tick(1.0)
 
     def _publish_health(self, health: dict[str, Any]) -> None:
         self.bus.publish(HEALTH, health)

@@ -31,10 +31,14 @@ class Odometry:
         self._last_t: float | None = None
         #: the integrated pose at the last reset, and the pose reported for it
         self._origin: tuple[Pose2D, Pose2D] | None = None
+        self._pose = Pose2D()  # the last one made: a robot at rest asks for the same pose
 
     @property
     def pose(self) -> Pose2D:
-        return Pose2D(self.x, self.y, self.theta)
+        pose = self._pose
+        if pose.x != self.x or pose.y != self.y or pose.theta != self.theta:
+            pose = self._pose = Pose2D(self.x, self.y, self.theta)
+        return pose
 
     @property
     def reported(self) -> Pose2D:
@@ -49,6 +53,13 @@ class Odometry:
         theta = to.theta + self.theta - at.theta
         return Pose2D(to.x + c * ahead - s * left, to.y + s * ahead + c * left,
                       math.atan2(math.sin(theta), math.cos(theta)))
+
+    def reported_xyt(self) -> tuple[float, float, float]:
+        """:attr:`reported` as ``(x, y, theta)``."""
+        if self._origin is None:
+            return self.x, self.y, self.theta
+        pose = self.reported
+        return pose.x, pose.y, pose.theta
 
     def reset(self, pose: Pose2D = Pose2D()) -> None:
         """Report ``pose`` for where the robot stands now (the origin by default)."""
