@@ -219,8 +219,12 @@ class ControlLoop:
         self.arbiter.submit(source, twist, clock(), priority, timeout_s)
         for callback in self.on_command:
             callback(source)
-        async with self._lock:
+        lock = self._lock  # acquire/release: `async with` costs two more coroutines a command
+        await lock.acquire()
+        try:
             written = await self._step(clock())
+        finally:
+            lock.release()
         t_exec = clock()
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
