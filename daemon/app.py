@@ -125,7 +125,8 @@ class Daemon:
         if runtime is not None:
             runtime.attach(driver)
         loop = ControlLoop(self.config, driver, self.bus, self.latency)
-        loop.on_tick.add(self.notifier.tick)
+        if self.notifier.watchdog_interval_s is not None:  # else its tick hook does nothing
+            loop.on_tick.add(self.notifier.tick)
         http = HttpServer(self.config.get(HttpSettings), self.security)
         ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
                             self.mode, TopicTable(), scan_points(self.config), self,

@@ -25,6 +25,9 @@ class Odometry:
 
     def __init__(self, geometry: DiffDrive) -> None:
         self.geometry = geometry
+        #: the geometry's derived figures, read once (it is frozen): every tick integrates
+        self._radii = (geometry.left_radius, geometry.right_radius)
+        self._separation = geometry.separation
         self.x = self.y = self.theta = 0.0
         self.linear = self.angular = 0.0
         self._last_wheels: tuple[float, float] | None = None
@@ -69,12 +72,12 @@ class Odometry:
         if self._last_wheels is None or self._last_t is None:
             self._last_wheels, self._last_t = (left_rad, right_rad), t
             return
-        geometry = self.geometry
-        dl = (left_rad - self._last_wheels[0]) * geometry.left_radius
-        dr = (right_rad - self._last_wheels[1]) * geometry.right_radius
+        left_radius, right_radius = self._radii
+        dl = (left_rad - self._last_wheels[0]) * left_radius
+        dr = (right_rad - self._last_wheels[1]) * right_radius
         dt = t - self._last_t
         self._last_wheels, self._last_t = (left_rad, right_rad), t
-        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / geometry.separation
+        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / self._separation
         self._integrate(ds, dtheta)
         if dt > 0:
             self.linear, self.angular = ds / dt, dtheta / dt
