@@ -125,7 +125,8 @@ class Daemon:
         if runtime is not None:
             runtime.attach(driver)
         loop = ControlLoop(self.config, driver, self.bus, self.latency)
-        loop.on_tick.add(self.notifier.tick)
+        if self.notifier.watchdog_interval_s is not None:  # else its tick hook does nothing
+            loop.on_tick.add(self.notifier.tick)
         http = HttpServer(self.config.get(HttpSettings), self.security)
         ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
                             self.mode, TopicTable(), scan_points(self.config), self,
@@ -253,12 +254,15 @@ class Daemon:
             loop.add_signal_handler(sig, self.request_shutdown, f"signal {sig.name}")
 
     async def _supervise(self) -> None:
-        """Once a second: recompute health state, publish it and /robot_info."""
+        """Once a second (with a control tick: no wake-up of its own): recompute health
+        state, publish it and /robot_info."""
+        assert self.ctx is not None
+        control = self.ctx.control
         while True:
             self._update_state()
             self._publish_health(self.health())
             self.bus.publish(ROBOT_INFO, self.robot_info())
-            await asyncio.sleep(1.0)
+            await control.sleep_to_tick(1.0)
 
     def _publish_health(self, health: dict[str, Any]) -> None:
         self.bus.publish(HEALTH, health)

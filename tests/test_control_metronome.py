@@ -57,3 +57,26 @@ async def test_a_blocked_loop_gets_one_tick_and_the_rest_counted_missed(kind: Ki
 async def test_linux_gets_the_kernel_timer() -> None:
     ticker = metronome(asyncio.get_running_loop(), PERIOD_S)
     assert isinstance(ticker, TimerMetronome) == sys.platform.startswith("linux")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="timerfd is Linux only")
+async def test_housekeeping_wakes_with_a_tick() -> None:
+    """next_at gives the first deadline on the tick grid at or after a time: a loop timer set
+    for it has fired by the time that tick is taken (the kernel timer wakes the loop for both)."""
+    loop = asyncio.get_running_loop()
+    ticker = TimerMetronome(loop, PERIOD_S, _Timer.create())
+    ticker.start()
+    try:
+        first = await ticker.wait()
+        when = time.monotonic() + 2.5 * PERIOD_S
+        due = ticker.next_at(when)
+        assert when <= due < when + PERIOD_S
+        assert (due - first) / PERIOD_S == pytest.approx(round((due - first) / PERIOD_S))
+        woken = loop.create_future()
+        loop.call_at(due, woken.set_result, None)
+        deadline = await ticker.wait()
+        while deadline < due:
+            deadline = await ticker.wait()
+        assert deadline == pytest.approx(due) and woken.done()
+    finally:
+        ticker.stop()

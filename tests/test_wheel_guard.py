@@ -69,6 +69,35 @@ def test_a_wheel_within_tolerance_or_a_short_miss_never_trips() -> None:
     assert not any(disabled.update(r, (4.0, 4.0), t) for t, r in readings((-4.0, 4.0), 2.0))
 
 
+def test_a_wheel_turning_while_every_command_was_zero_trips() -> None:
+    """At rest (zero written for longer than lag_s) the guard takes a shortcut while both
+    wheels measure still; a wheel turning under a zero command still trips it."""
+    guard = WheelGuard(GuardSettings(time_s=TIME_S))
+    assert not any(guard.update(r, (0.0, 0.0), t) for t, r in readings((0.0, 1.0), 2.0))
+    runaway = WheelGuard(GuardSettings(time_s=TIME_S))
+    reasons = [(t, r) for t, reading in readings((0.0, 3.0), 2.0)
+               if (r := runaway.update(reading, (0.0, 0.0), t))]
+    assert len(reasons) == 1 and TIME_S <= reasons[0][0] <= TIME_S + 0.2
+    assert reasons[0][1].startswith("right wheel measured +3.00 rad/s while commanded +0.00")
+
+
+def test_the_shortcut_at_rest_judges_like_the_full_check() -> None:
+    """Zero commands after driving: the full check runs until every command of the last lag_s
+    was zero, and a wheel that keeps turning after that trips as it did before."""
+    settings = GuardSettings(time_s=TIME_S)
+    guard = WheelGuard(settings)
+    for t, reading in readings((4.0, 4.0), 1.0):
+        assert guard.update(reading, (4.0, 4.0), t) is None
+    tripped = []
+    for step in range(1, 101):  # commanded zero from t = 1 s, the left wheel keeps turning
+        t = 1.0 + step / 50.0
+        reading = EncoderReading(4.0 * t, 4.0, t)
+        if (reason := guard.update(reading, (0.0, 0.0), t)) is not None:
+            tripped.append((t, reason))
+    assert len(tripped) == 1 and tripped[0][1].startswith("left wheel")
+    assert 1.0 + settings.lag_s <= tripped[0][0] <= 1.0 + settings.lag_s + TIME_S + 0.1
+
+
 # -- in the simulated robot ------------------------------------------------------------------
 
 

@@ -62,6 +62,14 @@ class AxisLimiter:
                 else self.limits.max_deceleration
         return self.limits.max_acceleration
 
+    def at_rest(self) -> bool:
+        """Still and not accelerating: a step toward zero leaves it so (nothing to compute)."""
+        return self.velocity == 0.0 and self.acceleration == 0.0
+
+    def rest(self) -> None:
+        """What a step toward zero does at rest (a ``-0.0`` left by a step becomes ``0.0``)."""
+        self.velocity = self.acceleration = 0.0
+
     def reset(self) -> None:
         self.velocity = 0.0
         self.acceleration = 0.0

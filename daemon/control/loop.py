@@ -14,7 +14,7 @@ from base.retrylog import RetryLog
 from daemon.bus import Bus
 from daemon.control.arbiter import Arbiter, Decision
 from daemon.control.clock import MONOTONIC, Clock
-from daemon.control.commands import Twist
+from daemon.control.commands import ZERO, Twist
 from daemon.control.guard import MotionGuard
 from daemon.control.kinematics import DiffDrive, scale_to_limit
 from daemon.control.limiter import AxisLimiter, AxisLimits
@@ -44,6 +44,11 @@ class Applied:
     error: str | None = None
     #: what the guard (collision monitor) did on that step: none, slowdown, limit, stop
     guard_action: str | None = None
+
+
+def _wake(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
 
 
 def axis_limits(limits: LimitsSettings, axis: str) -> AxisLimits:
@@ -172,6 +177,22 @@ class ControlLoop:
         async with self._lock:
             await self._write(0.0, 0.0)
 
+    async def sleep_to_tick(self, seconds: float) -> None:
+        """Sleep at least ``seconds`` and wake with the next control tick: periodic housekeeping
+        then shares the tick's event-loop wake-up instead of waking the process on its own
+        (with the thread metronome, or not ticking in real time, a plain sleep)."""
+        loop = asyncio.get_running_loop()
+        metronome = self._metronome
+        if not isinstance(metronome, TimerMetronome):
+            await asyncio.sleep(seconds)
+            return
+        woken = loop.create_future()
+        timer = loop.call_at(metronome.next_at(loop.time() + seconds), _wake, woken)
+        try:
+            await woken
+        finally:
+            timer.cancel()
+
     # -- event path ----------------------------------------------------------------------
 
     async def submit(self, source: str, twist: Twist, *, t_recv: float,
@@ -198,8 +219,12 @@ class ControlLoop:
         self.arbiter.submit(source, twist, clock(), priority, timeout_s)
         for callback in self.on_command:
             callback(source)
-        async with self._lock:
+        lock = self._lock  # acquire/release: `async with` costs two more coroutines a command
+        await lock.acquire()
+        try:
             written = await self._step(clock())
+        finally:
+            lock.release()
         t_exec = clock()
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
@@ -251,42 +276,46 @@ class ControlLoop:
     # -- tick path -----------------------------------------------------------------------
 
     async def _tick_forever(self) -> None:
-        assert self._metronome is not None
+        metronome, supervisor, latency = self._metronome, self.supervisor, self.latency
+        assert metronome is not None
         while True:
-            deadline = await self._metronome.wait()
-            self.supervisor.beat()
-            self.latency.missed_ticks = self._metronome.missed
+            deadline = await metronome.wait()
+            supervisor.beat()
+            latency.missed_ticks = metronome.missed
             await self.tick(deadline)
 
     async def tick(self, deadline: float) -> None:
         """One tick that was due at ``deadline`` (clock seconds): record its lateness, run
-        the internal sources, step, integrate odometry, publish, then the tick callbacks."""
+        the internal sources, step, integrate odometry, publish, then the tick callbacks.
+        (One coroutine, the step's lock taken without ``async with``: this runs 50 times a
+        second, mostly for an idle robot, and each layer costs.)"""
         now = self.clock()
         lateness = now - deadline
         on_time = lateness <= self.late_s
         self.latency.record_tick(lateness, not on_time)
         try:
-            await self._tick(now)
+            if self.driver.fault and not self.fault:
+                await self._on_fault(self.driver.fault)
+            for source in self.tick_sources:
+                source(now)
+            lock = self._lock
+            await lock.acquire()
+            try:
+                await self._step(now)
+            finally:
+                lock.release()
+            await self._update_odometry(now)
+            if self.guard is not None:
+                odo = self.odometry
+                self.guard.observe(now, odo.x, odo.y, odo.theta)
+            self._ticks = ticks = self._ticks + 1
+            if ticks % self.publish_every == 0:
+                self.bus.publish(ODOM, self.odom_sample())
         except Exception:
             log.exception("control tick failed")
             on_time = False
         for callback in self.on_tick:
             callback(now, on_time)
-
-    async def _tick(self, now: float) -> None:
-        if self.driver.fault and not self.fault:
-            await self._on_fault(self.driver.fault)
-        for source in self.tick_sources:
-            source(now)
-        async with self._lock:
-            await self._step(now)
-        await self._update_odometry(now)
-        if self.guard is not None:
-            odo = self.odometry
-            self.guard.observe(now, odo.x, odo.y, odo.theta)
-        self._ticks += 1
-        if self._ticks % self.publish_every == 0:
-            self.bus.publish(ODOM, self.odom_sample())
 
     # -- shared step -----------------------------------------------------------------------
 
@@ -297,25 +326,36 @@ class ControlLoop:
         dt = now - self._last_step
         self._last_step = now
         linear, angular = self.linear, self.angular
-        target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
-        target_w, clamped_w = angular.clamp_target(decision.twist.angular_z)
-        self.last_clamped = self._target_clamps(clamped_v, clamped_w) \
-            if clamped_v or clamped_w else []
-        brake = decision.emergency
-        if self.guard is not None:
-            guarded = self.guard.limit(target_v, target_w, linear.velocity, angular.velocity,
-                                       now)
-            target_v, target_w = guarded.linear, guarded.angular
-            brake = brake or guarded.brake
-            self.guard_action = guarded.action
-        v = linear.step(target_v, dt, brake)
-        w = angular.step(target_w, dt, brake)
-        if decision.source is None and v == 0.0 and w == 0.0:
-            self.arbiter.idle()
-        left, right = self.geometry.wheel_speeds(v, w)
-        left, right, scaled = scale_to_limit(left, right, self.driver.max_wheel_speed)
-        if scaled:
-            self._count_clamp("wheel_speed")
+        if decision.twist is ZERO and dt > 0.0 and self.guard is None and linear.at_rest() \
+                and angular.at_rest():
+            # at rest with nothing to follow (an idle robot, most ticks): the limiters, the
+            # geometry and the scaling below would all give zero; zero is still written
+            linear.rest()
+            angular.rest()
+            self.last_clamped = []
+            if decision.source is None:
+                self.arbiter.idle()
+            left = right = 0.0
+        else:
+            target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
+            target_w, clamped_w = angular.clamp_target(decision.twist.angular_z)
+            self.last_clamped = self._target_clamps(clamped_v, clamped_w) \
+                if clamped_v or clamped_w else []
+            brake = decision.emergency
+            if self.guard is not None:
+                guarded = self.guard.limit(target_v, target_w, linear.velocity,
+                                           angular.velocity, now)
+                target_v, target_w = guarded.linear, guarded.angular
+                brake = brake or guarded.brake
+                self.guard_action = guarded.action
+            v = linear.step(target_v, dt, brake)
+            w = angular.step(target_w, dt, brake)
+            if decision.source is None and v == 0.0 and w == 0.0:
+                self.arbiter.idle()
+            left, right = self.geometry.wheel_speeds(v, w)
+            left, right, scaled = scale_to_limit(left, right, self.driver.max_wheel_speed)
+            if scaled:
+                self._count_clamp("wheel_speed")
         if self.fault or not self.driver.is_open:
             return False
         try:  # _write, inlined: this runs for every command and every tick
@@ -448,9 +488,9 @@ class ControlLoop:
 
     def odom_sample(self) -> OdomSample:
         odo, robot, control = self.odometry, self.robot, self.settings
-        pose = odo.reported
-        return OdomSample(time.time(), robot.odom_frame_id, robot.base_frame_id, pose.x,
-                          pose.y, pose.theta, odo.linear, odo.angular,
+        x, y, theta = odo.reported_xyt()
+        return OdomSample(time.time(), robot.odom_frame_id, robot.base_frame_id, x, y, theta,
+                          odo.linear, odo.angular,
                           control.pose_covariance_diagonal,
                           control.twist_covariance_diagonal)
 

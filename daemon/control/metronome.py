@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import ctypes
 import logging
+import math
 import os
 import sys
 import threading
@@ -96,7 +97,7 @@ class TimerMetronome:
         self._next = 0.0  # the timer's next expiration
         self._deadline = 0.0
         self._pending = False
-        self._event = asyncio.Event()
+        self._waiter: asyncio.Future[None] | None = None  # what :meth:`wait` awaits
 
     def start(self) -> None:
         self._next = time.monotonic() + self.period_s
@@ -110,10 +111,20 @@ class TimerMetronome:
 
     async def wait(self) -> float:
         """Wait for the next tick; returns its deadline (monotonic seconds)."""
-        await self._event.wait()
-        self._event.clear()
+        if not self._pending:  # a bare future: an asyncio.Event costs two more layers a tick
+            self._waiter = waiter = self.loop.create_future()
+            try:
+                await waiter
+            finally:
+                self._waiter = None
         self._pending = False
         return self._deadline
+
+    def next_at(self, when: float) -> float:
+        """The first deadline at or after ``when`` (monotonic seconds): a loop timer set for it
+        fires in the event-loop wake-up of that tick (the kernel timer wakes the loop then)."""
+        periods = max(0, math.ceil((when - self._next) / self.period_s))
+        return self._next + periods * self.period_s
 
     def _on_timer(self) -> None:
         expirations = self._timer.read()
@@ -127,7 +138,9 @@ class TimerMetronome:
         self.missed += expirations - 1
         self._pending = True
         self._deadline = latest
-        self._event.set()
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
 
 
 def metronome(loop: asyncio.AbstractEventLoop,

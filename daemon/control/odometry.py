@@ -25,16 +25,23 @@ class Odometry:
 
     def __init__(self, geometry: DiffDrive) -> None:
         self.geometry = geometry
+        #: the geometry's derived figures, read once (it is frozen): every tick integrates
+        self._radii = (geometry.left_radius, geometry.right_radius)
+        self._separation = geometry.separation
         self.x = self.y = self.theta = 0.0
         self.linear = self.angular = 0.0
         self._last_wheels: tuple[float, float] | None = None
         self._last_t: float | None = None
         #: the integrated pose at the last reset, and the pose reported for it
         self._origin: tuple[Pose2D, Pose2D] | None = None
+        self._pose = Pose2D()  # the last one made: a robot at rest asks for the same pose
 
     @property
     def pose(self) -> Pose2D:
-        return Pose2D(self.x, self.y, self.theta)
+        pose = self._pose
+        if pose.x != self.x or pose.y != self.y or pose.theta != self.theta:
+            pose = self._pose = Pose2D(self.x, self.y, self.theta)
+        return pose
 
     @property
     def reported(self) -> Pose2D:
@@ -50,6 +57,13 @@ class Odometry:
         return Pose2D(to.x + c * ahead - s * left, to.y + s * ahead + c * left,
                       math.atan2(math.sin(theta), math.cos(theta)))
 
+    def reported_xyt(self) -> tuple[float, float, float]:
+        """:attr:`reported` as ``(x, y, theta)``."""
+        if self._origin is None:
+            return self.x, self.y, self.theta
+        pose = self.reported
+        return pose.x, pose.y, pose.theta
+
     def reset(self, pose: Pose2D = Pose2D()) -> None:
         """Report ``pose`` for where the robot stands now (the origin by default)."""
         self._origin = (self.pose, pose)
@@ -58,12 +72,12 @@ class Odometry:
         if self._last_wheels is None or self._last_t is None:
             self._last_wheels, self._last_t = (left_rad, right_rad), t
             return
-        geometry = self.geometry
-        dl = (left_rad - self._last_wheels[0]) * geometry.left_radius
-        dr = (right_rad - self._last_wheels[1]) * geometry.right_radius
+        left_radius, right_radius = self._radii
+        dl = (left_rad - self._last_wheels[0]) * left_radius
+        dr = (right_rad - self._last_wheels[1]) * right_radius
         dt = t - self._last_t
         self._last_wheels, self._last_t = (left_rad, right_rad), t
-        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / geometry.separation
+        ds, dtheta = (dl + dr) / 2.0, (dr - dl) / self._separation
         self._integrate(ds, dtheta)
         if dt > 0:
             self.linear, self.angular = ds / dt, dtheta / dt

@@ -49,6 +49,8 @@ class WheelGuard:
         #: the wheel speeds written during the last lag_s: times, and each wheel's speeds
         self._times: deque[float] = deque()
         self._wheels: tuple[deque[float], deque[float]] = (deque(), deque())
+        #: when a wheel was last written a speed other than zero (None: not since forgotten)
+        self._moving_at: float | None = None
 
     def update(self, reading: EncoderReading | None, commanded: tuple[float, float],
                now: float) -> str | None:
@@ -63,6 +65,8 @@ class WheelGuard:
             return None
         if now < self._quiet_until:  # the wheels may still be coasting down from a stop
             self._since = [None, None]
+            return None
+        if self._still(self.measured, now):
             return None
         for index, side in enumerate(SIDES):
             reason = self._check(index, side, commanded[index], now)
@@ -85,8 +89,22 @@ class WheelGuard:
             self.measured = ((reading.left_rad - first.left_rad) / span,
                              (reading.right_rad - first.right_rad) / span)
 
+    def _still(self, measured: tuple[float, float], now: float) -> bool:
+        """Every speed written during the last ``lag_s`` was zero and both wheels measure
+        within ``min_rad_s`` of it: what :meth:`_check` would find, for less (an idle robot)."""
+        moving_at, limit = self._moving_at, self.settings.min_rad_s
+        if moving_at is not None and now - moving_at <= self.settings.lag_s:
+            return False
+        left, right = measured
+        if -limit <= left <= limit and -limit <= right <= limit:
+            self._since = [None, None]
+            return True
+        return False
+
     def _remember(self, commanded: tuple[float, float], now: float) -> None:
         times, (left, right) = self._times, self._wheels
+        if commanded[0] != 0.0 or commanded[1] != 0.0:
+            self._moving_at = now
         times.append(now)
         left.append(commanded[0])
         right.append(commanded[1])
@@ -119,6 +137,7 @@ class WheelGuard:
         self._times.clear()
         for wheel in self._wheels:
             wheel.clear()
+        self._moving_at = None
 
     def restart(self, now: float) -> None:
         """The wheels were zeroed behind the loop's back (the stall supervisor's stop): the

@@ -69,6 +69,8 @@ class RosbridgeServer(BaseComponent):
         self._conn_log = RateLimitedLog(log, interval_s=1.0)
         self._runner: CappedRunner | None = None
         self._sweeper: asyncio.Task[None] | None = None
+        #: set when a client without the token's proof connects: the idle sweeper sleeps without
+        self._unproved = asyncio.Event()
         self._bus_unsubscribers: list[Callable[[], None]] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -158,6 +160,8 @@ class RosbridgeServer(BaseComponent):
             ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
             limits=self.limits, bad_input=self.bad_input, pacer=self.pacer)
         client.transport = request.transport
+        if not authority.proved:
+            self._unproved.set()
         self._conn_log(logging.INFO, f"rosbridge client {client_id} connected from {peer}"
                        + ("" if authority.may_drive else " (read-only: no valid token)"))
         try:
@@ -199,9 +203,13 @@ class RosbridgeServer(BaseComponent):
         return tokenless >= self.max_clients - self.reserved_clients
 
     async def _close_idle_forever(self) -> None:
-        """Connections without the token that hold nothing and say nothing are closed."""
+        """Connections without the token that hold nothing and say nothing are closed. The
+        sweeps come with a control tick, and none while no such client is connected."""
         while True:
-            await asyncio.sleep(min(1.0, self.idle_timeout / 4))
+            if all(client.authority.proved for client in self.clients.values()):
+                self._unproved.clear()
+                await self._unproved.wait()
+            await self.control.sleep_to_tick(min(1.0, self.idle_timeout / 4))
             now = time.monotonic()
             for client in list(self.clients.values()):
                 since = client.idle_since()
