@@ -395,9 +395,11 @@ class NavigationComponent(BaseComponent):
     # -- the tick ------------------------------------------------------------------------------
 
     def _tick(self, now: float) -> None:
-        self._history.append((now, self._odom()))
-        while self._history and self._history[0][0] < now - HISTORY_S:
-            self._history.popleft()
+        history, odom = self._history, self.control.odometry.reported_xyt()
+        if not history or history[-1][1] != odom:  # a pose held since is the same pose
+            history.append((now, odom))
+        while len(history) > 1 and history[1][0] <= now - HISTORY_S:
+            history.popleft()  # the newest pose as old as the horizon stays: it still holds
         if self.explorer.wants_look(now) and not self._planning:
             self._look(now)
         navigator = self.navigator
