@@ -14,8 +14,10 @@ from typing import Any
 
 import pytest
 
+from daemon.bench.rosbridge_flood import MachineCanary
 from tests.support.daemon_subprocess import StartDaemonSubprocess
 from tests.support.http_raw import exchange, parse_answer, request, rss_kib, send_raw
+from tests.support.rosbridge import stall_limit_ms
 
 SEED = int(os.environ.get("ARBITERD_FUZZ_SEED", "1122"))
 BUDGET_S = float(os.environ.get("ARBITERD_FUZZ_SECONDS", "36"))
@@ -164,6 +166,9 @@ class Findings:
         self.tried: Counter[str] = Counter()
         self.statuses: dict[str, Counter[int]] = {name: Counter() for name in CATEGORIES}
         self.problems: list[str] = []
+        #: health answered 503 because the control tick had stalled (judged against what the
+        #: machine did meanwhile, at the end)
+        self.stalls = 0
 
     def check(self, category: str, sent: list[bytes], answer: bytes) -> None:
         self.tried[category] += 1
@@ -171,6 +176,9 @@ class Findings:
             self.statuses[category][0] += 1  # closed without an answer (e.g. idle timeout)
             return
         problem = _problem(answer, head=b"".join(sent).startswith(b"HEAD "))
+        if problem and _stalled_health(answer):
+            self.stalls += 1
+            problem = None
         status = int(answer.split(b" ", 2)[1]) if STATUS_LINE.match(answer) else -1
         self.statuses[category][status] += 1
         if problem and len(self.problems) < 20:
@@ -188,6 +196,18 @@ def _problem(answer: bytes, head: bool) -> str | None:
     if parsed.status >= 400 and not head and not parsed.is_json_error():
         return f"{parsed.status} is not the JSON error: {parsed.body[:120]!r}"
     return None
+
+
+def _stalled_health(answer: bytes) -> bool:
+    """A 503 health answer whose only error is a stalled control tick."""
+    parsed = parse_answer(answer, head_only=False)
+    if parsed is None or parsed.status != 503:
+        return False
+    try:
+        control = json.loads(parsed.body)["components"]["control"]
+    except (ValueError, KeyError, TypeError):
+        return False
+    return bool(control.get("stalled")) and not control.get("fault")
 
 
 async def run_category(category: str, make: Generator, port: int, seconds: float,
@@ -235,9 +255,10 @@ async def test_http_fuzz_moves_nothing_and_keeps_the_daemon_well(
     assert exchange(port, latch).status == 200
     rss_before = rss_kib(pid)
     findings = Findings()
-    for category, make in CATEGORIES.items():
-        await run_category(category, make, port, BUDGET_S / len(CATEGORIES), findings)
-    await burst(port, findings)
+    async with MachineCanary() as canary:
+        for category, make in CATEGORIES.items():
+            await run_category(category, make, port, BUDGET_S / len(CATEGORIES), findings)
+        await burst(port, findings)
     rss_after = rss_kib(pid)
 
     print(f"\nHTTP fuzz, seed {SEED} (status 0: closed without an answer)")
@@ -245,6 +266,11 @@ async def test_http_fuzz_moves_nothing_and_keeps_the_daemon_well(
         print(f"  {name}: {findings.tried[name]} inputs, {dict(sorted(statuses.items()))}")
     print(f"  daemon RSS before {rss_before} KiB, after {rss_after} KiB")
     assert not findings.problems, "\n".join(findings.problems)
+    if findings.stalls:  # health said so truthfully; the stall itself must be the machine's
+        control = exchange(port, request("GET", "/api/health", port)).json()["components"][
+            "control"]
+        limit = stall_limit_ms(canary.longest_gap_ms)
+        assert control["longest_stall_ms"] <= limit, (findings.stalls, control, limit)
     assert all(findings.tried[name] >= 100 for name in CATEGORIES), findings.tried
     assert findings.statuses["burst of 200 clients"] == Counter({401: 200})
     assert proc.proc.poll() is None, proc.log()
