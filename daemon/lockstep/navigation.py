@@ -141,7 +141,8 @@ class NavigationRun:
         try:
             nav.request(GoalRequest(self.frame, x, y, theta))
         except ValueError as exc:
-            return {**out, "state": "refused", "reason": str(exc), "seconds": 0.0}
+            return {**out, "state": "refused", "reason": str(exc), "seconds": 0.0,
+                    "reached": False, "collisions": 0, "ratio": None}
         await lockstep.advance(GOAL_CAP_S, until=lambda: not nav.navigator.active)
         if nav.navigator.active:
             nav.cancel("benchmark cap")
