@@ -88,6 +88,12 @@ async def _simulate(world: str, seed: int, seconds: float) -> dict[str, Any]:
     return report
 
 
+def _explored(exploration: dict[str, Any]) -> str:
+    if exploration["ended_s"] is None:
+        return "still exploring at the end"
+    return f"exploration {exploration['state']} at {exploration['ended_s']} s"
+
+
 def rows(world: str, runs: list[dict[str, Any]], seconds: float) -> list[BenchResult]:
     """The suite's figures for ``world`` from its runs (one per seed)."""
     mean = statistics.fmean
@@ -102,8 +108,8 @@ def rows(world: str, runs: list[dict[str, Any]], seconds: float) -> list[BenchRe
     per_seed = "; ".join(
         f"seed {r['seed']}: {r['pose_error']['rms_m']:.3f} m {r['pose_error']['rms_deg']:.2f}"
         f" deg (odometry {r['odometry_error']['rms_m']:.2f} m), P/R "
-        f"{r['map']['precision']:.3f}/{r['map']['recall']:.3f}, explore "
-        f"{r['exploration']['state']} at {r['exploration']['ended_s']} s" for r in runs)
+        f"{r['map']['precision']:.3f}/{r['map']['recall']:.3f}, " + _explored(r["exploration"])
+        for r in runs)
     map_target = world != "loop"
     return [
         BenchResult(SUITE, f"{world}: map-frame pose error RMS", round(rms, 4), "m",
