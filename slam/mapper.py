@@ -40,6 +40,11 @@ class MapperConfig:
     loop_window: correlative search half-widths (m, rad) for a loop closure.
     loop_submap_keys: key scans on each side of the candidate that form its submap.
     loop_min_score: strict acceptance score of a loop closure.
+    loop_drift: (m, share of the path) a loop closure may move the pose by at most the first
+        plus the second times the path driven since the last accepted closure (in translation;
+        and at most ``loop_drift_angle`` (rad, rad per m) in rotation): a pose a closure
+        anchored a moment ago cannot have drifted a metre since (an alias of the place, as
+        shelf rows are, is refused). inf: no bound.
     loop_every: try a loop closure at most every this many key scans.
     optimize_every: optimise the graph automatically once this many key scans passed since the
         first unapplied loop closure (0: never; the caller runs Mapper.optimize()).
@@ -69,6 +74,8 @@ class MapperConfig:
     loop_window: tuple[float, float] = (2.5, math.radians(25))
     loop_submap_keys: int = 12
     loop_min_score: float = 0.55
+    loop_drift: tuple[float, float] = (0.3, 0.1)
+    loop_drift_angle: tuple[float, float] = (math.radians(5), math.radians(2))
     loop_every: int = 2
     optimize_every: int = 5
     odometry_sigmas: tuple[float, float, float] = (0.2, 0.2, math.radians(5))
@@ -168,6 +175,8 @@ class Mapper:
         self._lost = False
         self._corrections: list[tuple[float, float]] = []
         self._held_loop: tuple[int, int, Pose2, Pose2] | None = None
+        #: the path length (m) at the key scan of the last accepted loop closure
+        self._anchored_at = 0.0
         self._refused_in_a_row = 0
         self._wide_search = config.mode == "localize"
         self._fixed = (DistanceField.from_grid(self._grid, config.field_max_distance)
@@ -449,6 +458,10 @@ class Mapper:
         closure = (candidate, index, between(self._graph.pose(candidate), found.pose),
                    compose(found.pose, inverse(pose)))
         shift = between(pose, found.pose)
+        if not self._plausible(shift, here):
+            self._counts.extra["implausible_loops"] = self._counts.extra.get(
+                "implausible_loops", 0) + 1
+            return
         if math.hypot(shift[0], shift[1]) <= cfg.loop_trust[0] and \
                 abs(shift[2]) <= cfg.loop_trust[1]:
             self._add_loop(closure)
@@ -467,8 +480,17 @@ class Mapper:
             self._counts.extra["confirmed_loops"] = self._counts.extra.get(
                 "confirmed_loops", 0) + 1
 
+    def _plausible(self, shift: Pose2, travelled: float) -> bool:
+        """Whether a loop closure's correction ``shift`` fits the drift possible over the path
+        driven since the last accepted closure (``travelled``: the path length now)."""
+        cfg = self.config
+        since = max(0.0, travelled - self._anchored_at)
+        return (math.hypot(shift[0], shift[1]) <= cfg.loop_drift[0] + cfg.loop_drift[1] * since
+                and abs(shift[2]) <= cfg.loop_drift_angle[0] + cfg.loop_drift_angle[1] * since)
+
     def _add_loop(self, closure: tuple[int, int, Pose2, Pose2]) -> None:
         candidate, index, relative, _ = closure
+        self._anchored_at = max(self._anchored_at, self._keys[index].travelled)
         self._graph.add_edge(candidate, index, relative, self.config.loop_sigmas, robust=True)
         self._counts.loop_closures += 1
         if not self._pending_loops:

@@ -5,7 +5,7 @@ import math
 
 from slam.field import DistanceField
 from slam.graph import PoseGraph
-from slam.mapper import windows
+from slam.mapper import Mapper, MapperConfig, windows
 from slam.matcher import match
 from slam.pose import Pose2, between, compose, transform_points
 from tests.slam_room import cast
@@ -94,3 +94,15 @@ def test_localisation_in_the_apartment_converges_from_one_metre_and_thirty_degre
         assert math.dist(result.pose[:2], pose[:2]) <= 0.05
         assert abs(math.remainder(result.pose[2] - pose[2], math.tau)) <= math.radians(1)
         assert result.matched and not result.lost
+
+
+def test_a_loop_closure_may_correct_only_the_drift_since_the_last_one() -> None:
+    """A closure moving a pose a closure anchored 1 m of path ago by a metre is an alias (the
+    next shelf row), refused; after 20 m without a closure the same correction is taken."""
+    mapper = Mapper(MapperConfig(loop_drift=(0.3, 0.1)))
+    mapper._anchored_at = 50.0
+    one_metre: Pose2 = (1.0, 0.0, 0.0)
+    assert mapper._plausible((0.05, 0.02, math.radians(0.5)), 51.0)
+    assert not mapper._plausible(one_metre, 51.0)
+    assert mapper._plausible(one_metre, 70.0)
+    assert not mapper._plausible((0.0, 0.0, math.radians(10)), 51.0)
