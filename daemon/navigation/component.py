@@ -362,12 +362,12 @@ class NavigationComponent(BaseComponent):
         start, goal = self._here(), self._goal_in_frame()
         yaw = None if target.yaw is None else goal[2]
         block = self.settings.plan_block
-        if self.worker is None:
+        if self.inline:
             self._take_plan(fold_and_plan(self.costmap, scans, start, goal, block),
                             target.number, yaw)
             return
         self._planning = True
-        future = asyncio.ensure_future(self.worker.plan(scans, start, goal, block))
+        future = asyncio.ensure_future(self._worker().plan(scans, start, goal, block))
         self._tasks.add(future)
         future.add_done_callback(lambda f: self._planned(f, target.number, yaw))
 
@@ -505,11 +505,11 @@ class NavigationComponent(BaseComponent):
         self._scans.clear()
         start = self._here()
         job = (scans, start, self.explorer.settings.min_frontier_cells, self.settings.plan_block)
-        if self.worker is None:
+        if self.inline:
             self._looked(fold_and_look(self.costmap, *job))
             return
         self._planning = True
-        future = asyncio.ensure_future(self.worker.look(*job))
+        future = asyncio.ensure_future(self._worker().look(*job))
         self._tasks.add(future)
         future.add_done_callback(self._look_done)
 
@@ -644,19 +644,15 @@ class NavigationComponent(BaseComponent):
                 TopicOut("/navigation/state", STRING, STATE, json_string_msg,
                          "on change + 1 Hz"))
 
-    async def start(self) -> None:
-        if self.inline:
-            return
-        self.worker = worker = PlanningWorker(self.area, self.costmap.params)
-        self.costmap = worker.costmap
-        warm_up = asyncio.ensure_future(worker.ready())  # its imports, before the first goal
-        self._tasks.add(warm_up)
-        warm_up.add_done_callback(self._warmed_up)
-
-    def _warmed_up(self, future: asyncio.Future[bool]) -> None:
-        self._tasks.discard(future)
-        if not future.cancelled() and future.exception() is not None:
-            log.error("the planning worker did not start: %r", future.exception())
+    def _worker(self) -> PlanningWorker:
+        """The planning process, started with the first job (a daemon nobody sends a goal
+        spawns none); the cells folded so far go with it."""
+        if self.worker is None:
+            self.worker = worker = PlanningWorker(self.area, self.costmap.params)
+            worker.costmap.evidence[...] = self.costmap.evidence
+            worker.costmap.seen[...] = self.costmap.seen
+            self.costmap = worker.costmap
+        return self.worker
 
     async def stop(self) -> None:
         if self.navigator.active:
