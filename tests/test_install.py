@@ -436,14 +436,18 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     editor = tmp_path / "editor.py"
     editor.write_text(EDITOR.format(set_key=inspect.getsource(set_key),
                                     edits=str(tmp_path / "edits.json")))
-    # 503 while a component is degraded or in error (a loaded machine): asked again
+    # 503 or degraded while a component starts (a scan late on a loaded machine): asked again,
+    # up to a minute
     health = (f"{sys.executable} -c 'import sys, urllib.request, urllib.error, time\n"
-              f"for _ in range(200):\n"
+              f"body = b\"no answer\"\n"
+              f"for _ in range(600):\n"
               f"    try:\n"
               f"        body = urllib.request.urlopen(\"http://127.0.0.1:{http_port}/api/health\")"
               f".read()\n"
               f"    except urllib.error.HTTPError as error:\n"
               f"        body = error.read()\n"
+              f"    except OSError:\n"
+              f"        pass\n"
               f"    if b\"\\\"status\\\": \\\"ok\\\"\" in body: break\n"
               f"    time.sleep(0.1)\n"
               f"sys.stdout.write(body.decode())' >{out}/health.json")
