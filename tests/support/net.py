@@ -1,18 +1,34 @@
 # The network side of tests: free local ports and a one-call JSON HTTP client.
 from __future__ import annotations
 
+import itertools
 import json
+import os
+import random
 import socket
 import urllib.error
 import urllib.request
 from typing import Any
 
+#: each pytest-xdist worker takes ports from a block of its own, below the kernel's ephemeral
+#: range: a port one worker chose is never the one another worker's daemon binds meanwhile
+PORT_BLOCK = 5000
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:]
+_FIRST = 10000 + PORT_BLOCK * (int(_WORKER) % 4 if _WORKER.isdigit() else 0)
+_NEXT = itertools.count(random.randrange(PORT_BLOCK))
+
 
 def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
+    """A local port free now, from this test process's own block (see PORT_BLOCK)."""
+    for _ in range(PORT_BLOCK):
+        port = _FIRST + next(_NEXT) % PORT_BLOCK
+        with socket.socket() as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise OSError(f"no free port in {_FIRST}-{_FIRST + PORT_BLOCK - 1}")
 
 
 def http(method: str, url: str, body: Any = None, *, token: str | None = None,
