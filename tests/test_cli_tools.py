@@ -325,3 +325,22 @@ def test_the_documented_exit_codes_are_the_ones_used() -> None:
     codes = readme.split("Exit codes:")[1].split("\n\n")[0]
     for code in (EXIT_OK, 1, EXIT_USAGE, EXIT_HARDWARE, EXIT_PORT_IN_USE, EXIT_CONFIG):
         assert re.search(rf"(^|[\s;]){code} ", codes), code
+
+
+def test_a_refusal_and_a_silent_address_are_said_the_way_a_user_can_act_on() -> None:
+    """`arbiterd map save` and `arbiterd mission` report the daemon's own reason for a
+    refusal, and which address did not answer."""
+    import io
+    import urllib.error
+
+    from daemon.api_client import api_failure, call_api
+    body = io.BytesIO(b'{"error": "mapping is off: set [mapping] enabled = true"}')
+    refusal = urllib.error.HTTPError("http://127.0.0.1:1/api/map/save", 409, "Conflict",
+                                     None, body)  # type: ignore[arg-type]
+    assert api_failure("http://127.0.0.1:1", refusal) == (
+        "the daemon refused (409): mapping is off: set [mapping] enabled = true")
+    base = f"http://127.0.0.1:{free_port()}"
+    with pytest.raises(OSError) as silent:
+        call_api(base, "", "GET", "/api/health")
+    assert api_failure(base, silent.value).startswith(f"cannot reach {base}: ")
+    assert "refused" in api_failure(base, silent.value)

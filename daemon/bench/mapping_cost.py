@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from daemon.app import Daemon
-from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly
+from daemon.bench import BenchResult, bench_daemon, run_quietly
+from daemon.bench.turns import lateness_in_turns, lateness_results
 from daemon.telemetry import SCAN
 from sensors.rplidar import synth
 from sensors.rplidar.requests import Ans
@@ -27,7 +28,6 @@ SUITE = "mapping-cost"
 RAYS = 360
 WORLD = "apartment"
 MS_TARGET = 5.0
-LATENESS_TARGET_MS = 0.5
 RATE_HZ = 10.0
 
 
@@ -106,16 +106,7 @@ async def publish_scans(daemon: Daemon, stop: asyncio.Event) -> None:
             await asyncio.wait_for(stop.wait(), 1.0 / RATE_HZ)
 
 
-async def tick_lateness(daemon: Daemon, seconds: float) -> list[float]:
-    """The control tick's lateness (s) over the next ``seconds``."""
-    latency = daemon.latency
-    latency.tick_late_ms.clear()
-    await asyncio.sleep(seconds)
-    return [ms / 1e3 for ms in latency.tick_late_ms]
-
-
 async def _tick_results(quick: bool) -> list[BenchResult]:
-    seconds, segment = (4.0, 1.0) if quick else (30.0, 5.0)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         extra = f'[mapping]\nenabled = true\ndirectory = "{Path(tmp) / "maps"}"\n'
         async with bench_daemon(Path(tmp), extra, serve_scan=True) as (daemon, _url):
@@ -123,27 +114,23 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
             stop = asyncio.Event()
             scans = asyncio.create_task(publish_scans(daemon, stop))
             runner = mapping.runner
-            off: list[float] = []
-            on: list[float] = []
             await asyncio.sleep(1.0)  # the worker's start-up
-            for i in range(max(2, round(2 * seconds / segment))):
+
+            def switch(on: bool) -> None:
                 # off: the component drops revolutions (no runner); on: they go to the worker
-                mapping.runner = runner if i % 2 == 1 else None
-                (on if i % 2 == 1 else off).extend(await tick_lateness(daemon, segment))
+                mapping.runner = runner if on else None
+
+            turns = await lateness_in_turns(daemon, quick, switch)
             mapping.runner = runner
             scans_done = mapping.counters.scans
             stop.set()
             await scans
-    p99_off, p99_on = percentile_ms(off, 99), percentile_ms(on, 99)
-    added = p99_on - p99_off
-    return [
-        BenchResult(SUITE, "tick lateness p99, mapping off", round(p99_off, 4), "ms",
-                    note="same daemon, 360-ray scans on the bus at 10 Hz, revolutions dropped"),
-        BenchResult(SUITE, "tick lateness p99, mapping on", round(p99_on, 4), "ms",
-                    f"<= off + {LATENESS_TARGET_MS}", added <= LATENESS_TARGET_MS,
-                    f"{scans_done} revolutions mapped by the worker process; off/on in turns of "
-                    f"{segment:g} s over {2 * seconds:g} s, 50 Hz tick"),
-    ]
+    return lateness_results(
+        SUITE, turns, baseline="off",
+        off=("tick lateness p99, mapping off",
+             "same daemon, 360-ray scans on the bus at 10 Hz, revolutions dropped"),
+        on=("tick lateness p99, mapping on",
+            f"{scans_done} revolutions mapped by the worker process; off/on {turns.schedule}"))
 
 
 def run(quick: bool) -> list[BenchResult]:

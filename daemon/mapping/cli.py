@@ -5,16 +5,14 @@ import argparse
 import json
 import sys
 import time
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any
 
+from daemon.api_client import api_failure, call_api
 from daemon.mapping.mapfile import save_map, saved_maps
 from daemon.mapping.settings import MappingSettings, map_name_error
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-TIMEOUT_S = 10.0
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -92,21 +90,11 @@ def run_save(name: str, base: str, token: str) -> int:
     if problem:
         print(f"arbiterd map save: {problem}", file=sys.stderr)
         return EXIT_USAGE
-    request = urllib.request.Request(f"{base}/api/map/save", method="POST",
-                                     data=json.dumps({"name": name}).encode(),
-                                     headers={"Content-Type": "application/json"})
-    if token:
-        request.add_header("Authorization", f"Bearer {token}")
     try:
-        with urllib.request.urlopen(request, timeout=TIMEOUT_S) as response:
-            body = json.load(response)
-    except urllib.error.HTTPError as exc:
-        error = json.load(exc).get("error", exc.reason)
-        print(f"arbiterd map save: the daemon refused ({exc.code}): {error}", file=sys.stderr)
-        return EXIT_FAILED
-    except (urllib.error.URLError, OSError) as exc:
-        print(f"arbiterd map save: cannot reach {base}: {getattr(exc, 'reason', exc)}",
-              file=sys.stderr)
+        body = call_api(base, token, "POST", "/api/map/save", {"name": name})
+    except (OSError, ValueError) as exc:  # a refusal, no answer, or an answer not JSON
+        reason = api_failure(base, exc) if isinstance(exc, OSError) else f"bad answer: {exc}"
+        print(f"arbiterd map save: {reason}", file=sys.stderr)
         return EXIT_FAILED
     print(f"map {body['name']}: {body['width']} x {body['height']} cells at "
           f"{body['resolution']:g} m saved as {body['yaml']} + {body['image']}")

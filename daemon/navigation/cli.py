@@ -12,13 +12,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
+from daemon.api_client import api_failure, call_api
 from daemon.navigation.messages import GoalError
 from daemon.navigation.mission import mission_of_json
 
 EXIT_OK, EXIT_FAILED = 0, 1
 #: as `arbiterd status`: no daemon answers
 EXIT_UNAVAILABLE = 69
-TIMEOUT_S = 10.0
 #: how often the mission's progress is read while waiting for it (s)
 POLL_S = 0.5
 
@@ -71,14 +71,7 @@ def load_mission_file(path: Path) -> dict[str, Any]:
 
 def http_fetch(base: str, token: str) -> Fetch:
     def fetch(method: str, path: str, body: dict[str, Any] | None) -> dict[str, Any]:
-        data = None if body is None else json.dumps(body).encode()
-        request = urllib.request.Request(f"{base}{path}", method=method, data=data,
-                                         headers={"Content-Type": "application/json"})
-        if token:
-            request.add_header("Authorization", f"Bearer {token}")
-        with urllib.request.urlopen(request, timeout=TIMEOUT_S) as response:
-            answer: dict[str, Any] = json.load(response)
-        return answer
+        return call_api(base, token, method, path, body)
     return fetch
 
 
@@ -101,17 +94,9 @@ def run_mission(file: str, base: str, token: str, *, wait: bool = True,
         if not wait:
             return EXIT_OK
         return _follow(fetch, mission, out, sleep)
-    except urllib.error.HTTPError as exc:
-        try:
-            error = json.load(exc).get("error", exc.reason)
-        except ValueError:
-            error = exc.reason
-        print(f"arbiterd mission: the daemon refused ({exc.code}): {error}", file=sys.stderr)
-        return EXIT_FAILED
-    except (urllib.error.URLError, OSError) as exc:
-        print(f"arbiterd mission: cannot reach {base}: {getattr(exc, 'reason', exc)}",
-              file=sys.stderr)
-        return EXIT_UNAVAILABLE
+    except OSError as exc:  # urllib's HTTPError (a refusal) and URLError are OSErrors
+        print(f"arbiterd mission: {api_failure(base, exc)}", file=sys.stderr)
+        return EXIT_FAILED if isinstance(exc, urllib.error.HTTPError) else EXIT_UNAVAILABLE
     except KeyboardInterrupt:  # the robot stops with the one who started it
         try:
             fetch("DELETE", "/api/goal", None)
