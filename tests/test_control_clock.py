@@ -129,3 +129,13 @@ def test_emergency_flag_never_speeds_up_faster_than_the_acceleration_limit() -> 
     assert limiter.velocity == pytest.approx(0.1)  # 1 m/s², not the 4 m/s² emergency
     limiter.step(0.0, 0.01, emergency=True)
     assert limiter.velocity == pytest.approx(0.06)  # slowing: 4 m/s²
+
+
+async def test_odometry_is_published_at_the_configured_rate(loop: ControlLoop) -> None:
+    """`[control] publish_rate` (20 Hz by default) of a 50 Hz tick: 20 samples a second,
+    not one every second tick (25)."""
+    from daemon.telemetry import ODOM
+    samples: list[object] = []
+    loop.bus.subscribe(ODOM, samples.append)
+    await run_ticks(loop, 10.0)
+    assert len(samples) == 200

@@ -85,7 +85,11 @@ class ControlLoop:
         self.odometry = Odometry(self.geometry)
         self.period_s = 1.0 / control.update_rate
         self.late_s = control.late_tick_ms / 1e3
-        self.publish_every = max(1, round(control.update_rate / control.publish_rate))
+        #: /odom and /tf at ``publish_rate``: each tick earns the rate, a sample costs the tick
+        #: rate (20 Hz of 50 Hz is every 2nd or 3rd tick, not every 2nd)
+        self._publish_earned = min(control.publish_rate, control.update_rate)
+        self._publish_cost = control.update_rate
+        self._publish_credit = 0.0
         self.open_loop = control.open_loop
         #: called with (now, on_time) after every tick
         self.on_tick: HookList[Callable[[float, bool], None]] = HookList()
@@ -308,8 +312,10 @@ class ControlLoop:
             if self.guard is not None:
                 odo = self.odometry
                 self.guard.observe(now, odo.x, odo.y, odo.theta)
-            self._ticks = ticks = self._ticks + 1
-            if ticks % self.publish_every == 0:
+            self._ticks += 1
+            self._publish_credit += self._publish_earned
+            if self._publish_credit >= self._publish_cost:
+                self._publish_credit -= self._publish_cost
                 self.bus.publish(ODOM, self.odom_sample())
         except Exception:
             log.exception("control tick failed")
