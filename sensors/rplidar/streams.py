@@ -70,8 +70,9 @@ class _RecordStream:
 
     While locked, a record is accepted when it passes its check and its angle fits the one
     before it; the last accepted record is held back ("pending") until its successor is
-    judged. ``backtrack``: after a record fails, how many bytes back the hunt restarts (0 = one
-    byte after the failed record).
+    judged. ``backtrack``: how many bytes before the decode position the buffer keeps, for a
+    hunt that restarts back there after a record fails (``hunt_from``; 0: one byte after the
+    failed record).
     """
 
     size = 1
@@ -113,6 +114,10 @@ class _RecordStream:
     def finish(self, buf: U8, pos: int) -> list[Event]:
         """A new descriptor follows at ``pos``: the stream ended cleanly."""
         return []
+
+    def hunt_from(self, pos: int) -> int:
+        """Where the hunt restarts after the record at ``pos`` failed (before ``lose_sync``)."""
+        return max(pos - self.backtrack, 0) if self.backtrack else pos + 1
 
     def shift(self, dropped: int) -> None:
         """The parser dropped ``dropped`` bytes from the front of its buffer."""
@@ -301,6 +306,7 @@ class _CapsuleStream(_RecordStream):
     def __init__(self, data_type: int) -> None:
         super().__init__(data_type)
         self.size, self._decode = _CAPSULE_DECODERS[data_type]
+        self.backtrack = self.size - 1
         self.per_capsule = len(self._decode(np.zeros((1, self.size), np.uint8),
                                             np.zeros((1, self.size), np.uint8)).angle_deg)
         self.previous: U8 | None = None  # last accepted capsule, waiting for its successor
@@ -402,6 +408,13 @@ class _CapsuleStream(_RecordStream):
 
     def shift(self, dropped: int) -> None:
         self.anchor_end -= dropped
+
+    def hunt_from(self, pos: int) -> int:
+        """Inside the capsule accepted just before ``pos``, if any (the buffer keeps
+        ``backtrack`` bytes for it): a damaged capsule passes the 8-bit checksum once in 256,
+        and a capsule shortened by the damage then ends inside its intact successor, which the
+        hunt must still find."""
+        return max(pos - self.backtrack, 0) if self.previous is not None else pos + 1
 
     def emit(self, recs: U8) -> list[Event]:
         caps = recs if self.previous is None else np.concatenate([self.previous[None, :], recs])
@@ -603,8 +616,9 @@ class StreamParser:
                 events.extend(stream.finish(buf, pos))
                 return self._switch(pos, pos, events)
             rec = buf[pos:pos + stream.size]
+            restart = stream.hunt_from(pos)
             stream.lose_sync(rec, stream.check(rec))
-            pos = max(pos - stream.backtrack, 0) if stream.backtrack else pos + 1
+            pos = restart
         keep = max(pos - stream.backtrack, 0)
         self._buf, self._resume = self._buf[keep:], pos - keep
         stream.shift(keep)
