@@ -337,6 +337,9 @@ class SerialBridgeDriver(MotorDriver):
         self._poll_task: asyncio.Task[None] | None = None
         self._wire_command = encode_command(MOTOR_SPEEDS, 0, 0)
         self._wire_sent_mono = 0.0
+        #: the board answered OK to the stop on the wire: the same stop again is not written
+        #: until ``_resend_every()`` has passed (a robot at rest costs no serial round trip a tick)
+        self._stop_held = False
         self._last_counts: tuple[int, int] | None = None
         self._position_counts = [0, 0]
         self._reading: EncoderReading | None = None
@@ -351,7 +354,7 @@ class SerialBridgeDriver(MotorDriver):
         if self._link is not None:  # opened twice without close(): drop the old link first
             await self._close()
         port = await asyncio.to_thread(self._open_port)
-        self.fault = None
+        self.fault, self._stop_held = None, False
         try:
             await asyncio.sleep(self.settings.reset_wait_s)
             await asyncio.to_thread(self._await_boot, port)
@@ -446,8 +449,18 @@ class SerialBridgeDriver(MotorDriver):
 
     async def _send_speeds(self, left_rad_s: float, right_rad_s: float) -> None:
         line = self._speed_command(left_rad_s * self._signs[0], right_rad_s * self._signs[1])
-        self._wire_command, self._wire_sent_mono = line, time.monotonic()
+        now = time.monotonic()
+        if self._stop_held and line == self._wire_command \
+                and now - self._wire_sent_mono < self._resend_every():
+            return
+        self._stop_held = False
+        self._wire_command, self._wire_sent_mono = line, now
         await self._command(line[:1].decode("ascii"), line)
+        self._stop_held = line == self._stop_command()
+
+    def _resend_every(self) -> float:
+        """How long a held command lasts on the wire before it is sent again (s)."""
+        return min(self.settings.keepalive_s, self.settings.auto_stop_s / 4)
 
     def _speed_command(self, left: float, right: float) -> bytes:
         s = self.settings
@@ -521,8 +534,7 @@ class SerialBridgeDriver(MotorDriver):
     async def _keep_alive(self) -> None:
         """Re-send a held non-zero command before the firmware's auto-stop fires."""
         held = time.monotonic() - self._wire_sent_mono
-        every = min(self.settings.keepalive_s, self.settings.auto_stop_s / 4)
-        if self._wire_command == self._stop_command() or held < every:
+        if self._wire_command == self._stop_command() or held < self._resend_every():
             return
         line = self._wire_command
         self._wire_sent_mono = time.monotonic()
@@ -535,6 +547,7 @@ class SerialBridgeDriver(MotorDriver):
             return False
         stop = self._stop_command()
         self._wire_command, self._wire_sent_mono = stop, time.monotonic()  # no keep-alive
+        self._stop_held = False  # no reply is read: the next tick's stop goes out again
         return link.send_now(stop, self.EMERGENCY_WRITE_TIMEOUT_S)
 
     def _health(self) -> dict[str, Any]:

@@ -265,6 +265,30 @@ async def test_held_speed_outlives_the_firmware_auto_stop(serial_rig: Rig) -> No
     assert emulator.motors.targets() == (0.0, 0.0)
 
 
+async def test_a_robot_at_rest_sends_its_stop_once_per_keepalive_not_every_tick(
+        serial_rig: Rig, driver: SerialBridgeDriver) -> None:
+    """The board said OK to the stop: the same stop every tick is not written again until
+    ``keepalive_s`` has passed (a serial round trip a tick cost the idle daemon ~1.4 % of a
+    core); any other command, and the stop after it, go out at once."""
+    firmware = serial_rig.emulator.firmware
+
+    def stops() -> int:
+        return sum(c.text == "m 0 0" for c in firmware.history)
+
+    await driver.set_wheel_speeds(3.0, 3.0)
+    await driver.set_wheel_speeds(0.0, 0.0)
+    sent = stops()
+    for _ in range(20):
+        await driver.set_wheel_speeds(0.0, 0.0)
+    assert stops() == sent and driver.writes >= 22
+    driver._wire_sent_mono -= driver.settings.keepalive_s  # as if the keep-alive time passed
+    await driver.set_wheel_speeds(0.0, 0.0)
+    assert stops() == sent + 1
+    await driver.set_wheel_speeds(1.0, 1.0)
+    await driver.set_wheel_speeds(0.0, 0.0)
+    assert stops() == sent + 2 and serial_rig.emulator.motors.targets() == (0.0, 0.0)
+
+
 async def test_open_waits_for_the_board_reset(serial_rig: Rig) -> None:
     emulator = serial_rig.emulator
     emulator.boot_s = 0.3
