@@ -240,3 +240,64 @@ def match(field: DistanceField, points: np.ndarray, prior: Pose2,
     if near and refined.score + 1e-9 + tolerance >= searched:
         return refined
     return Match(center, searched, refined.information)
+
+
+def _huber_cost(d: np.ndarray, robust_distance: float, cutoff: float) -> float:
+    """Sum of Huber losses of the distances below ``cutoff`` (the field's truncation)."""
+    used = d[d < cutoff]
+    quad = np.minimum(used, robust_distance)
+    return float(np.sum(quad * (used - 0.5 * quad)))
+
+
+def polish(field: DistanceField, points: np.ndarray, start: Pose2, iterations: int = 8,
+           robust_distance: float = 0.1, tolerance: float = 1e-4,
+           damping: float = 0.1) -> Pose2:
+    """Levenberg-Marquardt on the Huber loss of the points' bilinear distances from ``start``:
+    a step is taken only if it lowers the loss (else the damping grows), so it converges to
+    the local minimum rather than swinging between two poses as plain Gauss-Newton does on
+    this field (``damping``: the starting Marquardt factor, x0.1 after a step taken, x10
+    after one refused). Slower than ``refine``; meant for an offline pass."""
+    inv = 1.0 / field.resolution
+    cells = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T) * inv
+    base = np.array([[0.5 - field.origin_x * inv], [0.5 - field.origin_y * inv]])
+    cutoff = field.max_distance * 0.99
+    to_metres = np.array([inv, inv, 1.0])
+    outer = np.outer(to_metres, to_metres)
+
+    def evaluate(pose: Pose2, gradient: bool) -> tuple[float, np.ndarray, np.ndarray | None,
+                                                      np.ndarray | None]:
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        rotated = np.array([[c, -s], [s, c]]) @ cells
+        d, grad = field.lookup_cells(rotated + base + np.array([[pose[0] * inv],
+                                                               [pose[1] * inv]]), gradient)
+        return _huber_cost(d, robust_distance, cutoff), d, grad, rotated
+
+    pose = start
+    cost, d, grad, rotated = evaluate(pose, True)
+    for _ in range(iterations):
+        assert grad is not None and rotated is not None
+        used = d < cutoff
+        if int(np.count_nonzero(used)) < 6:
+            break
+        weight = robust_distance / np.maximum(d, robust_distance) * used
+        jac = np.empty((3, d.size))
+        jac[:2] = grad
+        jac[2] = grad[1] * rotated[0] - grad[0] * rotated[1]
+        weighted = jac * weight
+        hessian = (weighted @ jac.T) * outer
+        gradient = (weighted @ d) * to_metres
+        while True:
+            damped = hessian + damping * np.diag(np.diag(hessian) + 1e-9)
+            sx, sy, st = _solve3(damped, gradient)
+            trial = (pose[0] - sx, pose[1] - sy, wrap(pose[2] - st))
+            trial_cost, trial_d, trial_grad, trial_rot = evaluate(trial, True)
+            if trial_cost <= cost:
+                break
+            damping *= 10.0
+            if damping > 1e6:
+                return pose
+        pose, cost, d, grad, rotated = trial, trial_cost, trial_d, trial_grad, trial_rot
+        damping = max(damping / 10.0, 1e-6)
+        if abs(sx) + abs(sy) < tolerance and abs(st) < tolerance:
+            break
+    return pose
