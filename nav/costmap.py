@@ -21,12 +21,27 @@ DISTANCE_CELL_M = 0.1
 class CostParams:
     """How cells cost: ``radius_m`` the robot's reach (cells nearer an obstacle are lethal),
     ``inflation_m`` the band beyond it where cost decays from ``inflation_cost`` to 0,
-    ``unknown_cost`` the extra cost of an unseen cell; 1 is the cost of a free metre."""
+    ``unknown_cost`` the extra cost of an unseen cell; 1 is the cost of a free metre.
+    ``line_margin_m``: a path's straightened stretches keep this far past the reach (or as
+    far as the grid path they replace)."""
 
     radius_m: float
     inflation_m: float = 0.5
     inflation_cost: float = 3.0
     unknown_cost: float = 1.0
+    line_margin_m: float = 0.3
+
+    def band_cost(self, beyond_m: float) -> float:
+        """The cost of a seen cell ``beyond_m`` past the reach (1 past the band)."""
+        if self.inflation_m <= 0:
+            return 1.0
+        band = min(max(1.0 - beyond_m / self.inflation_m, 0.0), 1.0)
+        return 1.0 + self.inflation_cost * band ** 2
+
+    @property
+    def line_cost(self) -> float:
+        """The dearest cell a straightened stretch may cross (see ``line_margin_m``)."""
+        return self.band_cost(self.line_margin_m)
 
 
 @dataclass(frozen=True)

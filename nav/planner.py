@@ -46,10 +46,11 @@ def no_plan(reason: str, final: bool = False) -> Plan:
 
 
 def plan(costs: np.ndarray, area: GridArea, start: tuple[float, float],
-         goal: tuple[float, float], pool: int = 2) -> Plan:
+         goal: tuple[float, float], pool: int = 2, line_cost: float = 0.0) -> Plan:
     """The cheapest path from ``start`` to ``goal`` over ``costs`` (per-metre cost per cell,
     ``inf`` lethal): searched on blocks of ``pool`` x ``pool`` cells (each as dear as its
-    dearest cell), then shortened on the fine cells where a straight line costs no more."""
+    dearest cell), then shortened on the fine cells where a straight line crosses no cell
+    dearer than the dearest it replaces or than ``line_cost`` (see :func:`shortcut`)."""
     s, g = area.cell(*start), area.cell(*goal)
     if not area.inside(*g):
         return no_plan("the goal is outside the map", final=True)
@@ -69,7 +70,7 @@ def plan(costs: np.ndarray, area: GridArea, start: tuple[float, float],
     if not blocks:
         return no_plan("no path to the goal: every way is blocked by known obstacles")
     cells = [s] + [_block_centre(b, pool, costs.shape) for b in blocks[1:-1]] + [g]
-    cells = shortcut(costs, cells)
+    cells = shortcut(costs, cells, line_cost)
     points = np.array([area.centre(r, c) for r, c in cells], dtype=float)
     points[0], points[-1] = start, goal
     return Plan(points, cost * pool * area.resolution)
@@ -206,15 +207,18 @@ def _escape(costs: np.ndarray, cell: tuple[int, int]) -> tuple[int, int] | None:
     return int(rr[best]), int(cc[best])
 
 
-def shortcut(costs: np.ndarray, cells: list[tuple[int, int]]) -> list[tuple[int, int]]:
+def shortcut(costs: np.ndarray, cells: list[tuple[int, int]],
+             line_cost: float = 0.0) -> list[tuple[int, int]]:
     """Drop the cells a straight line can skip: a line from one kept cell to a later one
     replaces the cells between when no cell it crosses costs more than the dearest of them
-    (the straight run never goes nearer obstacles than the grid path did). The farthest such
-    cell is searched by doubling then halving the jump: a few line checks per kept cell."""
+    or than ``line_cost`` (the straight run never goes nearer obstacles than the grid path
+    did, or than the distance where cells cost ``line_cost``: the band's cost keeps the grid
+    path in the middle of the free space, the lines need not). The farthest such cell is
+    searched by doubling then halving the jump: a few line checks per kept cell."""
     if len(cells) < 3:
         return cells
     index = np.array(cells)
-    along = costs[index[:, 0], index[:, 1]].astype(np.float64)
+    along = np.maximum(costs[index[:, 0], index[:, 1]].astype(np.float64), line_cost)
     kept = [cells[0]]
     i, last = 0, len(cells) - 1
     while i < last:

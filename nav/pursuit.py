@@ -8,6 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 
 Pose = tuple[float, float, float]
+#: path points looked at at once for the carrot
+LOOKAHEAD_WINDOW = 64
+#: a path turning by more than this at a point bends there (rad)
+BEND_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -24,6 +28,10 @@ class PursuitSettings:
     min_radius: float = 0.9
     #: slowest approach speed while the goal is not reached (m/s)
     min_approach_speed: float = 0.05
+    #: the carrot is pulled back along the path until the straight line to it passes every
+    #: path point before it within this (plus the robot's own distance from the path; m): at
+    #: a corner the robot turns at the corner instead of cutting it (0: pure look-ahead)
+    corridor: float = 0.05
     #: turn in place first when the path's direction is further off than this (rad)
     rotate_first: float = 0.8
     #: heading gain when turning in place (1/s)
@@ -58,6 +66,7 @@ class Pursuit:
         self.loop = loop
         steps = np.hypot(*np.diff(self.path, axis=0).T) if len(self.path) > 1 else np.zeros(0)
         self.along = np.concatenate(([0.0], np.cumsum(steps)))
+        self.bends = bends(self.path, loop)
         self.nearest = 0
         self.arrived = False
 
@@ -78,7 +87,7 @@ class Pursuit:
             self.arrived = True
             return self._align(theta, remaining, cross)
         lookahead = min(max(abs(speed) * s.lookahead_time, s.min_lookahead), s.max_lookahead)
-        tx, ty = self._carrot(x, y, lookahead)
+        tx, ty = self._carrot(x, y, lookahead, cross)
         dx, dy = tx - x, ty - y
         local_x = math.cos(theta) * dx + math.sin(theta) * dy
         local_y = -math.sin(theta) * dx + math.cos(theta) * dy
@@ -142,20 +151,74 @@ class Pursuit:
             best = min(best, math.hypot(ax + u * ex - x, ay + u * ey - y))
         return best
 
-    def _carrot(self, x: float, y: float, lookahead: float) -> tuple[float, float]:
-        """The first path point at least ``lookahead`` from the robot past the nearest one;
-        the last point when none is that far (a loop wraps)."""
-        path = self.path
-        n = len(path)
-        for k in range(self.nearest, self.nearest + n):
-            if not self.loop and k >= n:
-                break
-            px, py = path[k % n]
-            if math.hypot(px - x, py - y) >= lookahead:
-                return float(px), float(py)
-            if not self.loop and k == n - 1:
-                break
-        return float(path[-1, 0]), float(path[-1, 1])
+    def _carrot(self, x: float, y: float, lookahead: float,
+                cross: float) -> tuple[float, float]:
+        """The first path point at least ``lookahead`` from the robot past the nearest one
+        (the last point when none is that far; a loop wraps), pulled back to the farthest one
+        the straight line to which passes the path before it within the corridor (plus the
+        robot's own distance from the path). Between bends the path is straight, so only its
+        bends are checked (none on a straight stretch), the farthest carrot found by halving."""
+        path, n = self.path, len(self.path)
+        far = self._lookahead_index(x, y, lookahead)
+        if self.settings.corridor <= 0.0 or far <= self.nearest + 1:
+            return float(path[far % n, 0]), float(path[far % n, 1])
+        span = np.arange(self.nearest + 1, far) % n if far >= n else \
+            slice(self.nearest + 1, far)
+        inner = np.flatnonzero(self.bends[span]) + 1  # bends before the carrot (from nearest)
+        if len(inner) == 0:
+            return float(path[far % n, 0]), float(path[far % n, 1])
+        corners = path[(inner + self.nearest) % n] - (x, y)
+        width = self.settings.corridor + cross
+        good, bad = int(inner[0]), far - self.nearest  # no bend before the first bend
+        if _within(path[far % n] - (x, y), corners, width):
+            good = bad
+        while bad - good > 1:
+            middle = (good + bad) // 2
+            before = corners[:int(np.searchsorted(inner, middle))]
+            if _within(path[(self.nearest + middle) % n] - (x, y), before, width):
+                good = middle
+            else:
+                bad = middle
+        k = (self.nearest + good) % n
+        return float(path[k, 0]), float(path[k, 1])
+
+    def _lookahead_index(self, x: float, y: float, lookahead: float) -> int:
+        """Index (not wrapped) of the first path point at least ``lookahead`` from the robot
+        past the nearest one; the last one when none is that far."""
+        path, n = self.path, len(self.path)
+        stop = self.nearest + n if self.loop else n
+        start = self.nearest
+        while start < stop:
+            end = min(start + LOOKAHEAD_WINDOW, stop)
+            window = path[start:end] if end <= n else path[np.arange(start, end) % n]
+            dx, dy = window[:, 0] - x, window[:, 1] - y
+            far = np.flatnonzero(dx * dx + dy * dy >= lookahead * lookahead)
+            if len(far):
+                return start + int(far[0])
+            start = end
+        return n - 1
+
+
+def _within(end: np.ndarray, points: np.ndarray, width: float) -> bool:
+    """Whether every one of ``points`` lies within ``width`` of the segment from the origin to
+    ``end``."""
+    span = max(float(end @ end), 1e-12)
+    u = np.minimum(np.maximum(points @ end / span, 0.0), 1.0)
+    off = points - u[:, None] * end
+    return float(np.einsum("ij,ij->i", off, off).max()) <= width * width
+
+
+def bends(path: np.ndarray, loop: bool = False) -> np.ndarray:
+    """Which points of the path it turns at (a loop also at its ends)."""
+    out = np.zeros(len(path), dtype=bool)
+    if len(path) > 2:
+        step = np.diff(path, axis=0)
+        cross = step[:-1, 0] * step[1:, 1] - step[:-1, 1] * step[1:, 0]
+        dot = np.einsum("ij,ij->i", step[:-1], step[1:])
+        out[1:-1] = np.abs(np.arctan2(cross, dot)) > BEND_RAD
+    if loop and len(path):
+        out[0] = out[-1] = True
+    return out
 
 
 def densify(points: np.ndarray, spacing: float) -> np.ndarray:

@@ -64,6 +64,19 @@ def test_a_wall_in_the_way_is_planned_around_with_room_for_the_footprint() -> No
     assert shortest < length(found.points) < 1.2 * shortest
 
 
+def test_a_straightened_path_keeps_the_line_margin_past_a_corner() -> None:
+    grid = area()
+    obstacles = wall(grid, 0.0, -5.0, 0.0)
+    costs = cost_grid(obstacles, np.ones_like(obstacles), grid.resolution, PARAMS)
+    found = plan(costs, grid, (-2.0, -2.0), (2.0, -2.0), line_cost=PARAMS.line_cost)
+    banded = plan(costs, grid, (-2.0, -2.0), (2.0, -2.0))  # as far as the band pushes it
+    near = clearance(found.points, obstacles, grid)
+    # the corner is passed the reach plus the margin away (within a cell), not farther
+    assert PARAMS.radius_m + PARAMS.line_margin_m - grid.resolution < near
+    assert near < PARAMS.radius_m + PARAMS.line_margin_m + grid.resolution
+    assert length(found.points) < length(banded.points)
+
+
 def test_unseen_space_is_planned_through_at_a_cost() -> None:
     grid = area()
     nothing = np.zeros((grid.height, grid.width), dtype=bool)
@@ -118,6 +131,16 @@ def test_the_follower_reaches_the_goal_within_tolerance_and_respects_its_limits(
     (x, y, theta), _ = drive(Pursuit(settings, path, math.pi), pose, 40.0)
     assert math.hypot(x - 2.0, y - 2.0) <= settings.xy_tolerance + 0.01
     assert abs(math.remainder(theta - math.pi, math.tau)) <= settings.yaw_tolerance + 0.01
+
+
+def test_the_follower_turns_at_a_corner_instead_of_cutting_it() -> None:
+    path = densify(np.array([(0.0, 0.0), (2.0, 0.0), (2.0, 2.0)]), 0.05)
+    corridor = PursuitSettings()
+    _, errors = drive(Pursuit(corridor, path, None), (0.0, 0.0, 0.0), 40.0)
+    _, cutting = drive(Pursuit(PursuitSettings(corridor=0.0), path, None), (0.0, 0.0, 0.0),
+                       40.0)
+    assert max(errors) <= corridor.corridor + 0.05
+    assert max(cutting) > 2 * max(errors)  # the pure look-ahead cuts the corner
 
 
 def test_the_follower_turns_in_place_toward_a_path_behind_it() -> None:

@@ -52,7 +52,7 @@ def fold_and_plan(costmap: Costmap, scans: Scans, start: Pose2, goal: Pose2,
                   block: int) -> Planned:
     started = time.perf_counter()
     costs = fold(costmap, scans)
-    result = plan(costs, costmap.area, start[:2], goal[:2], block)
+    result = plan(costs, costmap.area, start[:2], goal[:2], block, costmap.params.line_cost)
     return Planned(result, costs, round(1000 * (time.perf_counter() - started), 1))
 
 
