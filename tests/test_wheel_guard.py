@@ -179,6 +179,10 @@ def test_no_false_trip_while_wandering(driver: str, tmp_path: Path) -> None:
     # single measurements jitter: the sim's encoder noise (odom_noise), and an emulator process
     # a loaded machine starved catching up in one step (6.1 rad/s for 4.5 once in CI); their
     # median agrees within 0.4 rad/s and 10 % (7.06 for 7.5 on a CI box at load ~4)
+    # a stall stop on a loaded machine makes the guard measure afresh: no measurement for
+    # half a window (null in the status), which is no speed to compare
+    samples = [(c, m) for c, m in samples if m is not None]
+    assert len(samples) >= 10, samples
     for side in ("left", "right"):
         commanded = statistics.median(c[side] for c, _ in samples)
         measured = statistics.median(m[side] for _, m in samples)
