@@ -207,7 +207,9 @@ async def test_a_board_that_does_not_answer_degrades_health_only(
             assert answer.status == 200  # the daemon runs on
         board: Pca9685Emulator = robot.ctx.sim.device_emulators["arm"]
         board.answering = True  # connected at last: the servos are sent home
-        await eventually(lambda: board.servo_pulse_us(0) > 0, "the first pulses")
+        # the channels are written one after another: wait for the last of them
+        await eventually(lambda: all(board.servo_pulse_us(c) > 0 for c in range(4)),
+                         "pulses on all four channels")
         assert [board.servo_pulse_us(c) for c in range(4)] == pytest.approx(
             [1500, 1500, 1500, 500], abs=chip.step_us(50.0))
 
