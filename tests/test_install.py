@@ -580,6 +580,9 @@ def test_sim_installs_only_what_running_needs_and_test_adds_the_test_tools(
     assert "system packages: all present" in sim.stdout and "apt-get" not in sim.stdout
     assert f"pip install -q --disable-pip-version-check -e {REPO_DIR}\n" in sim.stdout
     assert "npm" not in sim.stdout
+    # the clone's packages compiled, so the daemon does not compile them at every start
+    assert (f"[dry-run] {tmp_path}/venv/bin/python -m compileall -q base daemon drivers nav "
+            "sensors sim slam\n") in sim.stdout
     test = install_sh("test", env=env)
     assert test.returncode == 0, test.stderr
     apt = next(line for line in test.stdout.splitlines() if " apt-get install " in line)
@@ -643,7 +646,8 @@ def test_the_test_command_stops_at_a_failing_gate_before_pytest(
         env={"PATH": str(tools), "ARBITERD_DEV_VENV": str(venv_bin.parent),
              "ARBITERD_CHROMIUM": str(tools / "chromium")})
     every_step = ["ruff check .", "mypy", "python -m pytest -q tests/x.py"]
-    ran = calls.read_text().splitlines()
+    compiled, *ran = calls.read_text().splitlines()  # the set-up compiles the sources first
+    assert compiled == "python -m compileall -q base daemon drivers nav sensors sim slam"
     if failing is None:
         assert result.returncode == 0, result.stderr
         assert ran == every_step
