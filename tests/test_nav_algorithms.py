@@ -77,6 +77,40 @@ def test_a_straightened_path_keeps_the_line_margin_past_a_corner() -> None:
     assert length(found.points) < length(banded.points)
 
 
+def round_corner(start: tuple[float, float], corner: tuple[float, float],
+                 goal: tuple[float, float], clearance_m: float) -> float:
+    """The shortest way from ``start`` to ``goal`` round the far side of a point ``corner``
+    at ``clearance_m`` from it: a tangent, an arc, a tangent."""
+    legs, bearings = [], []
+    for x, y in (start, goal):
+        d = math.hypot(x - corner[0], y - corner[1])
+        legs.append((math.sqrt(d * d - clearance_m ** 2), math.acos(clearance_m / d)))
+        bearings.append(math.atan2(y - corner[1], x - corner[0]))
+    between = math.tau - abs(bearings[1] - bearings[0])  # round the side away from both
+    return legs[0][0] + legs[1][0] + clearance_m * (between - legs[0][1] - legs[1][1])
+
+
+def test_a_door_approached_from_beside_its_wall_is_crossed_on_a_diagonal() -> None:
+    # a wall along x = 0 with a door 1.2 m wide; start and goal beside the wall, either side:
+    # the cheapest grid path crosses the inflation band squarely (a stair of corners before
+    # and after the door), the plan takes the shortest way within the same clearance
+    grid = area()
+    obstacles = wall(grid, 0.0, -5.0, -0.6) | wall(grid, 0.0, 0.6, 4.9)
+    costs = cost_grid(obstacles, np.ones_like(obstacles), grid.resolution, PARAMS)
+    start, goal = (0.8, 1.0), (-1.0, 1.0)
+    found = plan(costs, grid, start, goal, line_cost=PARAMS.line_cost)
+    assert found.found, found.reason
+    near = clearance(found.points, obstacles, grid)
+    assert near > PARAMS.radius_m + grid.resolution  # well clear of the jamb's lethal zone
+    rows, cols = np.nonzero(obstacles)
+    jamb = min(zip(grid.origin_x + (cols + 0.5) * grid.resolution,
+                   grid.origin_y + (rows + 0.5) * grid.resolution, strict=True),
+               key=lambda p: math.hypot(p[0] - 0.0, p[1] - 0.6))
+    # within 5 % of the shortest way round the jamb at the clearance it keeps (squarely
+    # through the door it was 14 % longer)
+    assert length(found.points) < 1.05 * round_corner(start, jamb, goal, near)
+
+
 def test_unseen_space_is_planned_through_at_a_cost() -> None:
     grid = area()
     nothing = np.zeros((grid.height, grid.width), dtype=bool)
