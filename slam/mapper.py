@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,6 +13,7 @@ from slam.graph import PoseGraph
 from slam.grid import OccupancyGrid
 from slam.matcher import Match, SearchWindow, match, polish
 from slam.pose import Pose2, between, compose, inverse, transform_points
+from slam.smooth import learn_noise, smooth
 
 IDENTITY: Pose2 = (0.0, 0.0, 0.0)
 
@@ -241,14 +243,18 @@ class Mapper:
 
     def refined_trajectory(self, points: list[np.ndarray], window: int = 10, share: int = 4,
                            radius: float = 12.0, resolution: float = 0.075,
-                           robust_distance: float = 0.05) -> list[tuple[float, Pose2]]:
+                           robust_distance: float = 0.05,
+                           odometry: Sequence[Pose2] | None = None) -> list[tuple[float, Pose2]]:
         """The trajectory after an offline pass (``points``: every scan's points, in the order
         they were added): each scan's pose polished (``polish``: converged Levenberg-Marquardt)
         against the distance field of the optimised key scans within ``window`` keys of its
         own, on both sides, and within ``radius`` m of the field's centre key, at
         ``resolution`` (coarser than the online fields' 0.05 m: smoother, and closer on the
         Freiburg logs), Huber past ``robust_distance``; one field serves the scans of
-        ``share`` consecutive key scans. The graph and the map are left as they are.
+        ``share`` consecutive key scans. With ``odometry`` (every scan's odometry pose), the
+        polished poses are then fused with the odometry's motion between consecutive scans
+        (``slam.smooth``), each weighted by the noise learnt from how the two disagree over 1
+        and 4 scans. The graph and the map are left as they are.
         (Online, a scan is matched against the key scans before it only, and its refinement
         stops at the member of a Gauss-Newton two-cycle its iterations land on.)"""
         poses = self.trajectory
@@ -268,7 +274,14 @@ class Mapper:
                 if len(scan) >= 10:
                     out[i] = (out[i][0], polish(field, scan, out[i][1],
                                                 robust_distance=robust_distance))
-        return out
+        if odometry is None:
+            return out
+        if len(odometry) != len(out):
+            raise ValueError("one odometry pose per scan added is needed")
+        polished = [pose for _, pose in out]
+        pose_sigma, step_sigma = learn_noise(polished, odometry)
+        fused = smooth(polished, odometry, pose_sigma, step_sigma)
+        return [(stamp, pose) for (stamp, _), pose in zip(out, fused, strict=True)]
 
     def health(self) -> dict[str, Any]:
         c = self._counts

@@ -63,7 +63,8 @@ def run_dataset(name: str, config: MapperConfig = BENCH_CONFIG,
     mapper.optimize()
     online = mapper.trajectory
     refine_start = time.perf_counter()
-    refined = mapper.refined_trajectory([points for _, _, points in scans])
+    refined = mapper.refined_trajectory([points for _, _, points in scans],
+                                        odometry=[odom for _, odom, _ in scans])
     end = time.perf_counter()
     return Run(relation_errors(refined, relations), relation_errors(online, relations),
                relation_errors([(s, o) for s, o, _ in scans], relations),
