@@ -248,3 +248,23 @@ def test_supervisor_disabled_warns_and_starts_no_thread(caplog: pytest.LogCaptur
     assert not sup.stalled() and sup._thread is None
     sup.stop()
     assert "stall supervisor is DISABLED" in caplog.text
+
+
+def test_supervisor_counts_from_the_first_tick_after_start() -> None:
+    """The start-up before the first tick is no stall: nothing drives the wheels yet, and
+    ``longest_stall_ms`` is the longest time between two ticks."""
+    driver = StubDriver()
+    sup, clock = supervisor(driver)
+    sup.start()
+    try:
+        clock.now += 0.5  # components still starting
+        assert sup.check() == pytest.approx(0.2) and driver.calls == 0 and not sup.stalled()
+        sup.beat()  # the first tick
+        clock.now += 0.02
+        sup.beat()
+        assert sup.health()["longest_stall_ms"] == pytest.approx(20.0)
+        clock.now += 0.25
+        sup.check()  # a stall after the first tick is one
+        assert driver.calls == 1 and sup.stalled()
+    finally:
+        sup.stop()

@@ -36,6 +36,9 @@ class StallSupervisor:
         self.last_stall_s = 0.0
         self._lock = threading.Lock()
         self._last_beat = clock()
+        #: the loop has ticked since start(): before the first tick nothing drives the wheels,
+        #: and the start-up is no stall (longest_stall_ms is the longest time between ticks)
+        self._ticking = True
         self._stopped_beat: float | None = None  # the beat after which the wheels were zeroed
         self._latched = False
         self._halt = threading.Event()
@@ -52,7 +55,9 @@ class StallSupervisor:
             log.warning("[control] stall_stop_s = 0: the stall supervisor is DISABLED; a "
                         "blocked event loop leaves the wheels turning")
             return
-        self.beat()
+        with self._lock:
+            self._last_beat = self.clock()
+            self._ticking = False
         self._halt.clear()
         self._thread = threading.Thread(target=self._run, name="stall-supervisor", daemon=True)
         self._thread.start()
@@ -69,8 +74,9 @@ class StallSupervisor:
         """The control tick ran (called on the event loop, every tick)."""
         now = self.clock()
         with self._lock:
-            gap = now - self._last_beat
+            gap = now - self._last_beat if self._ticking else 0.0
             self._last_beat = now
+            self._ticking = True
         self.longest_stall_s = max(self.longest_stall_s, gap)
 
     def take_stop(self) -> bool:
@@ -93,6 +99,8 @@ class StallSupervisor:
         with self._lock:
             last_beat = self._last_beat
             handled = self._stopped_beat == last_beat
+            if not self._ticking:
+                return self.stall_stop_s
         overdue = now - last_beat - self.stall_stop_s
         if overdue < 0:
             return -overdue
@@ -121,7 +129,8 @@ class StallSupervisor:
     # -- reporting ----------------------------------------------------------------------------
 
     def stalled(self) -> bool:
-        return self.enabled and self.clock() - self._last_beat > self.stall_stop_s
+        return self.enabled and self._ticking and \
+            self.clock() - self._last_beat > self.stall_stop_s
 
     def health(self) -> dict[str, Any]:
         return {
