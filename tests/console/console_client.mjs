@@ -34,6 +34,18 @@ const status = () => getJson("/api/status");
 
 const truth = async () => (await status()).ground_truth;
 
+// The server's e-stop once it is `engaged`: the page shows a latch at once, while its request
+// may still be on the way (a loaded machine). Polls /api/status for up to 5 s.
+async function serverEstop(engaged) {
+  const t0 = Date.now();
+  let s = await status();
+  while (s.estop.engaged !== engaged && Date.now() - t0 < 5000) {
+    await sleep(25);
+    s = await status();
+  }
+  return s.estop;
+}
+
 // Samples /api/status every 25 ms until `done(sample)` or `ms` pass; returns the samples.
 async function watch(ms, done = () => false) {
   const samples = [];
@@ -149,7 +161,7 @@ async function driveScenario(browser) {
   if (shots) await page.screenshot({ path: `${shots}/console-laptop.png` });
   await page.keyboard.press("Space");
   await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
-  const latched = await status();
+  const latched = { estop: await serverEstop(true) };
   const blocked = await holdKey(page, "w", 800);
   report("estop", { engaged: latched.estop.engaged, reason: latched.estop.reason,
     shown: await text(page, "#estop-state"), blocked });
@@ -234,7 +246,7 @@ async function tokenScenario(browser) {
   // anyone may stop the robot; releasing needs the token
   await page.keyboard.press("Space");
   await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
-  const latched = (await status()).estop.engaged;
+  const latched = (await serverEstop(true)).engaged;
   await holdRelease(page);
   await page.waitForFunction(() => /needs the token/.test(
     document.getElementById("estop-state").textContent), null, { timeout: 5000 });
@@ -264,7 +276,7 @@ async function tokenScenario(browser) {
   await page.keyboard.press("Space");
   await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
   report("with", { access: await text(page, "#access"), banner: await text(page, "#banner"),
-    moved: right, stored: stored === secret, estop: (await status()).estop.engaged });
+    moved: right, stored: stored === secret, estop: (await serverEstop(true)).engaged });
   report("errors", { errors });
   await context.close();
 }

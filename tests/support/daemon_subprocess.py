@@ -51,7 +51,8 @@ class DaemonSubprocess:
         self.proc = subprocess.Popen(self.command(), cwd=REPO, env=self.env, stdout=self._log,
                                      stderr=subprocess.STDOUT, text=True)
         if wait_ready:
-            wait_for(self._health_answers, "the daemon's /api/health", within_s=20.0)
+            wait_for(self._health_answers, lambda: "the daemon's /api/health; its log ends:\n"
+                     + self.log()[-4000:], within_s=20.0)
         return self
 
     def _health_answers(self) -> bool:
