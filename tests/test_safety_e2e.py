@@ -48,7 +48,10 @@ def test_driving_at_a_wall_over_http_and_wandering(
     metrics = watch_for(daemon, 20.0)  # the behaviour on its own for 20 s of real time
     assert metrics["path_length_m"] - start > 2.0, metrics  # it did get around
     code, autonomy = daemon.get("/api/autonomy")
-    assert autonomy["mode"] == "wander" and autonomy["state"] != "STOPPED", autonomy
+    assert autonomy["mode"] == "wander", autonomy  # it did not switch itself off
+    # a stale scan or a stall wait on a loaded machine stops it for a moment: it moves on
+    wait_for(lambda: daemon.get("/api/autonomy")[1]["state"] != "STOPPED",
+             lambda: f"wander to leave STOPPED: {daemon.get('/api/autonomy')[1]}", within_s=10.0)
     assert "collision monitor:" in daemon.log()  # changes of action are logged
 
 
