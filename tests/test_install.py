@@ -427,7 +427,10 @@ def test_readme_robot_steps_as_written_end_in_a_hardware_service(tmp_path: Path,
     devices = Path(tempfile.mkdtemp(prefix="arbiterd-dev-"))  # the service user reaches it
     devices.chmod(0o755)
     http_port, ws_port = free_port(), free_port()
+    # the board's emulator is a thread of this (loaded) test process: a reply may take longer
+    # than a real board's 0.25 s allowance while the CI box is busy
     edits = [("driver.serial", "port", f'"{devices / "arduino"}"'),
+             ("driver.serial", "timeout_s", "2.0"),
              ("lidar", "port", f'"{devices / "rplidar"}"'),
              ("http", "host", '"127.0.0.1"'), ("http", "port", str(http_port)),
              ("rosbridge", "host", '"127.0.0.1"'), ("rosbridge", "port", str(ws_port))]

@@ -52,7 +52,7 @@ class DaemonSubprocess:
                                      stderr=subprocess.STDOUT, text=True)
         if wait_ready:
             wait_for(self._health_answers, lambda: "the daemon's /api/health; its log ends:\n"
-                     + self.log()[-4000:], within_s=20.0)
+                     + self.log()[-4000:], within_s=60.0)
         return self
 
     def _health_answers(self) -> bool:
