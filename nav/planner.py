@@ -11,6 +11,8 @@ import numpy as np
 
 from nav.costmap import GridArea
 
+#: a path as grid cells (row, column), start first
+Cells = list[tuple[int, int]]
 #: how far (cells) the planner looks for a free cell when the start is in a lethal one
 ESCAPE_CELLS = 6
 #: the guided search (:func:`guided_path`): grids of at least this many blocks are searched
@@ -23,6 +25,11 @@ GUIDE_SLACK, GUIDE_EXTRA = 1.1, 8.0
 #: the straightened path is searched again within this many cells of the cheapest one (see
 #: :func:`tightened`)
 TIGHTEN_CELLS = 3
+#: a plan on blocks is checked against the way over the fine cells pooled by twice the block,
+#: each as cheap as its cheapest (every lane between cells is still there); when the blocks'
+#: path is longer than LANE_SLACK times that way plus LANE_EXTRA cells, the blocks may have
+#: closed a narrow lane, and blocks of half the size are searched too (see :func:`plan`)
+LANE_SLACK, LANE_EXTRA = 1.1, 10
 #: the 8 neighbours: row step, column step (in the order of their cells' indices, which is
 #: the order scipy's search meets them in: equally cheap paths are told apart the same way)
 NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
@@ -65,13 +72,29 @@ def plan(costs: np.ndarray, area: GridArea, start: tuple[float, float],
     free_start = _escape(costs, s)
     if free_start is None:
         return no_plan("the robot is boxed in by obstacles")
-    s = free_start
+    found = _plan_on_blocks(costs, area.resolution, free_start, g, pool, line_cost)
+    if found is None:
+        return no_plan("no path to the goal: every way is blocked by known obstacles")
+    if pool > 1 and _lane_closed(costs, free_start, g, pool, _cells_length(found[0])):
+        fine = _plan_on_blocks(costs, area.resolution, free_start, g, pool // 2, line_cost)
+        if fine is not None and _cells_length(fine[0]) < _cells_length(found[0]):
+            found = fine
+    cells, cost = found
+    points = np.array([area.centre(r, c) for r, c in cells], dtype=float)
+    points[0], points[-1] = start, goal
+    return Plan(points, cost)
+
+
+def _plan_on_blocks(costs: np.ndarray, resolution: float, s: tuple[int, int],
+                    g: tuple[int, int], pool: int, line_cost: float) -> tuple[Cells, float] | None:
+    """The straightened path's cells over ``pool`` x ``pool`` blocks and its cost in metres;
+    None when there is none."""
     coarse = pooled(costs, pool)
     cs, cg = (s[0] // pool, s[1] // pool), (g[0] // pool, g[1] // pool)
     coarse[cs], coarse[cg] = max(costs[s], 1.0), max(costs[g], 1.0)
     blocks, cost = guided_path(coarse, cs, cg)
     if not blocks:
-        return no_plan("no path to the goal: every way is blocked by known obstacles")
+        return None
     cells = [s] + [_block_centre(b, pool, costs.shape) for b in blocks[1:-1]] + [g]
     pulled = shortcut(costs, cells, line_cost)
     tight = tightened(costs, cells, line_cost)
@@ -79,9 +102,18 @@ def plan(costs: np.ndarray, area: GridArea, start: tuple[float, float],
         tight = shortcut(costs, tight, line_cost)
         if _cells_length(tight) < _cells_length(pulled):
             pulled = tight
-    points = np.array([area.centre(r, c) for r, c in pulled], dtype=float)
-    points[0], points[-1] = start, goal
-    return Plan(points, cost * pool * area.resolution)
+    return pulled, cost * pool * resolution
+
+
+def _lane_closed(costs: np.ndarray, s: tuple[int, int], g: tuple[int, int], pool: int,
+                 length: float) -> bool:
+    """Whether a path of ``length`` cells over blocks of ``pool`` cells is clearly longer
+    than the cheapest way over the fine cells pooled by ``2 * pool``, each as cheap as its
+    cheapest: a lane narrower than a block that the blocks closed may be the shorter way."""
+    k = 2 * pool
+    way, _ = cheapest_path(_min_pooled_by(costs, k), (s[0] // k, s[1] // k),
+                           (g[0] // k, g[1] // k))
+    return bool(way) and length > LANE_SLACK * k * _cells_length(way) + LANE_EXTRA
 
 
 def pooled(costs: np.ndarray, pool: int) -> np.ndarray:
@@ -191,11 +223,19 @@ def guided_path(costs: np.ndarray, start: tuple[int, int],
 
 def _min_pooled(costs: np.ndarray) -> np.ndarray:
     """Blocks of 2 x 2 cells, each as cheap as its cheapest (edges padded)."""
+    return _min_pooled_by(costs, 2)
+
+
+def _min_pooled_by(costs: np.ndarray, k: int) -> np.ndarray:
+    """Blocks of ``k`` x ``k`` cells, each as cheap as its cheapest (edges padded)."""
     h, w = costs.shape
-    padded = np.full((h + h % 2, w + w % 2), np.inf, dtype=costs.dtype)
+    padded = np.full((-(-h // k) * k, -(-w // k) * k), np.inf, dtype=costs.dtype)
     padded[:h, :w] = costs
-    return np.minimum(np.minimum(padded[::2, ::2], padded[1::2, ::2]),
-                      np.minimum(padded[::2, 1::2], padded[1::2, 1::2]))
+    out = padded[::k, ::k].copy()
+    for dr in range(k):
+        for dc in range(k):
+            np.minimum(out, padded[dr::k, dc::k], out=out)
+    return out
 
 
 def _escape(costs: np.ndarray, cell: tuple[int, int]) -> tuple[int, int] | None:

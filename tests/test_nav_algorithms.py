@@ -220,3 +220,20 @@ def test_the_guided_search_finds_the_way_through_a_narrow_gap_and_knows_when_the
     assert best_cost <= cost <= 1.1 * best_cost
     costs[50, 91] = np.inf
     assert guided_path(costs, (10, 10), (90, 10)) == ([], math.inf)
+
+
+def test_a_lane_one_cell_wide_that_the_blocks_close_is_still_taken() -> None:
+    # the lethal zone of a wall across the map leaves one row of free cells through it (a
+    # gap the footprint just fits, or a smeared obstacle beside a corridor); the planner's
+    # 2 x 2 blocks close it, and the way round the wall's end is three times as long
+    grid = area()
+    costs = np.ones((grid.height, grid.width))
+    band = slice(grid.cell(-0.3, 0.0)[1], grid.cell(0.3, 0.0)[1] + 1)
+    costs[: grid.cell(0.0, 4.0)[0], band] = np.inf
+    lane = grid.cell(0.0, 0.0)[0]
+    costs[lane, band] = 1.0
+    found = plan(costs, grid, (-2.0, 0.0), (2.0, 0.0), pool=2)
+    assert found.found, found.reason
+    assert length(found.points) < 1.1 * 4.0
+    rows = [grid.cell(x, y)[0] for x, y in densify(found.points, 0.02) if abs(x) < 0.3]
+    assert set(rows) == {lane}

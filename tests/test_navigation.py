@@ -91,6 +91,28 @@ async def test_a_stale_scan_holds_the_robot_then_fails_the_goal(apartment: Locks
     assert nav.navigator.state == "failed" and "no fresh lidar scan" in nav.navigator.reason
 
 
+async def test_an_unseen_goal_fails_only_once_the_robot_comes_no_nearer(
+        apartment: Lockstep) -> None:
+    # a goal down a long aisle stays unseen while the robot drives to it (the rays along the
+    # aisle have no return): the "never seen" rule waits until it stops getting nearer
+    nav = nav_of(apartment)
+    nav.request(GoalRequest("odom", 4.0, 0.0, None))
+    row, col = nav.area.cell(4.0, 0.0)
+    here = [(0.0, 0.0, 0.0)]
+    nav._here = lambda: here[0]  # type: ignore[method-assign]
+    steps = 0
+    while here[0][0] < 3.6:  # 0.3 m/s for 12 s, then held 0.4 m short
+        nav.costmap.seen[row, col] = False
+        assert nav._never_seen() is None
+        here[0] = (min(here[0][0] + 0.3 * nav.period, 3.6), 0.0, 0.0)
+        steps += 1
+    held = 0
+    while (reason := nav._never_seen()) is None:
+        held += 1
+        assert held * nav.period < 2.0 + 1.0
+    assert "came no nearer" in reason and held * nav.period >= 1.5
+
+
 async def test_bad_goals_are_refused_with_the_reason_and_a_new_goal_replaces_the_old(
         apartment: Lockstep) -> None:
     nav = nav_of(apartment)

@@ -70,6 +70,11 @@ HISTORY_S = 1.0
 #: UNSEEN_FAIL_S fails: it lies inside an obstacle or a closed room
 UNSEEN_NEAR_M = 5.0
 UNSEEN_FAIL_S = 10.0
+#: ... and only once the robot has stopped getting nearer it: it has not come UNSEEN_GAIN_M
+#: nearer for UNSEEN_STILL_S (a goal straight down a long aisle stays unseen while the robot
+#: drives to it: the rays along the aisle have no return to clear the cells with)
+UNSEEN_GAIN_M = 0.1
+UNSEEN_STILL_S = 2.0
 #: goal failures that are the robot's, not the goal's: they end an exploration
 ROBOT_PROBLEMS = ("e-stop", "driver fault", "no fresh lidar scan", "the planner failed")
 
@@ -142,6 +147,8 @@ class NavigationComponent(BaseComponent):
         self._planning = False
         #: how long the robot has been near the goal without the lidar seeing its cell (s)
         self.unseen_near_s = 0.0
+        #: the nearest it came to the goal meanwhile (m), and the time since it did (s)
+        self.unseen_nearest_m, self.unseen_still_s = math.inf, 0.0
         self._invalidations = control.invalidations - control.stall_invalidations
         self._tasks: set[asyncio.Future[Any]] = set()
         self.plan_ms: float | None = None
@@ -250,6 +257,7 @@ class NavigationComponent(BaseComponent):
         if step_of is not None:
             step_of.step_started(self.navigator.goals, now)
         self._next_decision, self.unseen_near_s = now, 0.0
+        self.unseen_nearest_m, self.unseen_still_s = math.inf, 0.0
         if target.path is not None:
             self.bus.publish(PLAN, PlanMessage(self.wall_clock(), self.frame, target.path))
         log.info("goal %d: %s", self.navigator.goals, self._describe(target))
@@ -449,15 +457,20 @@ class NavigationComponent(BaseComponent):
         x, y, _ = self._goal_in_frame()
         here = self._here()
         row, col = self.area.cell(x, y)
+        distance = math.hypot(x - here[0], y - here[1])
         if not self.area.inside(row, col) or self.costmap.seen[row, col] \
-                or math.hypot(x - here[0], y - here[1]) > UNSEEN_NEAR_M:
+                or distance > UNSEEN_NEAR_M:
             return None
         self.unseen_near_s += self.period
-        if self.unseen_near_s < UNSEEN_FAIL_S:
+        if distance < self.unseen_nearest_m - UNSEEN_GAIN_M:
+            self.unseen_nearest_m, self.unseen_still_s = distance, 0.0
+        else:
+            self.unseen_still_s += self.period
+        if self.unseen_near_s < UNSEEN_FAIL_S or self.unseen_still_s < UNSEEN_STILL_S:
             return None
         return (f"the lidar never saw the goal though the robot was within "
-                f"{UNSEEN_NEAR_M:g} m of it for {UNSEEN_FAIL_S:g} s: it lies inside an "
-                "obstacle or a closed room")
+                f"{UNSEEN_NEAR_M:g} m of it for {UNSEEN_FAIL_S:g} s and came no nearer: it "
+                "lies inside an obstacle or a closed room")
 
     def _held(self) -> bool:
         return getattr(self.control.guard, "action", "none") == "stop"
