@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from daemon.messages import msgtypes
 from daemon.messages.convert import odometry_msg, scan_msg
 from daemon.messages.msgtypes import MessageError, check_message, full_text, normalize_type
+from daemon.rosbridge import codec
 from daemon.rosbridge.codec import (
     FRAGMENT_COST,
     Defragmenter,
@@ -23,6 +24,7 @@ from daemon.rosbridge.codec import (
     decode_frame,
     encode,
     fragments,
+    publish_frame,
     request_id,
     topic_name,
 )
@@ -183,6 +185,19 @@ def test_topic_names_are_canonical_with_the_spelling_kept() -> None:
         topic_name({"op": "subscribe", "topic": "/a//b"})
     with pytest.raises(ProtocolError):
         topic_name({"op": "subscribe", "topic": 5})
+
+
+def test_names_seen_before_are_answered_alike_and_the_memory_of_them_is_bounded() -> None:
+    for _ in range(3):  # the first time checked, then remembered: the same answers
+        assert topic_name({"op": "publish", "topic": "cmd_vel"}) == ("/cmd_vel", "cmd_vel")
+        with pytest.raises(ProtocolError, match="not a valid ROS name"):
+            topic_name({"op": "publish", "topic": "/a b"})
+        with pytest.raises(ProtocolError, match="missing field 'topic'"):
+            topic_name({"op": "publish", "service": "cmd_vel"})
+    for i in range(3 * codec.VALID_NAMES_KEPT):
+        topic_name({"op": "subscribe", "topic": f"/t{i}"})
+    assert len(codec._VALID_NAMES) <= codec.VALID_NAMES_KEPT
+    assert publish_frame("/t1", "{}") == '{"op":"publish","topic":"/t1","msg":{}}'
 
 
 def test_fragments_round_trip_in_any_order() -> None:

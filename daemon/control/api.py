@@ -12,14 +12,13 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs,
 from daemon.control.commands import (
     STAMP_FIELDS,
     CommandError,
-    Twist,
     finite_number,
     parse_pose,
     parse_stamp,
     parse_twist,
 )
 from daemon.control.estop import LATCH, LatchLimit, estop_access
-from daemon.control.loop import ControlLoop
+from daemon.control.loop import Applied, ControlLoop
 from daemon.http_api import ApiError, HttpServer, json_object, json_response
 from daemon.messages.convert import command_msg, latency_msg, odometry_msg, tf_msg
 from daemon.messages.definitions import (
@@ -107,7 +106,10 @@ class ControlComponent(BaseComponent):
                 twist = parse_twist(message.msg)
         except CommandError as exc:
             return Refusal(f"msg.{exc}; not applied")
-        return await self._submit(message, twist)
+        applied = await self.control.submit(message.source, twist, t_recv=message.t_recv,
+                                            priority=message.priority,
+                                            timeout_s=message.timeout_s)
+        return None if applied.accepted else _refused(applied)
 
     async def on_stamped_cmd_vel(self, message: Inbound) -> Refusal | None:
         """``/stamped_cmd_vel``: a std_msgs/String of JSON ``{linear, angular, id, t_sent}``."""
@@ -122,18 +124,12 @@ class ControlComponent(BaseComponent):
             cmd_id, t_sent = parse_stamp(body, "data.")
         except CommandError as exc:
             return Refusal(f"msg.{exc}; not applied")
-        return await self._submit(message, twist, cmd_id, t_sent)
-
-    async def _submit(self, message: Inbound, twist: Twist, cmd_id: str | int | None = None,
-                      t_sent: float | None = None) -> Refusal | None:
+        # the control loop's call without a layer between: this runs for every command
         applied = await self.control.submit(message.source, twist, t_recv=message.t_recv,
                                             cmd_id=cmd_id, t_sent_ms=t_sent,
                                             priority=message.priority,
                                             timeout_s=message.timeout_s)
-        if applied.accepted:
-            return None
-        return Refusal(f"command refused: {applied.error or 'command not applied'}",
-                       repeats=True)
+        return None if applied.accepted else _refused(applied)
 
     async def on_estop(self, message: Inbound) -> Refusal | None:
         """``/estop``: std_msgs/Bool, true latches, false releases (rosbridge checked the
@@ -226,6 +222,10 @@ class ControlComponent(BaseComponent):
             raise ApiError(422, "seconds: must be in (0, 30]")
         time.sleep(seconds)  # noqa: ASYNC251 - the stall is the point
         return json_response({"stalled_s": seconds})
+
+
+def _refused(applied: Applied) -> Refusal:
+    return Refusal(f"command refused: {applied.error or 'command not applied'}", repeats=True)
 
 
 def create(ctx: DaemonContext) -> ControlComponent:

@@ -46,7 +46,7 @@ _AXIS = {"x": 0, "y": 1, "z": 2}
 def parse_vector(value: Any, field: str, prefix: str = "") -> list[float]:
     """``{"x", "y", "z"}`` (absent = 0) as ``[x, y, z]``; plain finite floats take a fast path.
     Errors name ``prefix + field`` (joined only when there is an error)."""
-    if not isinstance(value, Mapping):
+    if type(value) is not dict and not isinstance(value, Mapping):  # dict: no ABC check
         raise CommandError(f"{prefix}{field}: expected an object with x, y, z")
     out = [0.0, 0.0, 0.0]
     for key, number in value.items():

@@ -203,33 +203,32 @@ class ControlLoop:
                      cmd_id: str | int | None = None, t_sent_ms: float | None = None,
                      priority: int = 10, timeout_s: float | None = None) -> Applied:
         """Take a validated command and apply it at once (``t_recv`` = monotonic receipt;
-        ``timeout_s``: the source's deadman, None for ``cmd_vel_timeout``)."""
+        ``timeout_s``: the source's deadman, None for ``cmd_vel_timeout``). One coroutine
+        (the step's lock taken without ``async with``): this runs for every command."""
         refusal = self._refusal_reason()
         if refusal:
             applied = Applied(False, self.decision.source, self.wheels, [], None, refusal)
         else:
-            applied = await self._apply(source, twist, t_recv, cmd_id, t_sent_ms, priority,
-                                        timeout_s)
+            clock = self.clock
+            self._forget_after_stall(clock())  # older commands are stale, this one is fresh
+            self.arbiter.submit(source, twist, clock(), priority, timeout_s)
+            for callback in self.on_command:
+                callback(source)
+            lock = self._lock
+            await lock.acquire()
+            try:
+                written = await self._step(clock())
+            finally:
+                lock.release()
+            applied = self._applied(written, source, t_recv, clock(), cmd_id, t_sent_ms)
         self.bus.publish(COMMAND, CommandEvent(
             time.time(), source, "cmd_vel", twist.linear_x, twist.angular_z, cmd_id,
             applied.accepted, applied.error or ""))
         return applied
 
-    async def _apply(self, source: str, twist: Twist, t_recv: float, cmd_id: str | int | None,
-                     t_sent_ms: float | None, priority: int,
-                     timeout_s: float | None = None) -> Applied:
-        clock = self.clock
-        self._forget_after_stall(clock())  # older commands are stale, this one is fresh
-        self.arbiter.submit(source, twist, clock(), priority, timeout_s)
-        for callback in self.on_command:
-            callback(source)
-        lock = self._lock  # acquire/release: `async with` costs two more coroutines a command
-        await lock.acquire()
-        try:
-            written = await self._step(clock())
-        finally:
-            lock.release()
-        t_exec = clock()
+    def _applied(self, written: bool, source: str, t_recv: float, t_exec: float,
+                 cmd_id: str | int | None, t_sent_ms: float | None) -> Applied:
+        """What a step that followed the command did; its latency report on the bus."""
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)

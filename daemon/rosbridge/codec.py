@@ -99,9 +99,20 @@ def get_bool(frame: dict[str, Any], key: str, default: bool) -> bool:
     return value
 
 
+#: spelling -> canonical name, of names already found valid (bounded: cleared when full)
+_VALID_NAMES: dict[str, str] = {}
+VALID_NAMES_KEPT = 1024
+
+
 def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
     """(canonical ``/name``, spelling as sent) of a topic or service field; its length is
-    checked first (at most MAX_NAME_CHARS), so a huge name costs nothing."""
+    checked first (at most MAX_NAME_CHARS), so a huge name costs nothing. A name seen
+    before is not checked again (a client publishes to the same topics over and over)."""
+    sent = frame.get(key)
+    if type(sent) is str:
+        name = _VALID_NAMES.get(sent)
+        if name is not None:
+            return name, sent
     sent = get_str(frame, key)
     if len(sent) > MAX_NAME_CHARS:
         raise ProtocolError(f"{frame['op']}: {key} name {shown(sent)} is too long: the limit "
@@ -109,6 +120,9 @@ def topic_name(frame: dict[str, Any], key: str = "topic") -> tuple[str, str]:
     name = sent if sent.startswith("/") else "/" + sent
     if _ROS_NAME.match(name) is None:
         raise ProtocolError(f"{frame['op']}: {key} {sent!r} is not a valid ROS name")
+    if len(_VALID_NAMES) >= VALID_NAMES_KEPT:
+        _VALID_NAMES.clear()
+    _VALID_NAMES[sent] = name
     return name, sent
 
 
@@ -150,9 +164,19 @@ def encode(message: dict[str, Any]) -> str:
         return json.dumps(clean(message), separators=(",", ":"), allow_nan=False)
 
 
+#: topic spelling -> the start of its publish frame (bounded: cleared when full)
+_PUBLISH_HEADS: dict[str, str] = {}
+
+
 def publish_frame(topic: str, msg_json: str) -> str:
     """``{"op":"publish","topic":T,"msg":...}`` around an already encoded message."""
-    return '{"op":"publish","topic":' + orjson.dumps(topic).decode() + ',"msg":' + msg_json + "}"
+    head = _PUBLISH_HEADS.get(topic)
+    if head is None:
+        if len(_PUBLISH_HEADS) >= VALID_NAMES_KEPT:
+            _PUBLISH_HEADS.clear()
+        head = _PUBLISH_HEADS[topic] = \
+            '{"op":"publish","topic":' + orjson.dumps(topic).decode() + ',"msg":'
+    return head + msg_json + "}"
 
 
 def status_frame(level: str, message: str, rid: Id = None) -> str:

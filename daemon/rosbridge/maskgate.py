@@ -39,7 +39,10 @@ class MaskGate:
 
     def _check(self, data: bytes) -> bool:
         """Walk the frame headers in ``data``; False at one without the mask bit."""
-        pos, end = 0, len(data)
+        end = len(data)
+        if not self._skip and not self._head and end >= 4 and _one_frame(data, end):
+            return bool(data[1] & 0x80)  # the common case: one whole frame, nothing to walk
+        pos = 0
         while pos < end:
             if self._skip:
                 step = min(self._skip, end - pos)
@@ -63,6 +66,15 @@ class MaskGate:
             self._skip = length
             self._head = bytearray()
         return True
+
+
+def _one_frame(data: bytes, end: int) -> bool:
+    """Whether ``data`` (at least 4 bytes, from a frame's first byte) is exactly one frame
+    with a payload of less than 64 KiB."""
+    length = data[1] & 0x7F
+    if length == 126:
+        return end == 4 + (4 if data[1] & 0x80 else 0) + (data[2] << 8 | data[3])
+    return length < 126 and end == 2 + (4 if data[1] & 0x80 else 0) + length
 
 
 def _header_size(head: bytearray) -> int:

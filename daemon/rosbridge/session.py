@@ -42,7 +42,7 @@ from daemon.rosbridge.outbox import (
     TopicQueue,
 )
 from daemon.rosbridge.writer import Writer
-from daemon.topics import Inbound, TopicIn, TopicOut
+from daemon.topics import Inbound, Refusal, TopicIn, TopicOut
 
 if TYPE_CHECKING:
     from daemon.control.loop import ControlLoop
@@ -56,20 +56,19 @@ THROTTLE_CLOSE_S = 10.0  # a client held to its request rate this long without a
 Clock = Callable[[], float]
 
 
-@dataclass
+@dataclass(slots=True)
 class Request:
-    """One incoming op being handled: its frame, receipt time, ``id``, and the canonical
-    topic or service it names (``""`` for ops that name none)."""
+    """One incoming op being handled: its op, frame, receipt time, ``id``, the canonical
+    topic or service it names (``""`` for ops that name none) and, for ``advertise`` and
+    ``publish``, that topic as the graph had it when the request was checked."""
 
+    op: str
     frame: dict[str, Any]
     t_recv: float
     id: Id
     target: str = ""
     spelling: str = ""
-
-    @property
-    def op(self) -> str:
-        return str(self.frame["op"])
+    topic: Topic | None = None
 
 
 OpHandler = Callable[[Request], Awaitable[None]]
@@ -104,6 +103,8 @@ class ClientSession:
         self.clock = clock
         self.bad_input = bad_input or RateLimitedLog(log, clock=clock)
         self.source = f"ws:{client_id}"
+        #: who sends its messages, for logs
+        self.sender = f"rosbridge client {client_id} ({peer})"
         self.transport: asyncio.BaseTransport | None = None
         self.level = "error"
         self.advertised: dict[str, set[Id]] = {}
@@ -221,7 +222,7 @@ class ClientSession:
         if op not in self._ops or (nested and op == "fragment"):
             raise ProtocolError(f"unknown operation {shown(op)}; allowed operations: "
                                 f"{', '.join(self._ops)}")
-        request = Request(frame, t_recv, request_id(frame))
+        request = Request(op, frame, t_recv, request_id(frame))
         key = TARGET_FIELDS.get(op)
         if key is not None:
             request.target, request.spelling = topic_name(frame, key)
@@ -229,10 +230,11 @@ class ClientSession:
         return request
 
     def _declared_access(self, request: Request) -> access.Access | None:
-        """What the robot's incoming topic declares for publishing to it (None otherwise)."""
+        """What the robot's incoming topic declares for publishing to it (None otherwise);
+        the topic is kept on the request for its handler."""
         if request.op not in ("advertise", "publish"):
             return None
-        topic = self.graph.topic(request.target)
+        topic = request.topic = self.graph.topic(request.target)
         robot = topic.robot if topic is not None else None
         return robot.access if isinstance(robot, TopicIn) else None
 
@@ -253,8 +255,8 @@ class ClientSession:
     async def op_advertise(self, req: Request) -> None:
         name = req.target
         type_name = self._message_type(req, required=True)
-        self._check_not_robot_out(req)
         topic = self.graph.topic(name)
+        self._check_not_robot_out(req, topic)
         if topic is not None and not topic.accepts(type_name):
             raise ProtocolError(f"advertise: type conflict on {name}: it is {topic.type}, "
                                 f"not {type_name}")
@@ -290,22 +292,25 @@ class ClientSession:
         return topic is not None and isinstance(topic.robot, TopicIn) and topic.robot.moves
 
     async def op_publish(self, req: Request) -> None:
-        name = req.target
-        topic = self.graph.topic(name)
+        name, topic = req.target, req.topic  # the topic the access check saw
         if topic is None:
             raise ProtocolError(f"publish: cannot infer topic type for topic {name} as it is "
                                 "not yet advertised")
-        self._check_not_robot_out(req)
+        self._check_not_robot_out(req, topic)
         raw = req.frame.get("msg", {})
         type_name = self._publish_type(req, topic, raw)
         try:
             msg = check_message(type_name, raw)
         except MessageError as exc:
             raise ProtocolError(f"publish {name}: {exc}") from None
-        if isinstance(topic.robot, TopicIn):
-            if topic.robot.access_for is not None:  # this message may need more (a release)
-                access.check(req.op, name, self.authority, topic.robot.access_for(msg))
-            await self._deliver_inbound(req, topic.robot, type_name, msg)
+        robot = topic.robot
+        if isinstance(robot, TopicIn):
+            if robot.access_for is not None:  # this message may need more (a release)
+                access.check(req.op, name, self.authority, robot.access_for(msg))
+            refusal = await robot.handler(Inbound(name, type_name, msg, self.source,
+                                                  self.sender, req.t_recv, self.peer))
+            if refusal is not None:
+                self._refused_inbound(req, refusal)
         latch = name in self.latching
         if latch or topic.subscribers:  # nobody to hand it to: nothing to share
             self.graph.publish(topic, SharedMessage(name, msg), latch=latch)
@@ -323,8 +328,7 @@ class ClientSession:
             return _type_of(raw, topic.robot)
         return topic.type
 
-    def _check_not_robot_out(self, req: Request) -> None:
-        topic = self.graph.topic(req.target)
+    def _check_not_robot_out(self, req: Request, topic: Topic | None) -> None:
         if topic is not None and topic.robot_out:
             raise ProtocolError(f"{req.op}: {req.target} is published by the robot; clients "
                                 "cannot publish to it")
@@ -345,15 +349,9 @@ class ClientSession:
 
     # -- commands -----------------------------------------------------------------------------
 
-    async def _deliver_inbound(self, req: Request, topic: TopicIn, type_name: str,
-                               msg: dict[str, Any]) -> None:
-        """Hand a message for the robot to its owner; a refusal is a status error (one that
-        repeats at command rate is said once a while)."""
-        refusal = await topic.handler(Inbound(
-            req.target, type_name, msg, self.source, f"rosbridge client {self.id} ({self.peer})",
-            req.t_recv, self.peer))
-        if refusal is None:
-            return
+    def _refused_inbound(self, req: Request, refusal: Refusal) -> None:
+        """A message for the robot its owner refused: a status error (one that repeats at
+        command rate is said once a while)."""
         message = f"publish {req.target}: {refusal.reason}"
         if not refusal.repeats:
             raise ProtocolError(message)

@@ -77,7 +77,9 @@ class Writer:
 
     async def _send_next(self) -> bool:
         """Send one queued reply or message; False when nothing is ready now."""
-        async with self._sending:
+        sending = self._sending  # acquire/release: `async with` costs two more coroutines
+        await sending.acquire()
+        try:
             item, queue, message, self._next_delay = self.outbox.next_item()
             if isinstance(item, FragmentedReply):
                 await self.send_pieces(item.pieces())
@@ -88,6 +90,8 @@ class Writer:
             else:
                 return False
             return True
+        finally:
+            sending.release()
 
     async def send_pieces(self, pieces: Iterator[str]) -> None:
         """Fragments in slices paced by the shared fragment rate, yielding to the event loop
