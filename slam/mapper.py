@@ -55,6 +55,13 @@ class MapperConfig:
     relocalize_window: localize mode, the wide search after set_pose or when lost (± m, ± rad).
     lost_after: localize mode, consecutive refused matches before tracking is declared lost.
     max_trajectory: per-scan trajectory entries kept (oldest dropped first).
+    stall_gap, stall_follow: after scans whose odometry pose repeated the one before (a
+        stalled odometry stream, which then reports the stalled motion in a jump, sometimes
+        spread over two scans), each of the next ``stall_follow`` scans is also matched
+        around the pose of the last scan with fresh odometry before the stall composed with
+        the odometry's motion since then, when that prediction differs from the usual one by
+        more than ``stall_gap`` (m, rad); the better score wins. (The usual prediction adds
+        the jump on top of the motion the matcher already followed during the stall.)
     """
 
     resolution: float = 0.05
@@ -99,6 +106,8 @@ class MapperConfig:
     loop_bounded: bool = True
     weak_score: float = 0.0
     weak_gate: float = 3.0
+    stall_gap: tuple[float, float] = (0.1, math.radians(3))
+    stall_follow: int = 3
 
 
 @dataclass(frozen=True)
@@ -180,6 +189,11 @@ class Mapper:
         #: the path length (m) at the key scan of the last accepted loop closure
         self._anchored_at = 0.0
         self._refused_in_a_row = 0
+        #: (key, pose relative to it, odometry pose) of the last scan with fresh odometry
+        #: before the last stall of the odometry stream
+        self._odom_anchor: tuple[int, Pose2, Pose2] | None = None
+        #: scans with fresh odometry since the last one whose odometry repeated its predecessor's
+        self._after_stall = 10**9
         self._wide_search = config.mode == "localize"
         self._fixed = (DistanceField.from_grid(self._grid, config.field_max_distance)
                        if config.mode == "localize" else None)
@@ -213,13 +227,20 @@ class Mapper:
         """One revolution: odometry pose of the base, points (N, 2) in the base frame."""
         points = self._usable(points_xy)
         predicted = self._predict(odom_pose)
+        stale = self._last_odom is not None and tuple(odom_pose) == tuple(self._last_odom)
         self._last_odom = odom_pose
         self._counts.scans += 1
         if self.config.mode == "localize":
             result = self._localize(predicted, points)
             self._record(stamp, -1, result.pose)
         else:
-            result = self._map(predicted, points, odom_pose, stamp)
+            resumed = (self._resumed_prediction(odom_pose, predicted)
+                       if not stale and self._after_stall < self.config.stall_follow else None)
+            result = self._map(predicted, points, odom_pose, stamp, resumed)
+            self._after_stall = 0 if stale else self._after_stall + 1
+            if self._after_stall > self.config.stall_follow:
+                _, key, rel = self._trajectory[-1]
+                self._odom_anchor = (key, rel, odom_pose)
         self._pose = result.pose
         return result
 
@@ -316,6 +337,20 @@ class Mapper:
             return self._pose
         return compose(self._pose, between(self._last_odom, odom_pose))
 
+    def _resumed_prediction(self, odom_pose: Pose2, predicted: Pose2) -> Pose2 | None:
+        """Soon after a stalled odometry stream, the pose of the last scan with fresh odometry
+        before it composed with the odometry's motion since then, if it differs from
+        ``predicted`` by more than ``stall_gap`` (else None)."""
+        if self._odom_anchor is None:
+            return None
+        key, rel, odom = self._odom_anchor
+        anchored = compose(compose(self._graph.pose(key), rel), between(odom, odom_pose))
+        gap = between(predicted, anchored)
+        limit = self.config.stall_gap
+        if math.hypot(gap[0], gap[1]) <= limit[0] and abs(gap[2]) <= limit[1]:
+            return None
+        return anchored
+
     def _record(self, stamp: float, key: int, rel: Pose2) -> None:
         self._trajectory.append((stamp, key, rel))
         if len(self._trajectory) > self.config.max_trajectory:
@@ -373,12 +408,20 @@ class Mapper:
     # ------------------------------------------------------------------ map mode
 
     def _map(self, predicted: Pose2, points: np.ndarray, odom_pose: Pose2,
-             stamp: float) -> ScanResult:
+             stamp: float, resumed: Pose2 | None = None) -> ScanResult:
         if not self._keys:
             self._add_key(self._pose, points, odom_pose, stamp, None)
             self._record(stamp, 0, IDENTITY)
             return self._result(self._pose, odom_pose, None)
         found = self._track(predicted, points)
+        if resumed is not None:
+            # the odometry moved again after a stall: also match around the anchored
+            # prediction, and keep the better match
+            self._counts.extra["stall_resumed"] = self._counts.extra.get("stall_resumed", 0) + 1
+            other = self._track(resumed, points)
+            if other is not None and (found is None or other.score > found.score):
+                self._counts.extra["stall_taken"] = self._counts.extra.get("stall_taken", 0) + 1
+                found, predicted = other, resumed
         pose = found.pose if found is not None else predicted
         last = len(self._keys) - 1
         rel = between(self._graph.pose(last), pose)
