@@ -122,9 +122,12 @@ class SimRuntime(BaseComponent):
             config.update(section, options)
 
     def attach(self, driver: Any) -> None:
-        """The mock driver has no wire: its commands turn the world's wheels directly."""
+        """The mock driver has no wire: its commands turn the world's wheels directly, and its
+        encoders read them (so odometry counts the wheels' true turns, as with the emulated
+        boards, also when the world's thread falls behind and skips ahead)."""
         if self.driver_name == "mock":
             driver.listeners.append(self.motors.set_targets)
+            driver.encoder_source = self.motors.encoder_positions
 
     # -- component -----------------------------------------------------------------------
 

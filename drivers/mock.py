@@ -56,6 +56,9 @@ class MockDriver(MotorDriver):
         self._lock = threading.Lock()  # commands from the event loop and emergency_stop()
         #: called with (left, right) after every write (the simulator turns its wheels here)
         self.listeners: list[Callable[[float, float], None]] = []
+        #: where the encoders read the wheels' positions (rad), when something turns real
+        #: wheels for the commands (the simulator's motors); None: the commands integrated
+        self.encoder_source: Callable[[], tuple[float, float]] | None = None
 
     async def _open(self) -> None:
         self._since = time.monotonic()
@@ -69,6 +72,9 @@ class MockDriver(MotorDriver):
     async def _read_encoders(self) -> EncoderReading | None:
         if not self.settings.encoders:
             return None
+        if self.encoder_source is not None:
+            left, right = self.encoder_source()
+            return EncoderReading(left, right, time.monotonic())
         with self._lock:
             now = time.monotonic()
             self._integrate(now)

@@ -237,3 +237,31 @@ def drive_until(daemon: DaemonSubprocess, command: Callable[[dict[str, Any]], di
 def at_rest(daemon: DaemonSubprocess) -> bool:
     truth = status(daemon)["ground_truth"]
     return abs(truth["v"]) < 1e-3 and abs(truth["w"]) < 1e-3
+
+
+async def test_the_mock_driver_in_the_simulator_counts_the_worlds_wheel_turns() -> None:
+    # run --sim with the mock driver: its encoders read the world's wheels, so odometry
+    # counts what the wheels truly turned (motor lag, a world thread that fell behind and
+    # skipped ahead), not the commands integrated over the daemon's clock
+    from daemon.simulator import SimRuntime
+    from drivers.mock import MockDriver
+
+    config = load_config(None, sim=True, env={})
+    config.update("sim", {"driver": "mock"})
+    runtime = SimRuntime(config)
+    driver = MockDriver({}, max_wheel_speed=20.0)
+    runtime.attach(driver)
+    await driver.open()
+    try:
+        await driver.set_wheel_speeds(5.0, 5.0)
+        runtime.world.advance(1.0)
+        first = await driver.read_encoders()
+        assert first is not None
+        assert (first.left_rad, first.right_rad) == runtime.motors.encoder_positions()
+        assert 0.0 < first.left_rad < 5.0  # the motor's lag: less than the command's 5 rad
+        # the world is not stepped (its thread fell behind): the wheels did not turn
+        again = await driver.read_encoders()
+        assert again is not None and again.left_rad == first.left_rad
+    finally:
+        await driver.close()
+        await runtime.stop()
