@@ -66,12 +66,18 @@ const still = (s) => s.twist.linear_x === 0 && s.twist.angular_z === 0;
 // input by a few hundred ms): the timed hold starts from here.
 const commanded = () => watch(5000, (s) => s.reason === "command");
 
-// Holds a key for `ms`, then releases it and follows the robot until it is still.
-async function holdKey(page, key, ms) {
+// Holds a key for `ms` (and, with `minMoved`, on until the robot has moved that far, for up to
+// 5 s more: a loaded machine's stall stops and stale scans hold it now and then), then
+// releases it and follows the robot until it is still.
+async function holdKey(page, key, ms, minMoved = 0) {
   const before = await truth();
   await page.keyboard.down(key);
   await commanded();
   const held = await watch(ms);
+  const far = (s) => Math.hypot(s.ground_truth.x - before.x, s.ground_truth.y - before.y) >= minMoved;
+  if (minMoved > 0 && !far({ ground_truth: held[held.length - 1].truth })) {
+    held.push(...await watch(5000, far));
+  }
   await page.keyboard.up(key);
   const stopping = await watch(3000, still);
   return { before, atRelease: held[held.length - 1].truth, held: summary(held),
@@ -134,7 +140,7 @@ async function driveScenario(browser) {
   await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
   report("view", { hint: await page.isVisible("#drive-panel .hint"), ...await inView(page) });
 
-  report("forward", await holdKey(page, "w", 1000));
+  report("forward", await holdKey(page, "w", 1000, 0.3));
   report("left", await holdKey(page, "a", 600));
   report("right", await holdKey(page, "d", 600));
 
@@ -271,7 +277,7 @@ async function tokenScenario(browser) {
   await page.fill("#token-input", secret);
   await page.click("#token-ok");
   await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
-  const right = await holdKey(page, "w", 1000);
+  const right = await holdKey(page, "w", 1000, 0.3);
   const stored = await page.evaluate(() => sessionStorage.getItem("arbiterd.token"));
   await page.keyboard.press("Space");
   await page.waitForSelector("#estop-box[data-engaged=true]", { timeout: 5000 });
@@ -292,7 +298,7 @@ async function reconnectScenario(browser) {
   report("lost", { conn: await text(page, "#conn"), banner: await text(page, "#banner") });
   await page.waitForSelector("#conn[data-state=connected]", { timeout: 40000 });
   await page.waitForSelector("#access[data-state=drive]", { timeout: 10000 });
-  const drove = await holdKey(page, "w", 1000);
+  const drove = await holdKey(page, "w", 1000, 0.3);
   report("back", { conn: await text(page, "#conn"), banner: await text(page, "#banner"),
     bannerHidden: await page.$eval("#banner", (e) => e.hidden), drove });
   await context.close();
