@@ -35,6 +35,10 @@ class PoseGraph:
         x, y, t = self.poses[i]
         return (float(x), float(y), float(t))
 
+    def truncate(self, count: int) -> None:
+        """Keep only the first ``count`` edges (undo later additions)."""
+        del self._edges[count:]
+
     def drop_robust_outliers(self, distance: float, angle: float) -> int:
         """Remove the robust edges (loop closures) that the optimised poses disagree with by
         more than ``distance`` m or ``angle`` rad; returns how many went."""

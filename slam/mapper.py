@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from slam.farloops import FarLoopConfig, far_loops, residual
 from slam.field import DistanceField
 from slam.graph import PoseGraph
 from slam.grid import OccupancyGrid
@@ -261,6 +262,37 @@ class Mapper:
         self._pose = compose(self._graph.pose(len(self._keys) - 1), self._rel_to_key)
         self._submap = None
         self._grid_stale = True
+
+    def close_far_loops(self, cfg: FarLoopConfig | None = None) -> dict[str, int]:
+        """Offline, once the log is mapped: loop closures between key scans far apart in
+        time (``slam.farloops``: candidates by odometry, a wide match, kept only where
+        neighbouring closures agree), added to the graph, which is then optimised. If the
+        optimised poses disagree with a kept closure by more than the agreement bound, the
+        closures are taken out again and the graph left as it was. Returns the counts."""
+        cfg = cfg or FarLoopConfig()
+        if len(self._keys) < 2:
+            return {"far_candidates": 0, "far_strong": 0, "far_agreeing": 0, "far_accepted": 0}
+        keys = self._keys
+        kept, counts = far_loops(self._graph.poses, [k.points for k in keys],
+                                 np.asarray([k.odom for k in keys], dtype=np.float64),
+                                 np.asarray([k.stamp for k in keys]), cfg,
+                                 self.config.score_sigma)
+        if kept:
+            saved = (self._graph.poses.copy(), self._graph.edge_count)
+            for i, j, relative, _ in kept:
+                self._graph.add_edge(i, j, relative, self.config.loop_sigmas)
+            self._graph.optimize(iterations=50)
+            if any(d > cfg.agree[0] or a > cfg.agree[1] for d, a in
+                   (residual(self._graph.poses, c) for c in kept)):
+                self._graph.poses = saved[0]
+                self._graph.truncate(saved[1])
+                counts["far_reverted"] = len(kept)
+            else:
+                self._grid_stale = True
+                self._submap = None
+                self._pose = compose(self._graph.pose(len(keys) - 1), self._rel_to_key)
+        self._counts.extra.update(counts)
+        return counts
 
     def refined_trajectory(self, points: list[np.ndarray], window: int = 10, share: int = 4,
                            radius: float = 12.0, resolution: float = 0.075,

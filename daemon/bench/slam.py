@@ -39,10 +39,11 @@ class Run:
     ours: RelationErrors  # after the offline refinement of the trajectory
     online: RelationErrors  # the trajectory as the mapper made it (after a final optimisation)
     odometry: RelationErrors
-    wall_s: float  # mapping, the final optimisation and the refinement
-    refine_s: float  # the refinement alone
+    wall_s: float  # mapping, the final optimisation, far loops and the refinement
+    refine_s: float  # the far-loop search and the refinement
     duration_s: float
     per_scan_s: list[float]
+    far_loops: dict[str, int]  # the offline far-in-time loop search's counts
 
 
 def run_dataset(name: str, config: MapperConfig = BENCH_CONFIG,
@@ -63,12 +64,13 @@ def run_dataset(name: str, config: MapperConfig = BENCH_CONFIG,
     mapper.optimize()
     online = mapper.trajectory
     refine_start = time.perf_counter()
+    far = mapper.close_far_loops()
     refined = mapper.refined_trajectory([points for _, _, points in scans],
                                         odometry=[odom for _, odom, _ in scans])
     end = time.perf_counter()
     return Run(relation_errors(refined, relations), relation_errors(online, relations),
                relation_errors([(s, o) for s, o, _ in scans], relations),
-               end - start, end - refine_start, scans[-1][0] - scans[0][0], per_scan)
+               end - start, end - refine_start, scans[-1][0] - scans[0][0], per_scan, far)
 
 
 def results_of(name: str, run: Run) -> list[BenchResult]:
@@ -93,7 +95,8 @@ def results_of(name: str, run: Run) -> list[BenchResult]:
         BenchResult(SUITE, f"{name}: speed", round(speed, 1), "x real time",
                     f">= {SPEED_TARGET}", speed >= SPEED_TARGET,
                     f"{run.wall_s:.1f} s for {run.duration_s:.0f} s of data, of which the "
-                    f"refinement {run.refine_s:.1f} s"),
+                    f"refinement {run.refine_s:.1f} s (far loops: "
+                    f"{', '.join(f'{k} {v}' for k, v in run.far_loops.items())})"),
         BenchResult(SUITE, f"{name}: time per scan, median", round(
             float(np.median(run.per_scan_s)) * 1e3, 3), "ms",
             note=f"p95 {np.percentile(run.per_scan_s, 95) * 1e3:.1f} ms; all of add_scan "
