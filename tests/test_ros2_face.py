@@ -10,14 +10,14 @@ import pytest
 from tests.support.paths import REPO
 from tests.support.ros2_probe import unavailable
 
-CHECKS = "tests/ros2_netns/checks_face.py"
+CHECKS = "tests/ros2_netns/checks_dds.py tests/ros2_netns/checks_face.py"
 
 
 @pytest.mark.timeout(600)
 def test_ros2_face_with_a_real_rclpy_node() -> None:
-    """Every check of checks_face.py, run by pytest inside `unshare -n` with only `lo` up:
-    nothing leaves the machine, and no other test run can share the DDS domain (each run has
-    its own network namespace, so the fixed domain id cannot collide)."""
+    """Every check of checks_dds.py and checks_face.py, run by pytest inside `unshare -n`
+    with only `lo` up: nothing leaves the machine, and no other test run can share the DDS
+    domain (each run has its own network namespace, so the fixed domain ids cannot collide)."""
     why = unavailable()
     if why:
         pytest.skip(why)

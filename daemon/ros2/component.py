@@ -16,6 +16,7 @@ from daemon.messages.msgtypes import MessageError, check_message
 from daemon.messages.scans import scan_cdr
 from daemon.ros2 import announce, names
 from daemon.ros2.dds import ANNOUNCE_QOS, DdsNode, QosSpec, announcement_type, available, idl_type
+from daemon.ros2.inlet import Inlet
 from daemon.ros2.outlet import Outlet
 from daemon.ros2.settings import Ros2Settings
 from daemon.topics import Inbound, TopicIn, TopicOut
@@ -62,6 +63,7 @@ class Ros2Face(BaseComponent):
         self.node_label = f"{self.namespace}/{settings.node_name}"
         self.node: DdsNode | None = None
         self.outlet: Outlet | None = None
+        self.inlet: Inlet | None = None
         self.outgoing: dict[str, Outgoing] = {}
         self.incoming: dict[str, TopicIn] = {}
         self.received = 0
@@ -87,6 +89,8 @@ class Ros2Face(BaseComponent):
         self.node = await asyncio.to_thread(self._build, outs, ins)
         self.outlet = Outlet(self.settings.queue, idle=self._poll_discovery)
         self.outlet.start()
+        assert self.inlet is not None
+        self.inlet.start()
         self.outlet.put(self._announce)
         for out in self.outgoing.values():
             self._unsubscribe.append(self.ctx.bus.subscribe(out.topic.bus, self._feeder(out)))
@@ -100,8 +104,9 @@ class Ros2Face(BaseComponent):
         for unsubscribe in self._unsubscribe:
             unsubscribe()
         self._unsubscribe.clear()
-        if self.outlet is not None:
-            await asyncio.to_thread(self.outlet.close)
+        for thread in (self.outlet, self.inlet):
+            if thread is not None:
+                await asyncio.to_thread(thread.close)
         for task in list(self._tasks):
             task.cancel()
         await self.ctx.control.drop_source(SOURCE)
@@ -128,19 +133,18 @@ class Ros2Face(BaseComponent):
         node = DdsNode(self.domain, self.localhost, self.settings.distro != "kilted")
         for topic in outs:
             qos = self._qos(topic.name)
-            out = Outgoing(topic, None, _encoder(topic), qos.transient_local)
-            out.writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos,
-                                     self._on_matched(out))
-            self.outgoing[topic.name] = out
+            writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos)
+            self.outgoing[topic.name] = Outgoing(topic, writer, _encoder(topic),
+                                                 qos.transient_local)
+        self.inlet = Inlet(node, self._on_data, self._on_unmatched)
         for inbound in ins:
             self.incoming[inbound.name] = inbound
-            node.reader(self._dds_name(inbound.name), idl_type(inbound.type),
-                        self._qos(inbound.name), self._on_data(inbound),
-                        self._on_subscription(inbound) if inbound.moves else None)
+            reader = node.reader(self._dds_name(inbound.name), idl_type(inbound.type),
+                                 self._qos(inbound.name))
+            self.inlet.add(inbound, reader, watch_publishers=inbound.moves)
         info_type = announcement_type(self.gid_size)
         self._announcer = node.writer(announce.TOPIC, info_type, ANNOUNCE_QOS)
-        self._discovery_reader = node.reader(announce.TOPIC, info_type, ANNOUNCE_QOS,
-                                             lambda reader: None)
+        self._discovery_reader = node.reader(announce.TOPIC, info_type, ANNOUNCE_QOS)
         self._publications = node.publications_reader()
         return node
 
@@ -160,12 +164,6 @@ class Ros2Face(BaseComponent):
         node.write(out.writer, out.encode(message))
         out.published += 1
 
-    def _on_matched(self, out: Outgoing) -> Callable[[Any, Any], None]:
-        def on_publication_matched(writer: Any, status: Any) -> None:  # a DDS thread
-            out.matched = int(status.current_count)
-
-        return on_publication_matched
-
     def _announce(self) -> None:  # writer thread
         node = self.node
         assert node is not None
@@ -183,6 +181,8 @@ class Ros2Face(BaseComponent):
         node = self.node
         if node is None:
             return
+        for out in self.outgoing.values():
+            out.matched = node.publication_matches(out.writer)
         self._check_nodes(node)
         self._check_publications(node)
 
@@ -223,30 +223,21 @@ class Ros2Face(BaseComponent):
         if self._loop is not None:
             self._loop.call_soon_threadsafe(callback, *args)
 
-    # -- in: DDS thread -> event loop -> the topic's handler ------------------------------------
+    # -- in: reader thread -> event loop -> the topic's handler ----------------------------------
 
-    def _on_data(self, topic: TopicIn) -> Callable[[Any], None]:
-        def on_data_available(reader: Any) -> None:  # a DDS thread: take, hand over, return
-            node = self.node
-            if node is None:
-                return
-            samples = [data for data, _ in node.take_raw(reader, 32)]
-            if not samples:
-                return
-            if self._pending >= MAX_PENDING:
-                self.overflow += len(samples)
-                return
-            self._pending += 1
-            self._from_thread(self._on_samples, topic, samples, time.monotonic())
+    def _on_data(self, topic: TopicIn, samples: list[bytes]) -> None:  # the reader thread
+        if self._pending >= MAX_PENDING:
+            self.overflow += len(samples)
+            return
+        self._pending += 1
+        self._from_thread(self._on_samples, topic, samples, time.monotonic())
 
-        return on_data_available
+    def _on_unmatched(self, topic: TopicIn) -> None:  # the reader thread
+        """The last publisher of a command topic went away: brake."""
+        self._from_thread(self._brake)
 
-    def _on_subscription(self, topic: TopicIn) -> Callable[[Any, Any], None]:
-        def on_subscription_matched(reader: Any, status: Any) -> None:  # a DDS thread
-            if int(status.current_count) == 0:  # its last publisher went away: brake
-                self._from_thread(self._spawn, self.ctx.control.drop_source(SOURCE))
-
-        return on_subscription_matched
+    def _brake(self) -> None:
+        self._spawn(self.ctx.control.drop_source(SOURCE))
 
     def _on_samples(self, topic: TopicIn, samples: list[bytes], t_recv: float) -> None:
         self._pending -= 1

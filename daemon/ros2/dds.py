@@ -1,8 +1,8 @@
 # The Cyclone DDS side of the ROS 2 face: participant, typed endpoints, raw CDR in and out.
 from __future__ import annotations
 
+import ctypes
 import importlib
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from types import ModuleType
@@ -37,7 +37,7 @@ def cyclone() -> dict[str, ModuleType]:
     try:
         return {name: importlib.import_module(f"{PACKAGE}.{name}")
                 for name in ("domain", "pub", "sub", "topic", "core", "qos", "idl",
-                             "idl.types", "builtin", "util", "_clayer")}
+                             "idl.types", "builtin", "util", "internal", "_clayer")}
     except ImportError as exc:
         raise DdsUnavailable(f"the Python package {PACKAGE} is not installed ({exc}); "
                              f"{INSTALL_HINT}") from None
@@ -132,14 +132,44 @@ class QosSpec:
 ANNOUNCE_QOS = QosSpec(reliable=True, transient_local=True, depth=1)
 
 
+class _MatchedCounts:
+    """``dds_get_{publication,subscription}_matched_status`` (the binding has no call for
+    them), through its own handle on the C library."""
+
+    def __init__(self, internal: ModuleType) -> None:
+        lib = internal.load_cyclonedds()
+        types = internal.dds_c_t
+        self._pub_status, self._sub_status = (types.publication_matched_status,
+                                              types.subscription_matched_status)
+        self._pub = lib.dds_get_publication_matched_status
+        self._pub.argtypes = [ctypes.c_int32, ctypes.POINTER(self._pub_status)]
+        self._sub = lib.dds_get_subscription_matched_status
+        self._sub.argtypes = [ctypes.c_int32, ctypes.POINTER(self._sub_status)]
+        self._pub.restype = self._sub.restype = ctypes.c_int32
+
+    def publication(self, ref: int) -> int:
+        status = self._pub_status()
+        return int(status.current_count) if self._pub(ref, ctypes.byref(status)) >= 0 else 0
+
+    def subscription(self, ref: int) -> int:
+        status = self._sub_status()
+        return int(status.current_count) if self._sub(ref, ctypes.byref(status)) >= 0 else 0
+
+
 # -- the participant ----------------------------------------------------------------------
 
-Callback = Callable[..., None]
+#: every sample state, view state and instance state: a reader's condition for "has samples"
+ANY_SAMPLE = 0x7F
+#: the status that wakes a reader's watcher when a publisher of its topic comes or goes
+SUBSCRIPTION_MATCHED = 1 << 12
 
 
 class DdsNode:
     """One DDS participant in ``domain`` with its endpoints. Writes take serialised CDR;
-    readers hand raw samples to their callback, in Cyclone's listener thread."""
+    readers are taken from by the caller. No endpoint has a Python listener: a DDS thread in
+    a listener waits for the GIL while holding the entity, and a writer thread that holds the
+    GIL while it writes to a local reader of that entity then waits for it (a deadlock; see
+    docs/ros2.md). Matches are counted on request, samples waited for on a :meth:`waitset`."""
 
     def __init__(self, domain: int, localhost: bool, type_information: bool) -> None:
         mods = self.mods = cyclone()
@@ -150,6 +180,7 @@ class DdsNode:
         self.subscriber = mods["sub"].Subscriber(self.participant)
         self._topics: dict[str, Any] = {}
         self._entities: list[Any] = []
+        self._matched = _MatchedCounts(mods["internal"])
 
     @property
     def guid(self) -> bytes:
@@ -166,24 +197,45 @@ class DdsNode:
             self._topics[name] = self.mods["topic"].Topic(self.participant, name, data_type)
         return self._topics[name]
 
-    def writer(self, name: str, data_type: Any, qos: QosSpec,
-               on_matched: Callback | None = None) -> Any:
-        listener = (self.mods["core"].Listener(on_publication_matched=on_matched)
-                    if on_matched else None)
+    def writer(self, name: str, data_type: Any, qos: QosSpec) -> Any:
         writer = self.mods["pub"].DataWriter(self.publisher, self._topic(name, data_type),
-                                             qos.qos(), listener)
+                                             qos.qos())
         self._entities.append(writer)
         return writer
 
-    def reader(self, name: str, data_type: Any, qos: QosSpec, on_data: Callback,
-               on_matched: Callback | None = None) -> Any:
-        callbacks: dict[str, Callback] = {"on_data_available": on_data}
-        if on_matched:
-            callbacks["on_subscription_matched"] = on_matched
+    def reader(self, name: str, data_type: Any, qos: QosSpec) -> Any:
         reader = self.mods["sub"].DataReader(self.subscriber, self._topic(name, data_type),
-                                             qos.qos(), self.mods["core"].Listener(**callbacks))
+                                             qos.qos())
         self._entities.append(reader)
         return reader
+
+    def publication_matches(self, writer: Any) -> int:
+        """How many readers match ``writer`` now."""
+        return self._matched.publication(writer._ref)
+
+    def subscription_matches(self, reader: Any) -> int:
+        """How many writers match ``reader`` now (resets its matched status)."""
+        return self._matched.subscription(reader._ref)
+
+    def waitset(self, readers: list[Any], matches: list[Any]) -> Any:
+        """A waitset that triggers while one of ``readers`` holds samples, or when the
+        writers matching one of ``matches`` change."""
+        core = self.mods["core"]
+        waitset = core.WaitSet(self.participant)
+        for reader in readers:
+            condition = core.ReadCondition(reader, ANY_SAMPLE)
+            self._entities.append(condition)
+            waitset.attach(condition)
+        for reader in matches:
+            reader.set_status_mask(SUBSCRIPTION_MATCHED)
+            waitset.attach(reader)
+        self._entities.append(waitset)
+        return waitset
+
+    @staticmethod
+    def wait(waitset: Any, seconds: float) -> int:
+        """Block (without the GIL) until the waitset triggers or ``seconds`` pass."""
+        return int(waitset.wait(int(seconds * 1e9)))
 
     def publications_reader(self) -> Any:
         """A reader of the DCPSPublication built-in topic: every writer discovered."""

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 
@@ -43,11 +44,13 @@ class Outlet:
             self._thread.join(timeout_s)
 
     def _run(self) -> None:
+        next_idle = 0.0
         while not self._stop:
             self._wake.wait(self._idle_s)
             self._wake.clear()
             self._drain()
-            if self._idle is not None:
+            if self._idle is not None and time.monotonic() >= next_idle:
+                next_idle = time.monotonic() + self._idle_s
                 self._call(self._idle)
 
     def _drain(self) -> None:
