@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from daemon.bus import Bus
 from daemon.config import load_config
@@ -96,6 +98,28 @@ def test_the_shortcut_at_rest_judges_like_the_full_check() -> None:
             tripped.append((t, reason))
     assert len(tripped) == 1 and tripped[0][1].startswith("left wheel")
     assert 1.0 + settings.lag_s <= tripped[0][0] <= 1.0 + settings.lag_s + TIME_S + 0.1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([0.0, 0.0, 0.0, 1.5, -2.0]),
+                          st.sampled_from([0.0, 0.0, 1.5]),
+                          st.floats(0.001, 0.2)), min_size=1, max_size=60))
+def test_equal_writes_kept_once_give_the_window_every_write_gives(
+        writes: list[tuple[float, float, float]]) -> None:
+    """The guard keeps one entry for a run of equal writes (an idle robot writes zero every
+    tick); the lowest and highest speed written during the last lag_s stay what they would be
+    with every write kept."""
+    guard = WheelGuard(GuardSettings(time_s=TIME_S))
+    lag, t, every = guard.settings.lag_s, 0.0, []
+    for left, right, dt in writes:
+        t += dt
+        guard._remember((left, right), t)
+        every.append((t, left, right))
+        recent = [w for w in every if t - w[0] <= lag]
+        for index in (0, 1):
+            kept = guard._wheels[index]
+            assert (min(kept), max(kept)) == (min(w[1 + index] for w in recent),
+                                              max(w[1 + index] for w in recent))
 
 
 # -- in the simulated robot ------------------------------------------------------------------

@@ -77,6 +77,9 @@ class Odometry:
         dr = (right_rad - self._last_wheels[1]) * right_radius
         dt = t - self._last_t
         self._last_wheels, self._last_t = (left_rad, right_rad), t
+        if dl == 0.0 and dr == 0.0:  # still wheels (an idle robot, most ticks): no motion
+            self.linear = self.angular = 0.0
+            return
         ds, dtheta = (dl + dr) / 2.0, (dr - dl) / self._separation
         self._integrate(ds, dtheta)
         if dt > 0:

@@ -71,13 +71,17 @@ class StallSupervisor:
     # -- the event loop's side ----------------------------------------------------------------
 
     def beat(self) -> None:
-        """The control tick ran (called on the event loop, every tick)."""
+        """The control tick ran (called on the event loop, every tick). No lock: the beat is
+        written before ``_ticking``, and :meth:`check` reads them the other way round."""
         now = self.clock()
-        with self._lock:
-            gap = now - self._last_beat if self._ticking else 0.0
+        if self._ticking:
+            gap = now - self._last_beat
+            if gap > self.longest_stall_s:
+                self.longest_stall_s = gap
+            self._last_beat = now
+        else:
             self._last_beat = now
             self._ticking = True
-        self.longest_stall_s = max(self.longest_stall_s, gap)
 
     def take_stop(self) -> bool:
         """True once after the wheels were zeroed behind the loop's back."""
@@ -97,10 +101,10 @@ class StallSupervisor:
         """Stop the wheels if the tick is overdue; seconds until the next check is due."""
         now = self.clock()
         with self._lock:
-            last_beat = self._last_beat
-            handled = self._stopped_beat == last_beat
             if not self._ticking:
                 return self.stall_stop_s
+            last_beat = self._last_beat
+            handled = self._stopped_beat == last_beat
         overdue = now - last_beat - self.stall_stop_s
         if overdue < 0:
             return -overdue

@@ -102,12 +102,19 @@ class WheelGuard:
         return False
 
     def _remember(self, commanded: tuple[float, float], now: float) -> None:
+        """Keep the speeds written during the last ``lag_s``. A write equal to the one before
+        replaces its time: a window holds the newest of a run of equal writes whenever it
+        holds any, so the minimum and maximum :meth:`_check` takes are the same (an idle robot
+        keeps one entry, not ``lag_s`` worth)."""
         times, (left, right) = self._times, self._wheels
         if commanded[0] != 0.0 or commanded[1] != 0.0:
             self._moving_at = now
-        times.append(now)
-        left.append(commanded[0])
-        right.append(commanded[1])
+        if times and left[-1] == commanded[0] and right[-1] == commanded[1]:
+            times[-1] = now
+        else:
+            times.append(now)
+            left.append(commanded[0])
+            right.append(commanded[1])
         while now - times[0] > self.settings.lag_s:
             times.popleft()
             left.popleft()
