@@ -61,6 +61,15 @@ async def test_a_map_built_from_the_recording_matches_the_live_one(tmp_path: Pat
     precision, recall = map_precision_recall(occupied_in(offline, live),
                                              occupied_in(live, live), 2)
     assert precision >= 0.85 and recall >= 0.85, (precision, recall)
+    refined = run_cli("map", "build", str(recording), "--name", "refined", "--dir", str(maps),
+                      "--refine", "--csv", str(tmp_path / "refined.csv"))
+    assert refined.returncode == 0, refined.stderr
+    assert "map refined:" in refined.stdout and "refined: " in refined.stdout
+    rows = (tmp_path / "refined.csv").read_text().splitlines()
+    assert len(rows) == len((tmp_path / "path.csv").read_text().splitlines())
+    precision, recall = map_precision_recall(occupied_in(load_map(maps / "refined.yaml"), live),
+                                             occupied_in(live, live), 2)
+    assert precision >= 0.85 and recall >= 0.85, (precision, recall)
 
 
 def test_a_recording_without_scans_is_named(tmp_path: Path) -> None:

@@ -67,6 +67,8 @@ class BuildResult:
     trajectory: list[tuple[float, Pose2]]
     used: int
     matched: int
+    #: with the offline stages: what the far-loop search found and accepted
+    far_loops: dict[str, int] | None = None
 
 
 def _stamp(header: Any) -> float:
@@ -156,19 +158,38 @@ def _logged_scans(path: Path) -> Iterator[tuple[float, Pose2, np.ndarray]]:
                              f"({exc}): pip install rosbags") from None
 
 
-def build_map(path: Path, config: MapperConfig) -> BuildResult:
-    """Run the mapper over the recording, in recorded order."""
+def build_map(path: Path, config: MapperConfig, refine: bool = False,
+              max_seconds: float = math.inf) -> BuildResult:
+    """Run the mapper over the recording (its first ``max_seconds``), in recorded order. With
+    ``refine``, then the offline stages the SLAM benchmark runs: a final optimisation, the
+    search for returns after a long tour (far loops), and the trajectory polished scan by scan
+    against the optimised map and fused with the odometry (docs/mapping-algorithm.md)."""
     mapper = Mapper(config)
     used = matched = 0
+    points: list[np.ndarray] = []
+    odometry: list[Pose2] = []
+    first: float | None = None
     for stamp, pose, xy in scans_of(path):
+        first = stamp if first is None else first
+        if stamp - first > max_seconds:
+            break
         result = mapper.add_scan(pose, xy, stamp)
         used += 1
         matched += bool(result.matched)
+        if refine:
+            points.append(xy)
+            odometry.append(pose)
     if not used:
         raise RecordingError(f"{path}: no revolution has odometry at its time")
+    far_loops = None
+    trajectory = list(mapper.trajectory)
+    if refine:
+        mapper.optimize()
+        far_loops = mapper.close_far_loops()
+        trajectory = mapper.refined_trajectory(points, odometry=odometry)
     grid = mapper.grid
     data = MapData(grid.occupancy(), grid.resolution, grid.origin_x, grid.origin_y)
-    return BuildResult(data, list(mapper.trajectory), used, matched)
+    return BuildResult(data, trajectory, used, matched, far_loops)
 
 
 def write_trajectory(path: Path, trajectory: list[tuple[float, Pose2]]) -> None:

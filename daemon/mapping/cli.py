@@ -35,6 +35,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     build.add_argument("--dir", help="write the map here (default: the [mapping] directory)")
     build.add_argument("--config", help="config whose [mapping] settings to use")
     build.add_argument("--csv", help="also write the corrected trajectory to this CSV file")
+    build.add_argument("--refine", action="store_true",
+                       help="also run the offline stages (final optimisation, returns after a "
+                       "long tour, every pose polished): slower, more accurate")
     return parser
 
 
@@ -71,7 +74,7 @@ def run_build(args: argparse.Namespace, settings: MappingSettings, directory: Pa
                           loop_closure=settings.loop_closure,
                           max_cells=int((settings.max_size_m / settings.resolution) ** 2))
     try:
-        result = build_map(recording, config)
+        result = build_map(recording, config, refine=args.refine)
     except RecordingError as exc:
         print(f"arbiterd map build: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -79,6 +82,9 @@ def run_build(args: argparse.Namespace, settings: MappingSettings, directory: Pa
     print(f"map {name}: {result.grid.width} x {result.grid.height} cells at "
           f"{result.grid.resolution:g} m from {result.used} revolutions "
           f"({result.matched} matched) -> {yml}")
+    if result.far_loops is not None:
+        print(f"refined: {result.far_loops['far_accepted']} returns after a long tour closed "
+              f"({result.far_loops['far_candidates']} candidates), every pose polished")
     if args.csv:
         write_trajectory(Path(args.csv), result.trajectory)
         print(f"trajectory: {len(result.trajectory)} poses -> {args.csv}")
