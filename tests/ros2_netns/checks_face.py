@@ -16,10 +16,11 @@ TOKEN = "ros2-face-test-token"
 DOMAIN = int(os.environ.get("ARBITERD_TEST_ROS_DOMAIN", "42"))
 
 
-def ros2_toml(allow: bool) -> str:
+def ros2_toml(allow: bool, command_timeout: float = 0.5) -> str:
     return (f'[security]\ntoken = "{TOKEN}"\n'
             f"[ros2]\nenabled = true\ndomain_id = {DOMAIN}\ndiscovery = \"localhost\"\n"
-            f"allow_commands = {'true' if allow else 'false'}\ncommand_timeout = 0.5\n")
+            f"allow_commands = {'true' if allow else 'false'}\n"
+            f"command_timeout = {command_timeout}\n")
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +31,8 @@ def probe() -> Iterator[RosProbe]:
     node.close()
 
 
-def start_daemon(tmp_path: Any, allow: bool) -> DaemonSubprocess:
-    return DaemonSubprocess(tmp_path, ros2_toml(allow), args=("--sim",)).start()
+def start_daemon(tmp_path: Any, allow: bool, command_timeout: float = 0.5) -> DaemonSubprocess:
+    return DaemonSubprocess(tmp_path, ros2_toml(allow, command_timeout), args=("--sim",)).start()
 
 
 def ros2_health(daemon: DaemonSubprocess) -> dict[str, Any]:
@@ -211,3 +212,29 @@ def test_commands_refused_without_allow_commands(tmp_path: Any, probe: RosProbe,
         assert moved(start, truth(off)) < 1e-3
     finally:
         off.__exit__(None, None, None)
+
+
+def test_the_last_publisher_going_away_brakes(tmp_path_factory: pytest.TempPathFactory,
+                                              probe: RosProbe,
+                                              daemon: DaemonSubprocess) -> None:
+    """With DDS commands held for 10 s (the longest deadman allowed), the source is dropped
+    long before: the reader thread sees the match count fall to zero at the publisher's
+    leaving, and the control loop drops the source."""
+    from geometry_msgs.msg import Twist
+
+    daemon.__exit__(None, None, None)  # one daemon on the domain at a time
+    held = start_daemon(tmp_path_factory.mktemp("ros2-held"), allow=True, command_timeout=10)
+    try:
+        pub = probe.node.create_publisher(Twist, "/cmd_vel", 10)
+        probe.spin_until(lambda: pub.publish(twist(0.2)) or active_source(held) == "ros2",
+                         "the robot driven by the DDS command")
+        probe.node.destroy_publisher(pub)
+        probe.spin_until(lambda: active_source(held) is None, "the source dropped", 5.0)
+        probe.spin_until(lambda: abs(truth(held)["v"]) < 1e-3, "the robot stopping")
+    finally:
+        held.__exit__(None, None, None)
+
+
+def active_source(daemon: DaemonSubprocess) -> str | None:
+    _, status = daemon.get("/api/status", token=TOKEN)
+    return status["active_source"]  # type: ignore[no-any-return]
