@@ -47,8 +47,8 @@ class Outgoing:
 class Ros2Face(BaseComponent):
     """A DDS participant announced as node ``namespace/node_name``: every topic of the table
     (or the configured ones) out from the bus, and the incoming ones to their handlers as the
-    command source ``ros2``. DDS threads only take samples and hand them to the event loop;
-    the event loop only queues samples for the writer thread."""
+    command source ``ros2``. The reader thread (:class:`Inlet`) only takes samples and hands
+    them to the event loop; the event loop only queues samples for the writer thread."""
 
     name = "ros2"
     core = False
