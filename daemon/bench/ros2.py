@@ -1,12 +1,14 @@
 # ROS 2 face benchmark: its CPU beside the same daemon without it, and /scan latency to rclpy.
 from __future__ import annotations
 
+import json
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +18,10 @@ from daemon.bench.process import _cpu_seconds
 SUITE = "ros2"
 DOMAIN = 57
 CPU_TARGET_PCT = 1.0
+#: the stall supervisor's default: a longer gap zeroes the wheels
+STALL_STOP_MS = 200.0
+#: the flood: ten times [ros2] max_rate's default, 40 times a 50 Hz teleop
+FLOOD_HZ = 2000.0
 SIM = "[sim]\nlidar_rays = 720\nlidar_rate = 10.0\n"
 
 
@@ -29,26 +35,36 @@ def run(quick: bool) -> list[BenchResult]:
         return [BenchResult(SUITE, "skipped", 0.0, "", note="rclpy is not installed (the "
                             "ros2-test extra, x86_64 Linux only)")]
     os.environ.update(ROS_DOMAIN_ID=str(DOMAIN), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    face = f"[ros2]\nenabled = true\ndomain_id = {DOMAIN}\ndiscovery = \"localhost\"\n"
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-ros2-") as tmp:
-        on = _start(Path(tmp) / "on", f"[ros2]\nenabled = true\ndomain_id = {DOMAIN}\n"
-                    "discovery = \"localhost\"\n")
-        off = _start(Path(tmp) / "off", "")
+        on, _ = _start(Path(tmp) / "on", face)
+        off, _ = _start(Path(tmp) / "off", "")
         try:
-            return _measure(on, off, 3 if quick else 6, 5.0)
+            results = _measure(on, off, 3 if quick else 6, 5.0)
         finally:
-            for proc in (on, off):
-                proc.terminate()
-                proc.wait(15)
+            _stop(on, off)
+        commands, port = _start(Path(tmp) / "commands", face + "allow_commands = true\n")
+        try:
+            return results + _flood(port, 3.0 if quick else 10.0)
+        finally:
+            _stop(commands)
 
 
-def _start(workdir: Path, extra: str) -> subprocess.Popen[bytes]:
+def _stop(*procs: subprocess.Popen[bytes]) -> None:
+    for proc in procs:
+        proc.terminate()
+        proc.wait(15)
+
+
+def _start(workdir: Path, extra: str) -> tuple[subprocess.Popen[bytes], int]:
     workdir.mkdir(parents=True)
     config = workdir / "arbiterd.toml"
-    config.write_text(f"[http]\nhost = \"127.0.0.1\"\nport = {free_port()}\n"
+    port = free_port()
+    config.write_text(f"[http]\nhost = \"127.0.0.1\"\nport = {port}\n"
                       f"[rosbridge]\nhost = \"127.0.0.1\"\nport = {free_port()}\n" + SIM + extra)
     return subprocess.Popen([sys.executable, "-m", "daemon.cli", "run", "--sim", "--config",
                              str(config)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                            stderr=subprocess.DEVNULL), port
 
 
 def _measure(on: subprocess.Popen[bytes], off: subprocess.Popen[bytes], windows: int,
@@ -112,3 +128,56 @@ def _results(extra: list[float], latencies: list[float], rays: list[int]) -> lis
         BenchResult(SUITE, "/scan last ray -> rclpy callback, p99",
                     round(percentile_ms(latencies, 99), 2), "ms"),
     ]
+
+
+# -- a flood of DDS commands: the control tick beside it --------------------------------------
+
+
+def _flood(port: int, seconds: float) -> list[BenchResult]:
+    """One rclpy node publishes zero Twists on /cmd_vel at about FLOOD_HZ for ``seconds``,
+    after a quiet window as long; the daemon's longest gap between control ticks after each."""
+    import rclpy
+    from geometry_msgs.msg import Twist
+
+    rclpy.init()
+    node = rclpy.create_node("bench_flood")
+    publisher = node.create_publisher(Twist, "/cmd_vel", 10)
+
+    def accepted() -> bool:
+        publisher.publish(Twist())
+        try:
+            return bool(_health(port)["ros2"]["accepted"])
+        except OSError:  # not listening yet
+            return False
+
+    try:
+        _spin(node, accepted, 30.0)
+        _spin(node, lambda: False, seconds)
+        quiet = _health(port)["control"]["longest_stall_ms"]
+        sent, end, twist = 0, time.monotonic() + seconds, Twist()
+        while time.monotonic() < end:  # FLOOD_HZ, in bursts of 20 (the publisher shares
+            for _ in range(20):        # this machine's cores with the daemon)
+                publisher.publish(twist)
+            sent += 20
+            time.sleep(20 / FLOOD_HZ)
+        after = _health(port)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    face, control = after["ros2"], after["control"]
+    gap = control["longest_stall_ms"]
+    note = (f"{sent} samples in {seconds:g} s; the face took {face['received']}, accepted "
+            f"{face['accepted']}, refused {face['refused']['overload']} as overload "
+            f"([ros2] max_rate); stall stops {control['stall_stops']}")
+    return [
+        BenchResult(SUITE, "longest control-tick gap, quiet window", quiet, "ms",
+                    note="in-run baseline: the same daemon before the flood"),
+        BenchResult(SUITE, "longest control-tick gap, DDS /cmd_vel flood", gap, "ms",
+                    f"< {STALL_STOP_MS:g} (no stall stop)",
+                    gap < STALL_STOP_MS and control["stall_stops"] == 0, note),
+    ]
+
+
+def _health(port: int) -> dict[str, Any]:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=5) as answer:
+        return dict(json.load(answer)["components"])

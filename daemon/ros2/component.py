@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from base.rates import TokenBucket
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
 from daemon.messages import cdr
 from daemon.messages.cdr_read import decode
@@ -74,6 +75,7 @@ class Ros2Face(BaseComponent):
         self.duplicates: frozenset[bytes] = frozenset()
         self._foreign: set[bytes] = set()
         self._pending = 0
+        self._budgets: dict[str, TokenBucket] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self._logged: dict[str, float] = {}
         self._unsubscribe: list[Callable[[], None]] = []
@@ -226,11 +228,30 @@ class Ros2Face(BaseComponent):
     # -- in: reader thread -> event loop -> the topic's handler ----------------------------------
 
     def _on_data(self, topic: TopicIn, samples: list[bytes]) -> None:  # the reader thread
+        """Hand a take to the event loop: at most ``max_rate`` a second per topic (the newest
+        of a take; a flood is refused as overload here, not by the event loop)."""
+        self.received += len(samples)
+        allowed = self._budget(topic).take_up_to(len(samples))
+        if allowed < len(samples):
+            self._from_thread(self._refuse, "overload",
+                              f"{topic.name}: more than {self.settings.max_rate:g} samples a "
+                              "second ([ros2] max_rate)", len(samples) - allowed)
+            samples = samples[len(samples) - allowed:]
+            if not samples:
+                return
         if self._pending >= MAX_PENDING:
             self.overflow += len(samples)
             return
         self._pending += 1
         self._from_thread(self._on_samples, topic, samples, time.monotonic())
+
+    def _budget(self, topic: TopicIn) -> TokenBucket:
+        budget = self._budgets.get(topic.name)
+        if budget is None:
+            rate = self.settings.max_rate
+            budget = self._budgets[topic.name] = TokenBucket(rate, max(1.0, rate / 5),
+                                                             time.monotonic)
+        return budget
 
     def _on_unmatched(self, topic: TopicIn) -> None:  # the reader thread
         """The last publisher of a command topic went away: brake."""
@@ -242,7 +263,6 @@ class Ros2Face(BaseComponent):
     def _on_samples(self, topic: TopicIn, samples: list[bytes], t_recv: float) -> None:
         self._pending -= 1
         for data in samples:
-            self.received += 1
             msg = self._screen(topic, data)
             if msg is not None:
                 self._spawn(self._deliver(topic, msg, t_recv))
@@ -281,8 +301,8 @@ class Ros2Face(BaseComponent):
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    def _refuse(self, kind: str, reason: str) -> None:
-        self.refused[kind] += 1
+    def _refuse(self, kind: str, reason: str, count: int = 1) -> None:
+        self.refused[kind] += count
         self.last_refusal = reason
         now = time.monotonic()
         if now - self._logged.get(kind, -1e9) >= REFUSAL_LOG_S:

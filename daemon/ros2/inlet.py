@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -21,8 +22,10 @@ class Inlet:
     publisher went away. No DDS thread runs Python."""
 
     def __init__(self, node: DdsNode, on_samples: Callable[[Any, list[bytes]], None],
-                 on_unmatched: Callable[[Any], None], wait_s: float = 0.25) -> None:
+                 on_unmatched: Callable[[Any], None], wait_s: float = 0.25,
+                 min_period_s: float = 0.005) -> None:
         self._node = node
+        self._min_period_s = min_period_s
         self._on_samples = on_samples
         self._on_unmatched = on_unmatched
         self._wait_s = wait_s
@@ -51,9 +54,16 @@ class Inlet:
             self._thread.join(timeout_s)
 
     def _run(self) -> None:
+        """Wake at most once every ``min_period_s``: under a flood the thread sleeps (the GIL
+        and the core free for the event loop) while Cyclone keeps each reader's newest."""
+        last = 0.0
         while not self._stop:
             try:
+                pause = last + self._min_period_s - time.monotonic()
+                if pause > 0:
+                    time.sleep(pause)
                 self._node.wait(self._waitset, self._wait_s)
+                last = time.monotonic()
                 self._take_all()
                 self._check_publishers()
             except Exception as exc:  # a DDS error must not end the thread

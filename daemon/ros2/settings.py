@@ -57,6 +57,9 @@ ROS2_OPTIONS: Options = {
                               "cmd_vel_timeout)", minval=0.0, maxval=10.0),
     "queue": Option(int, 64, "samples waiting for the DDS writer thread; beyond it the oldest "
                     "is dropped", minval=4, maxval=10000),
+    "max_rate": Option(float, 200.0, "incoming samples handled per second and topic (a burst of "
+                       "a fifth of it); beyond it the newest are kept and the rest refused as "
+                       "overload", above=0.0, maxval=100000.0),
 }
 
 
@@ -76,3 +79,4 @@ class Ros2Settings(SectionSettings, section="ros2", options=ROS2_OPTIONS):
     command_priority: int
     command_timeout: float
     queue: int
+    max_rate: float

@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+from base.rates import TokenBucket
 from daemon.rosbridge.codec import FragmentLimits, over_limit
 
 __all__ = ["Limits", "Pacer", "RateLimitedLog", "TokenBucket", "over_limit"]
@@ -53,41 +54,6 @@ class Limits:
                               self.max_fragment_sets_per_client,
                               self.max_fragment_bytes_per_client,
                               self.max_fragments_per_message)
-
-
-class TokenBucket:
-    """``rate`` units per second sustained, up to ``burst`` at once."""
-
-    def __init__(self, rate: float, burst: float, clock: Callable[[], float]) -> None:
-        self.rate = rate
-        self.burst = float(burst)
-        self.clock = clock
-        self._tokens = float(burst)
-        self._t_last = clock()
-
-    def take(self, units: float = 1.0) -> bool:
-        """Take ``units`` if they are there; False (nothing taken) if not."""
-        self._refill()
-        if self._tokens < units:
-            return False
-        self._tokens -= units
-        return True
-
-    def reserve(self, units: float) -> float:
-        """Take ``units`` now, on credit if need be; the seconds until they are paid for."""
-        self._refill()
-        self._tokens -= units
-        return max(0.0, -self._tokens / self.rate)
-
-    def level(self) -> float:
-        """Units there now (negative: owed)."""
-        self._refill()
-        return self._tokens
-
-    def _refill(self) -> None:
-        now = self.clock()
-        self._tokens = min(self.burst, self._tokens + (now - self._t_last) * self.rate)
-        self._t_last = now
 
 
 class Pacer:

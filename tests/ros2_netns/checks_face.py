@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -176,6 +177,30 @@ def test_foreign_type_on_cmd_vel_is_refused(probe: RosProbe, daemon: DaemonSubpr
     probe.node.destroy_publisher(pub)
 
 
+def test_a_flood_of_dds_commands_is_held_to_max_rate(probe: RosProbe,
+                                                     daemon: DaemonSubprocess) -> None:
+    """2000 zero Twists a second for 3 s: the face hands at most [ros2] max_rate (200 a
+    second, bursts of 40) to the control loop, refuses the rest as overload, and the daemon
+    answers throughout."""
+    from geometry_msgs.msg import Twist
+
+    pub = probe.node.create_publisher(Twist, "/cmd_vel", 10)
+    probe.spin_until(lambda: pub.publish(twist(0.0)) or ros2_health(daemon)["accepted"] > 0,
+                     "the publisher matched")
+    before, start = ros2_health(daemon), time.monotonic()
+    for burst in range(150):
+        for _ in range(20):
+            pub.publish(twist(0.0))
+        time.sleep(0.01)  # paces the load; nothing waits on it
+        if burst % 50 == 0:
+            assert ros2_health(daemon)["node"]  # answered while flooded
+    after = ros2_health(daemon)
+    elapsed = time.monotonic() - start
+    assert after["refused"]["overload"] > before["refused"]["overload"]
+    assert after["accepted"] - before["accepted"] <= 40 + 200 * (elapsed + 1.0)
+    probe.node.destroy_publisher(pub)
+
+
 def test_same_node_name_elsewhere_refuses_commands(daemon: DaemonSubprocess) -> None:
     from geometry_msgs.msg import Twist
 
@@ -210,6 +235,7 @@ def test_commands_refused_without_allow_commands(tmp_path: Any, probe: RosProbe,
         assert health["allow_commands"] is False and health["accepted"] == 0
         assert "allow_commands = false" in health["last_refusal"]
         assert moved(start, truth(off)) < 1e-3
+        probe.node.destroy_publisher(pub)  # the next check needs /cmd_vel without publishers
     finally:
         off.__exit__(None, None, None)
 
