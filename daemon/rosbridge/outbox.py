@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from daemon.messages import cbor, cdr, scans
-from daemon.messages.convert import JSON_CONVERT
+from daemon.messages.convert import JSON_CONVERT, JSON_TEXT
 from daemon.rosbridge import binary
 from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
@@ -40,8 +40,12 @@ class SharedMessage:
     def msg_json(self) -> str:
         if self._msg_json is None:
             convert = self._convert  # for JSON, a faster conversion when there is one (scans)
-            msg = self._source if convert is None else convert_for_json(convert)(self._source)
-            self._msg_json = encode(msg)
+            text = JSON_TEXT.get(convert) if convert is not None else None
+            if text is not None:  # straight to the text (latency reports)
+                self._msg_json = text(self._source)
+            else:
+                self._msg_json = encode(self._source if convert is None
+                                        else convert_for_json(convert)(self._source))
         return self._msg_json
 
     def binary_frame(self, compression: str, spelling: str, type_name: str) -> bytes:
