@@ -11,6 +11,14 @@ import orjson
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from daemon.control.commands import (
+    STAMP_FIELDS,
+    CommandError,
+    Twist,
+    parse_stamp,
+    parse_twist,
+    plain_stamped,
+)
 from daemon.messages.convert import latency_msg, latency_msg_json
 from daemon.messages.definitions import STRING, TWIST
 from daemon.messages.msgtypes import MessageError, check_message
@@ -288,3 +296,39 @@ async def test_a_client_without_the_token_never_gets_an_inlet_nor_moves(tmp_path
         assert not session._inlets and not robot.moving()
         assert robot.daemon.latency.commands == 0
         await session.close()
+
+
+# -- the stamped command's one-pass check ----------------------------------------------------------
+
+NUMBER = st.floats() | st.integers(-10, 10) | st.booleans() | st.none() | st.text(max_size=2)
+AXES = st.dictionaries(st.sampled_from(["x", "y", "z", "w"]), NUMBER | st.just(0.0), max_size=4)
+FLOAT_AXES = st.dictionaries(st.sampled_from(["x", "y", "z"]), st.floats() | st.just(0.0),
+                             max_size=3)
+PLAUSIBLE = st.fixed_dictionaries({}, optional={
+    "linear": FLOAT_AXES, "angular": FLOAT_AXES, "id": st.integers(-2**63, 2**63 - 1) | st.text(),
+    "t_sent": st.floats()})
+BODY = PLAUSIBLE | st.dictionaries(st.sampled_from(["linear", "angular", "id", "t_sent", "spin"]),
+                       AXES | NUMBER | st.integers(), max_size=5) | JSON
+
+
+def _general_stamped(body: Any) -> Any:
+    try:
+        return "ok", (parse_twist(body, extra=STAMP_FIELDS, prefix="data."),
+                      *parse_stamp(body, "data."))
+    except (CommandError, AttributeError, TypeError) as exc:
+        return "refused", str(exc)
+
+
+@settings(max_examples=500, deadline=None)
+@given(body=BODY)
+def test_the_one_pass_stamped_check_is_the_general_one(body: Any) -> None:
+    plain = plain_stamped(body)
+    if plain is not None:  # else the general parse decides, as before
+        assert ("ok", plain) == _general_stamped(body)
+
+
+def test_the_one_pass_stamped_check_takes_the_common_command() -> None:
+    body = {"linear": {"x": 0.1}, "angular": {"z": -0.2}, "id": 7, "t_sent": 1.5e12}
+    assert plain_stamped(body) == (Twist(0.1, -0.2), 7, 1.5e12)
+    assert plain_stamped({**body, "linear": {"x": 0.1, "y": 0.5}}) is None
+    assert plain_stamped({**body, "id": True}) is None
