@@ -12,10 +12,12 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs,
 from daemon.control.commands import (
     STAMP_FIELDS,
     CommandError,
+    Twist,
     finite_number,
     parse_pose,
     parse_stamp,
     parse_twist,
+    plain_stamped,
 )
 from daemon.control.estop import LATCH, LatchLimit, estop_access
 from daemon.control.loop import Applied, ControlLoop
@@ -118,10 +120,11 @@ class ControlComponent(BaseComponent):
                 body = orjson.loads(message.msg["data"])  # refuses NaN, Infinity, overflow
             except ValueError as exc:
                 raise CommandError(f"data: not a JSON command: {exc}") from None
-            if not isinstance(body, dict):
-                raise CommandError("data: expected a JSON object")
-            twist = parse_twist(body, extra=STAMP_FIELDS, prefix="data.")
-            cmd_id, t_sent = parse_stamp(body, "data.")
+            plain = plain_stamped(body)  # the common shape in one pass; else the general one
+            if plain is not None:
+                twist, cmd_id, t_sent = plain
+            else:
+                twist, cmd_id, t_sent = _parse_stamped(body)
         except CommandError as exc:
             return Refusal(f"msg.{exc}; not applied")
         # the control loop's call without a layer between: this runs for every command
@@ -222,6 +225,15 @@ class ControlComponent(BaseComponent):
             raise ApiError(422, "seconds: must be in (0, 30]")
         time.sleep(seconds)  # noqa: ASYNC251 - the stall is the point
         return json_response({"stalled_s": seconds})
+
+
+def _parse_stamped(body: Any) -> tuple[Twist, str | int | None, float | None]:
+    """A stamped command's body, every field checked (CommandError naming ``data.<field>``)."""
+    if not isinstance(body, dict):
+        raise CommandError("data: expected a JSON object")
+    twist = parse_twist(body, extra=STAMP_FIELDS, prefix="data.")
+    cmd_id, t_sent = parse_stamp(body, "data.")
+    return twist, cmd_id, t_sent
 
 
 def _refused(applied: Applied) -> Refusal:

@@ -98,6 +98,51 @@ def parse_pose(body: Mapping[str, Any]) -> tuple[float, float, float] | None:
 
 STAMP_FIELDS = ("id", "t_sent")
 
+Stamped = tuple[Twist, str | int | None, float | None]
+
+
+def plain_stamped(body: Any) -> Stamped | None:
+    """(twist, id, t_sent) of a stamped command in its common shape, checked in one pass:
+    ``linear``/``angular`` objects of finite floats (the axes a differential-drive base cannot
+    do at zero), a string or integer ``id``, a finite float ``t_sent``. None for anything
+    else, which :func:`parse_twist` and :func:`parse_stamp` then accept or refuse: what this
+    returns is what they return."""
+    if type(body) is not dict:
+        return None
+    lx = az = 0.0
+    cmd_id = t_sent = None
+    for key, value in body.items():
+        if key == "linear" or key == "angular":
+            axes = _plain_axes(value)
+            if axes is None or axes[1] or axes[2 if key == "linear" else 0]:
+                return None
+            if key == "linear":
+                lx = axes[0]
+            else:
+                az = axes[2]
+        elif key == "id":
+            if type(value) is not str and type(value) is not int:
+                return None
+            cmd_id = value
+        elif key == "t_sent" and type(value) is float and value - value == 0.0:
+            t_sent = value
+        else:
+            return None
+    return Twist(lx, az), cmd_id, t_sent
+
+
+def _plain_axes(value: Any) -> list[float] | None:
+    """``[x, y, z]`` of an object of finite floats with no other keys, else None."""
+    if type(value) is not dict:
+        return None
+    out = [0.0, 0.0, 0.0]
+    for key, number in value.items():
+        index = _AXIS.get(key)
+        if index is None or type(number) is not float or number - number != 0.0:
+            return None
+        out[index] = number
+    return out
+
 
 def parse_stamp(body: Mapping[str, Any],
                 prefix: str = "") -> tuple[str | int | None, float | None]:

@@ -128,6 +128,19 @@ def latency_msg(report: LatencyReport) -> dict[str, Any]:
     return json_string_msg(report.to_json())
 
 
+def latency_msg_json(report: LatencyReport) -> str:
+    """``latency_msg``'s JSON text in one go (once per stamped command; the same text
+    :func:`json_string_msg` and an orjson encoding of its result give)."""
+    data = orjson.dumps(report.to_json(), default=to_json, option=orjson.OPT_SERIALIZE_NUMPY)
+    return '{"data":' + orjson.dumps(data.decode()).decode() + "}"
+
+
+#: conversions whose result only goes to a JSON encoder, straight to its text
+JSON_TEXT: dict[Callable[[Any], dict[str, Any]], Callable[[Any], str]] = {
+    latency_msg: latency_msg_json,
+}
+
+
 def to_json(value: Any) -> Any:
     """The JSON fallback of orjson and json: ``to_json()`` objects and numpy arrays."""
     if hasattr(value, "to_json"):

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from daemon.messages import cbor, cdr, scans
-from daemon.messages.convert import JSON_CONVERT
+from daemon.messages.convert import JSON_CONVERT, JSON_TEXT
 from daemon.rosbridge import binary
 from daemon.rosbridge.codec import Id, encode, fragment_count, fragments, publish_frame
 
@@ -40,8 +40,12 @@ class SharedMessage:
     def msg_json(self) -> str:
         if self._msg_json is None:
             convert = self._convert  # for JSON, a faster conversion when there is one (scans)
-            msg = self._source if convert is None else convert_for_json(convert)(self._source)
-            self._msg_json = encode(msg)
+            text = JSON_TEXT.get(convert) if convert is not None else None
+            if text is not None:  # straight to the text (latency reports)
+                self._msg_json = text(self._source)
+            else:
+                self._msg_json = encode(self._source if convert is None
+                                        else convert_for_json(convert)(self._source))
         return self._msg_json
 
     def binary_frame(self, compression: str, spelling: str, type_name: str) -> bytes:
@@ -192,6 +196,14 @@ class TopicQueue:
         if self.queue.maxlen != length:
             self.queue = deque(self.queue, maxlen=length)
 
+    @property
+    def plain(self) -> bool:
+        """Whether a message is sent as one JSON text as soon as it may (no throttle, no
+        fragments, no binary encoding)."""
+        options = self.options
+        return options.throttle_s == 0 and options.fragment_size is None \
+            and options.compression == "none"
+
     def offer(self, message: SharedMessage, now: float) -> bool:
         """Queue ``message`` (runs inside the publisher: O(1), never blocks); False if dropped."""
         throttle = self.options.throttle_s
@@ -255,8 +267,40 @@ class Outbox:
         self._ready: deque[TopicQueue] = deque()
         self._waiting: list[tuple[float, int, TopicQueue]] = []
         self._order = itertools.count()
+        #: set while the client's reader handles a request and sends what it queued itself
+        #: right after (see :meth:`hold`)
+        self.holding = False
+        self._held: tuple[TopicQueue, SharedMessage] | None = None
+
+    def hold(self) -> None:
+        """The reader handles a request: the first topic message it brings while nothing
+        else waits (the answer to a command) is kept aside for :meth:`take_held` instead of
+        going through its queue, as long as nothing else comes; anything else that comes
+        first puts it in its queue, where it would have been."""
+        self.holding = True
+
+    def take_held(self) -> tuple[TopicQueue, SharedMessage] | None:
+        """Ends :meth:`hold`: the message kept aside, if any, for the caller to send now
+        (or to give back with :meth:`requeue`)."""
+        self.holding = False
+        held, self._held = self._held, None
+        return held if held is not None and not held[0].closed else None
+
+    def requeue(self, held: tuple[TopicQueue, SharedMessage]) -> None:
+        """A held message that could not be sent at once: into its queue after all."""
+        queue, message = held
+        if not queue.closed and queue.offer(message, self._clock()):
+            self._schedule(queue)
+            self._wake()
+
+    def _release(self) -> None:
+        held, self._held = self._held, None
+        if held is not None:
+            self.requeue(held)
 
     def reply(self, item: Reply) -> None:
+        if self._held is not None:
+            self._release()
         self.replies.append(item)
         self.reply_bytes += len(item)
         while len(self.replies) > 1 and (len(self.replies) > REPLY_QUEUE
@@ -267,7 +311,15 @@ class Outbox:
 
     def offer(self, topic: str, message: SharedMessage) -> None:
         queue = self.topics.get(topic)
-        if queue is not None and queue.offer(message, self._clock()):
+        if queue is None:
+            return
+        if self.holding:
+            if self._held is None and not self.replies and not self._ready \
+                    and not self._waiting and not queue.queue and queue.plain:
+                self._held = (queue, message)  # the answer: sent by the reader, or queued
+                return
+            self._release()
+        if queue.offer(message, self._clock()):
             self._schedule(queue)
             self._wake()
 
@@ -289,6 +341,7 @@ class Outbox:
         """Drop every subscription queue (the client is gone)."""
         for queue in self.topics.values():
             queue.closed = True
+        self._held = None
         self.topics.clear()
         self._ready.clear()
         self._waiting.clear()
@@ -300,12 +353,14 @@ class Outbox:
 
     def has_ready(self) -> bool:
         """Whether :meth:`next_item` may have something now (cheap: no queue is touched)."""
-        return bool(self.replies or self._ready
+        return bool(self._held or self.replies or self._ready
                     or (self._waiting and self._waiting[0][0] <= self._clock()))
 
     def next_item(self) -> tuple[Reply | None, TopicQueue | None, SharedMessage | None,
                                  float | None]:
         """(reply) or (queue, message) ready now, else the delay until one may be ready."""
+        if self._held is not None:
+            self._release()
         if self.replies:
             item = self.replies.popleft()
             self.reply_bytes -= len(item)

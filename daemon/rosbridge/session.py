@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from daemon.messages.msgtypes import MessageError, check_message, get_type, has_type, normalize_type
-from daemon.rosbridge import access, rosapi
+from daemon.rosbridge import access, rosapi, route
 from daemon.rosbridge.access import Authority
 from daemon.rosbridge.codec import (
     STATUS_LEVELS,
@@ -41,6 +41,7 @@ from daemon.rosbridge.outbox import (
     SubscribeOptions,
     TopicQueue,
 )
+from daemon.rosbridge.route import Route
 from daemon.rosbridge.writer import Writer
 from daemon.topics import Inbound, Refusal, TopicIn, TopicOut
 
@@ -122,6 +123,8 @@ class ClientSession:
         self._throttled_since: float | None = None
         self._refusals: dict[str, float] = {}
         self._ops: dict[str, OpHandler] = {op: getattr(self, f"op_{op}") for op in OPS}
+        #: topic spelling -> the publish path the general one let through (see op_publish)
+        self._routes: dict[str, Route] = {}
 
     def __repr__(self) -> str:
         return f"<client {self.id} {self.peer}>"
@@ -170,7 +173,7 @@ class ClientSession:
             # a break: the client sent less than its rate for a while (one frame let through
             # because a sleep overran is none, or a steady flood would never be closed)
             self._throttled_since = None
-        self.writer.inline = True  # what the request queues is sent below, from here
+        self.writer.begin_inline()  # what the request queues is sent below, from here
         try:
             await self.handle_text(data, t_recv)
         finally:
@@ -198,8 +201,12 @@ class ClientSession:
         payload: Any = None
         try:
             payload = parse_json(text)
-            request = self._request(check_frame(payload), t_recv, nested)
-            await self._ops[request.op](request)
+            to = self._route(payload)
+            if to is not None:
+                await self._publish_to(to, payload, t_recv)
+            else:
+                request = self._request(check_frame(payload), t_recv, nested)
+                await self._ops[request.op](request)
         except ProtocolError as exc:
             self._refuse(exc.message, request_id(payload))
         except Exception as exc:  # a bug: one line in the log, the details at debug level
@@ -307,12 +314,49 @@ class ClientSession:
         if isinstance(robot, TopicIn):
             if robot.access_for is not None:  # this message may need more (a release)
                 access.check(req.op, name, self.authority, robot.access_for(msg))
+            self._keep_route(req, topic, robot, type_name)
             refusal = await robot.handler(Inbound(name, type_name, msg, self.source,
                                                   self.sender, req.t_recv, self.peer))
             if refusal is not None:
-                self._refused_inbound(req, refusal)
+                self._refused_inbound(name, req.id, refusal)
         latch = name in self.latching
         if latch or topic.subscribers:  # nobody to hand it to: nothing to share
+            self.graph.publish(topic, SharedMessage(name, msg), latch=latch)
+
+    def _keep_route(self, req: Request, topic: Topic, robot: TopicIn, type_name: str) -> None:
+        """After the general path let a publish through: the next ones of the same shape to
+        this topic, spelled the same, may take :meth:`_publish_to` (a type the client
+        advertised, none in the frame, an access that does not depend on the message)."""
+        if "type" in req.frame or topic.publishers.get(self) != type_name \
+                or not route.usable(robot) or req.spelling in self._routes:
+            return
+        if len(self._routes) >= route.MAX_ROUTES:
+            self._routes.clear()
+        self._routes[req.spelling] = Route(topic, robot, type_name)
+
+    def _route(self, payload: Any) -> Route | None:
+        """The route a frame may take: a publish the general path would check exactly as
+        it checked the one that made the route. The access is checked again every time."""
+        spelling = route.fast_frame(payload)
+        if spelling is None:
+            return None
+        to = self._routes.get(spelling)
+        if to is None or not self.authority.allows(to.access) \
+                or to.topic.publishers.get(self) != to.type_name:
+            return None  # the general path answers (an unadvertise since, another type)
+        return to
+
+    async def _publish_to(self, to: Route, frame: dict[str, Any], t_recv: float) -> None:
+        """``op_publish`` for a frame :meth:`_route` let through: the same checks, the same
+        handler, the same refusals, without the request's layers."""
+        name, topic = to.name, to.topic
+        msg = to.check(frame.get("msg", {}))
+        refusal = await to.handler(Inbound(name, to.type_name, msg, self.source, self.sender,
+                                           t_recv, self.peer))
+        if refusal is not None:
+            self._refused_inbound(name, frame.get("id"), refusal)
+        latch = name in self.latching
+        if latch or topic.subscribers:
             self.graph.publish(topic, SharedMessage(name, msg), latch=latch)
 
     def _publish_type(self, req: Request, topic: Topic, raw: Any) -> str:
@@ -349,13 +393,13 @@ class ClientSession:
 
     # -- commands -----------------------------------------------------------------------------
 
-    def _refused_inbound(self, req: Request, refusal: Refusal) -> None:
+    def _refused_inbound(self, name: str, rid: Id, refusal: Refusal) -> None:
         """A message for the robot its owner refused: a status error (one that repeats at
         command rate is said once a while)."""
-        message = f"publish {req.target}: {refusal.reason}"
+        message = f"publish {name}: {refusal.reason}"
         if not refusal.repeats:
             raise ProtocolError(message)
-        self._say_once(refusal.reason, message, req.id)
+        self._say_once(refusal.reason, message, rid)
 
     def _say_once(self, key: str, message: str, rid: Id) -> None:
         """A status error repeated at most every REFUSAL_REPEAT_S per ``key``."""

@@ -58,22 +58,47 @@ class Writer:
         except (ConnectionError, RuntimeError) as exc:
             log.debug("rosbridge writer stopped: %s", exc)
 
+    def begin_inline(self) -> None:
+        """The reader handles a request and then calls :meth:`send_inline`: the writer task
+        is not woken for what the request queues, and the outbox holds its answer aside."""
+        self.inline = True
+        self.outbox.hold()
+
     async def send_inline(self, transport: asyncio.BaseTransport | None) -> None:
         """Answer from the reader while the writer sleeps and the socket takes data at once:
-        saves the hop to the writer task on the command -> report path. Ends :attr:`inline`:
-        the writer task is woken for whatever is left."""
+        saves the hop to the writer task on the command -> report path (and the answer the
+        outbox held aside skips its queue). Ends :attr:`inline`: the writer task is woken for
+        whatever is left."""
         self.inline = False
+        held = self.outbox.take_held()
         try:
             if self._idle and not self._sending.locked() and transport is not None \
                     and not _buffered(transport):
-                for _ in range(INLINE_SENDS):
+                sends = INLINE_SENDS
+                if held is not None:
+                    queue, message = held
+                    held = None
+                    await self._send_held(queue, message)
+                    sends -= 1
+                for _ in range(sends):
                     if not self.outbox.has_ready() or not await self._send_next():
                         break
         except (ConnectionError, RuntimeError) as exc:
             log.debug("rosbridge inline send failed: %s", exc)
         finally:
+            if held is not None:
+                self.outbox.requeue(held)
             if self.outbox.has_ready():
                 self._wakeup.set()
+
+    async def _send_held(self, queue: TopicQueue, message: SharedMessage) -> None:
+        """What :meth:`_send_next` does with a message of a plain queue, without the queue."""
+        sending = self._sending
+        await sending.acquire()
+        try:
+            await self.ws.send_str(message.frame(queue.spelling))
+        finally:
+            sending.release()
 
     async def _send_next(self) -> bool:
         """Send one queued reply or message; False when nothing is ready now."""
