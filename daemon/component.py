@@ -127,6 +127,11 @@ class Plugs:
         """``callback(now, on_time)`` after every control tick."""
         return self._keep(self.control.on_tick.add(callback))
 
+    def schedule(self, callback: Callable[[float], float]) -> Remove:
+        """``callback(now)`` from the first control tick, then from the first tick at or after
+        the time it returns (periodic work that costs an idle tick nothing in between)."""
+        return self._keep(self.control.schedule.add(callback))
+
     def add_tick_source(self, callback: Callable[[float], None]) -> Remove:
         """``callback(now)`` at the start of every tick, before the step (internal sources)."""
         return self._keep(self.control.tick_sources.add(callback))
@@ -146,6 +151,47 @@ class Plugs:
     def add(self, remove: Remove) -> Remove:
         """Any other registration's remover, to be called on release."""
         return self._keep(remove)
+
+    def while_busy(self, *, tick_source: Callable[[float], None] | None = None,
+                   on_tick: Callable[[float, bool], None] | None = None,
+                   on_command: Callable[[str], None] | None = None) -> BusyHooks:
+        """Hooks a component needs only while it is busy (see :class:`BusyHooks`)."""
+        hooks = BusyHooks(self.control, tick_source, on_tick, on_command)
+        self._keep(hooks.stop)
+        return hooks
+
+
+class BusyHooks:
+    """A component's tick and command hooks while it is busy (a goal, a fetch, a mode):
+    :meth:`start` puts them in, :meth:`stop` takes them out, so an idle component costs the
+    control tick and every command nothing. A hook that finds nothing to do may call
+    :meth:`stop` itself (no end of the work has to be caught where it happens)."""
+
+    def __init__(self, control: ControlLoop, tick_source: Callable[[float], None] | None,
+                 on_tick: Callable[[float, bool], None] | None,
+                 on_command: Callable[[str], None] | None) -> None:
+        self._control = control
+        self._hooks = (tick_source, on_tick, on_command)
+        self._removers: list[Remove] = []
+
+    @property
+    def started(self) -> bool:
+        return bool(self._removers)
+
+    def start(self) -> None:
+        if self._removers:
+            return
+        control, (tick_source, on_tick, on_command) = self._control, self._hooks
+        if tick_source is not None:
+            self._removers.append(control.tick_sources.add(tick_source))
+        if on_tick is not None:
+            self._removers.append(control.on_tick.add(on_tick))
+        if on_command is not None:
+            self._removers.append(control.on_command.add(on_command))
+
+    def stop(self) -> None:
+        while self._removers:
+            self._removers.pop()()
 
 
 @dataclass

@@ -1,6 +1,7 @@
 # Registration points other parts plug into; every registration returns its own remover.
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from typing import Generic, TypeVar
 
@@ -33,6 +34,42 @@ class HookList(Generic[F]):
 
     def __len__(self) -> int:
         return len(self._items)
+
+
+class Schedule:
+    """Callbacks run from the control tick when due: each is called with the tick's time and
+    returns when it is due next. A tick with nothing due costs one comparison
+    (``now >= schedule.next_due``); an idle robot's periodic reports need no hook a tick."""
+
+    def __init__(self) -> None:
+        self._due: dict[Callable[[float], float], float] = {}
+        #: the earliest time any callback is due
+        self.next_due = math.inf
+
+    def add(self, callback: Callable[[float], float], first_due: float = -math.inf) -> Remove:
+        """Run ``callback`` at the first tick at or after ``first_due``, then when it says."""
+        self._due[callback] = first_due
+        self.next_due = min(self.next_due, first_due)
+
+        def remove() -> None:
+            self._due.pop(callback, None)
+            self.next_due = min(self._due.values(), default=math.inf)
+
+        return remove
+
+    def run(self, now: float) -> None:
+        """Call every callback due at ``now`` (one that raises is due again a second later)."""
+        due = self._due
+        try:
+            for callback, at in list(due.items()):
+                if at <= now and callback in due:
+                    due[callback] = now + 1.0
+                    due[callback] = callback(now)
+        finally:
+            self.next_due = min(due.values(), default=math.inf)
+
+    def __len__(self) -> int:
+        return len(self._due)
 
 
 class HookMap(Generic[V]):

@@ -42,6 +42,9 @@ CONTROL_OPTIONS: Options = {
     "stall_stop_s": Option(float, 0.2, "zero the wheels from a thread when the control tick "
                            "has not run for this long (blocked event loop), s (0 disables it, "
                            "with a warning)", minval=0.0, maxval=10.0),
+    "rest_write_s": Option(float, 0.1, "at rest with no command, write the held zero again "
+                           "at least this often, s (0 = every tick); any other command is "
+                           "written at once", minval=0.0, maxval=1.0),
     "late_tick_ms": Option(float, 5.0, "a tick later than this is late: the systemd watchdog "
                            "is not pet", above=0.0, maxval=1000.0),
     "reconnect_min_s": Option(float, 0.5, "first driver reconnect delay after a fault, s",
@@ -137,6 +140,7 @@ class ControlSettings(SectionSettings, section="control", options=CONTROL_OPTION
     pose_covariance_diagonal: list[float]
     twist_covariance_diagonal: list[float]
     stall_stop_s: float
+    rest_write_s: float
     late_tick_ms: float
     reconnect_min_s: float
     reconnect_max_s: float

@@ -92,6 +92,12 @@ class MotorDriver(ABC):
         self.is_open, self.is_closed, self.fault = True, False, None
         self.last_command = (0.0, 0.0)
 
+    def rest_hold_s(self) -> float:
+        """How long a zero written to this hardware stands without being written again
+        (the control loop re-writes it at rest at least this often); overridden by hardware
+        that needs feeding (a deadman that would otherwise fire)."""
+        return math.inf
+
     async def set_wheel_speeds(self, left_rad_s: float, right_rad_s: float) -> tuple[float, float]:
         """Command both wheels (rad/s, forward positive); returns the clamped pair written."""
         if self.is_closed or not self.is_open:

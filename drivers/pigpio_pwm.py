@@ -328,6 +328,10 @@ class PigpioDriver(MotorDriver):
 
     # -- commands -----------------------------------------------------------------------------
 
+    def rest_hold_s(self) -> float:
+        """Fed at least four times per deadman period: at rest the script never fires."""
+        return self.deadman.seconds / 4 if self.deadman.enabled else math.inf
+
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         duties = (self._duty(left_rad_s, self.sides[0]), self._duty(right_rad_s, self.sides[1]))
         if self._io is None:

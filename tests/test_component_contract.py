@@ -124,12 +124,17 @@ def test_every_section_but_the_drivers_has_typed_settings() -> None:
 async def test_what_a_component_plugs_in_goes_when_the_daemon_stops(tmp_path: Path) -> None:
     async with in_process_daemon(tmp_path) as robot:
         control, bus = robot.ctx.control, robot.ctx.bus
-        assert len(control.on_tick) > 1
-        assert len(control.tick_sources) == 2  # the internal sources: autonomy, navigation
+        assert len(control.schedule) >= 4  # the components' periodic state publications
+        assert len(control.tick_sources) == 1  # navigation's pose history (autonomy is off)
+        assert len(control.on_tick) == len(control.on_command) == 0  # nothing busy
+        autonomy = robot.ctx.components["autonomy"]
+        autonomy.set_mode("wander", "test")
+        assert len(control.tick_sources) == 2 and len(control.on_command) == 1
         assert "safety" in control.status_fields and "ground_truth" in control.status_fields
         assert bus.subscribers(_scan_key()) >= 2
     assert len(control.on_tick) == 0  # the daemon's own (the systemd watchdog's) needs systemd
     assert len(control.tick_sources) == 0 and len(control.on_command) == 0
+    assert len(control.schedule) == 0
     assert [name for name, _ in control.status_fields.items()] == [
         "measured_wheel_speeds_rad_s"]
     assert control.guard is None and bus.subscribers(_scan_key()) == 0

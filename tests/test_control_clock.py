@@ -1,6 +1,7 @@
 # The control loop's clock seam, its guard hook and internal sources, stepped in virtual time.
 from __future__ import annotations
 
+import math
 from collections.abc import AsyncIterator
 
 import pytest
@@ -13,6 +14,7 @@ from daemon.control.guard import Guarded
 from daemon.control.limiter import AxisLimiter, AxisLimits
 from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
+from drivers.mock import MockDriver
 
 
 @pytest.fixture
@@ -139,3 +141,67 @@ async def test_odometry_is_published_at_the_configured_rate(loop: ControlLoop) -
     loop.bus.subscribe(ODOM, samples.append)
     await run_ticks(loop, 10.0)
     assert len(samples) == 200
+
+
+def _zero_writes(control: ControlLoop) -> list[float]:
+    driver = control.driver
+    assert isinstance(driver, MockDriver)
+    return [c.t_mono for c in driver.commands if c.left_rad_s == c.right_rad_s == 0.0]
+
+
+async def test_at_rest_the_held_zero_is_written_again_every_rest_write_s(
+        loop: ControlLoop) -> None:
+    assert loop.rest_write_s == pytest.approx(0.1)  # [control] rest_write_s, the mock holds it
+    driver = loop.driver
+    assert isinstance(driver, MockDriver)
+    await run_ticks(loop, 1.0)
+    writes = len(driver.commands)
+    assert 9 <= writes <= 11  # 1 s at rest: every 5th tick, not 50 writes
+    await loop.submit("teleop", Twist(0.0, 0.0), t_recv=loop.clock())
+    assert len(driver.commands) == writes + 1  # a command is written at once, even a zero
+    await run_ticks(loop, 1.5, Twist(0.3, 0.0), every_s=0.02)
+    moving = len(driver.commands)
+    assert moving - writes >= 24  # moving: every tick and every command writes
+    await run_ticks(loop, 3.0)  # the deadman brakes to rest, then every 0.1 s again
+    assert loop.wheels == (0.0, 0.0)
+    assert 10 <= len(driver.commands) - moving <= 40
+
+
+async def test_a_fault_or_a_stall_stop_writes_the_zero_at_the_next_tick(loop: ControlLoop) -> None:
+    await run_ticks(loop, 0.5)
+    driver = loop.driver
+    assert isinstance(driver, MockDriver)
+    before = len(driver.commands)
+    loop.supervisor._latched = True  # the supervisor zeroed the wheels behind the loop's back
+    await run_ticks(loop, 0.52)
+    assert len(driver.commands) == before + 1  # the next tick writes zero again
+
+
+async def test_scheduled_callbacks_run_when_due_and_say_when_next(loop: ControlLoop) -> None:
+    seen: list[float] = []
+
+    def every_quarter(now: float) -> float:
+        seen.append(now)
+        return now + 0.25
+
+    remove = loop.schedule.add(every_quarter)
+    await run_ticks(loop, 1.0)
+    assert [round(t, 2) for t in seen] == [0.02, 0.28, 0.54, 0.8]
+    remove()
+    await run_ticks(loop, 2.0)
+    assert len(seen) == 4 and loop.schedule.next_due == math.inf
+
+
+async def test_a_scheduled_callback_that_raises_is_tried_again_a_second_later(
+        loop: ControlLoop, caplog: pytest.LogCaptureFixture) -> None:
+    calls: list[float] = []
+
+    def broken(now: float) -> float:
+        calls.append(now)
+        raise RuntimeError("broken report")
+
+    loop.schedule.add(broken)
+    await run_ticks(loop, 2.5)
+    assert [round(t, 2) for t in calls] == [0.02, 1.02, 2.02]
+    assert "control tick failed" in caplog.text
+    assert loop.linear.velocity == 0.0  # the tick went on

@@ -17,6 +17,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from daemon.bus import Bus
+from daemon.config import load_config
+from daemon.control.loop import ControlLoop
+from daemon.latency import LatencyTracker
 from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, speed_to_duty
 from drivers.quadrature import QuadratureDecoder, quadrature_levels
@@ -158,6 +162,25 @@ async def test_the_deadman_script_in_pigpiod_stops_an_unfed_robot(tmp_path: Path
             assert driver.health()["deadman_s"] == 0.2
         finally:
             await driver.close()
+
+
+async def test_a_robot_at_rest_keeps_the_deadman_fed(tmp_path: Path) -> None:
+    """At rest the control loop writes the held zero only now and then ([control]
+    rest_write_s), but at least four times per deadman period: the script never fires."""
+    with running_rig(tmp_path) as the_rig:
+        driver = make_driver(the_rig, watch_interval=0.0, deadman_s=0.2)
+        assert driver.rest_hold_s() == pytest.approx(0.05)
+        loop = ControlLoop(load_config(None, env={}), driver, Bus(), LatencyTracker())
+        assert loop.rest_write_s == pytest.approx(0.05)
+        await loop.start()
+        try:
+            start = loop.supervisor.clock()
+            await eventually(lambda: loop.supervisor.clock() - start > 0.8, "0.8 s at rest",
+                             interval_s=0.05)
+            assert driver.deadman.trips(driver._pi) == 0
+            assert 2 <= driver.writes < loop._ticks  # a write every 50 ms, not every tick
+        finally:
+            await loop.stop()
 
 
 async def test_encoders_track_the_motors_in_both_directions(tmp_path: Path) -> None:

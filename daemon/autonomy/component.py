@@ -102,8 +102,7 @@ class AutonomyComponent(BaseComponent):
         self._resume_at: float | None = None
         self._last_tick: float | None = None
         self._published_state = ""
-        plugs.add_tick_source(self._tick)
-        plugs.on_command(self._on_command)
+        self.hooks = plugs.while_busy(tick_source=self._tick, on_command=self._on_command)
         self.publisher = StatePublisher(plugs, STATE, self.status, PUBLISH_EVERY_S)
         plugs.subscribe(SCAN, self.on_scan)
         self._initial_mode = autonomy.mode
@@ -150,6 +149,11 @@ class AutonomyComponent(BaseComponent):
             if refusal:
                 log.error("autonomy explore refused: %s", refusal)
                 self.mode = "off"
+        if self.mode == "off":
+            self.hooks.stop()
+        else:
+            self._last_tick = None
+            self.hooks.start()
         log.info("autonomy %s (%s)", self.mode, reason)
         self.publisher.publish(now)
 

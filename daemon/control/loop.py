@@ -22,7 +22,7 @@ from daemon.control.metronome import Metronome, TimerMetronome, metronome
 from daemon.control.odometry import Odometry, Pose2D
 from daemon.control.supervisor import StallSupervisor
 from daemon.control.wheel_guard import GuardSettings, WheelGuard
-from daemon.hooks import HookList, HookMap, Remove
+from daemon.hooks import HookList, HookMap, Remove, Schedule
 from daemon.latency import LatencyTracker
 from daemon.settings import ControlSettings, LimitsSettings, RobotSettings
 from daemon.telemetry import COMMAND, LATENCY_REPORT, ODOM, CommandEvent, LatencyReport, OdomSample
@@ -90,11 +90,16 @@ class ControlLoop:
         self._publish_earned = min(control.publish_rate, control.update_rate)
         self._publish_cost = control.update_rate
         self._publish_credit = 0.0
+        #: at rest, how long the zero last written may stand before it is written again
+        self.rest_write_s = min(control.rest_write_s, driver.rest_hold_s())
+        self._rest_written = -math.inf  # when that zero was written (-inf: write it now)
         self.open_loop = control.open_loop
         #: called with (now, on_time) after every tick
         self.on_tick: HookList[Callable[[float, bool], None]] = HookList()
         #: called at the start of every tick, before the step (internal command sources)
         self.tick_sources: HookList[Callable[[float], None]] = HookList()
+        #: callbacks run from the tick when due (periodic reports: no hook every tick)
+        self.schedule = Schedule()
         #: called with the source name after every accepted external command
         self.on_command: HookList[Callable[[str], None]] = HookList()
         #: between the arbiter and the limiter for every source (the collision monitor)
@@ -316,6 +321,8 @@ class ControlLoop:
             if self._publish_credit >= self._publish_cost:
                 self._publish_credit -= self._publish_cost
                 self.bus.publish(ODOM, self.odom_sample())
+            if now >= self.schedule.next_due:
+                self.schedule.run(now)
         except Exception:
             log.exception("control tick failed")
             on_time = False
@@ -340,6 +347,8 @@ class ControlLoop:
             self.last_clamped = []
             if decision.source is None:
                 self.arbiter.idle()
+            if now - self._rest_written < self.rest_write_s and not self.fault:
+                return True  # the zero written is still standing: at most every rest_write_s
             left = right = 0.0
         else:
             target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
@@ -364,13 +373,16 @@ class ControlLoop:
         if self.fault or not self.driver.is_open:
             return False
         try:  # _write, inlined: this runs for every command and every tick
-            self.wheels = await self.driver.set_wheel_speeds(left, right)
+            self.wheels = wheels = await self.driver.set_wheel_speeds(left, right)
         except DriverError as exc:
             await self._on_fault(str(exc))
             return False
+        self._rest_written = now if wheels == (0.0, 0.0) and decision.twist is ZERO \
+            else -math.inf
         return True
 
     async def _write(self, left: float, right: float) -> bool:
+        self._rest_written = -math.inf
         if not self.driver.is_open:
             return False
         try:
@@ -427,6 +439,7 @@ class ControlLoop:
         self.arbiter.invalidate_all()
         self.invalidations += 1
         self.stall_invalidations += 1
+        self._rest_written = -math.inf
         self.linear.reset()
         self.angular.reset()
         self.wheels = (0.0, 0.0)
@@ -439,6 +452,7 @@ class ControlLoop:
             return
         self.fault = reason
         self.faults += 1
+        self._rest_written = -math.inf
         log.error("driver fault: %s; motors stopped, reconnecting", reason)
         self.retries.known(reason)
         self.arbiter.invalidate_all()
@@ -474,6 +488,7 @@ class ControlLoop:
             self.retries.succeeded()
             self.reconnects += 1
             self.odometry.reset_encoder_reference()
+            self._rest_written = -math.inf
             self.arbiter.invalidate_all()
             self.invalidations += 1
             self.fault = None

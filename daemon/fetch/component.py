@@ -179,8 +179,7 @@ class FetchComponent(BaseComponent):
                 reach_of(arm.poses["grasp"], joints), reach_of(arm.poses["pregrasp"], joints),
                 grasp, deliver, safe, settings.approaches, miss)
         self._last_state = ""
-        plugs.on_tick(self._tick)
-        plugs.on_command(self._on_command)
+        self.hooks = plugs.while_busy(on_tick=self._tick, on_command=self._on_command)
         plugs.add_status("fetch", self.brief)
         self.publisher = StatePublisher(plugs, STATE, self.status)
 
@@ -213,6 +212,7 @@ class FetchComponent(BaseComponent):
                                  f"{clearance:g})")
         now = self.clock()
         self.sequence.start(obj, drop, now)
+        self.hooks.start()
         log.info("fetch %d: object (%.2f, %.2f) to (%.2f, %.2f)", self.sequence.fetches,
                  *obj, *drop)
         self._changed(now)
@@ -229,12 +229,15 @@ class FetchComponent(BaseComponent):
         """A client's command (teleop) ends the fetch as it ends a navigation goal."""
         if self.sequence is not None and self.sequence.active:
             self.cancel(f"teleop from {source}")
+        else:
+            self.hooks.stop()
 
     # -- the tick ----------------------------------------------------------------------------
 
     def _tick(self, now: float, on_time: bool) -> None:
         sequence = self.sequence
         if sequence is None or not sequence.active:
+            self.hooks.stop()
             return
         arbiter = self.control.arbiter
         estop = (arbiter.estop_reason or "latched") if arbiter.estop_engaged else None

@@ -153,8 +153,9 @@ class NavigationComponent(BaseComponent):
         self._tasks: set[asyncio.Future[Any]] = set()
         self.plan_ms: float | None = None
         self._published = ""
-        plugs.add_tick_source(self._tick)
-        plugs.on_command(self._on_command)
+        if lidar:  # without it no goal starts and no scan needs the pose history
+            plugs.add_tick_source(self._tick)
+        self.hooks = plugs.while_busy(on_command=self._on_command)
         plugs.subscribe(SCAN, self.on_scan)
         plugs.subscribe(TRANSFORMS, self.on_transforms)
         plugs.add_status("navigation", self.brief)
@@ -211,6 +212,8 @@ class NavigationComponent(BaseComponent):
     def _on_command(self, source: str) -> None:
         if self.navigator.active:
             self._end("canceled", f"teleop from {source}")
+        elif not self.explorer.running:
+            self.hooks.stop()
 
     # -- goals ---------------------------------------------------------------------------------
 
@@ -254,6 +257,7 @@ class NavigationComponent(BaseComponent):
         self._invalidations = self.control.invalidations - self.control.stall_invalidations
         now = self.clock()
         self.navigator.start(target, now)
+        self.hooks.start()
         if step_of is not None:
             step_of.step_started(self.navigator.goals, now)
         self._next_decision, self.unseen_near_s = now, 0.0

@@ -87,11 +87,13 @@ class StatePublisher:
         self.status = status
         self.every_s = every_s
         self.last = -math.inf
-        plugs.on_tick(self.on_tick)
+        plugs.schedule(self.when_due)
 
-    def on_tick(self, now: float, on_time: bool) -> None:
+    def when_due(self, now: float) -> float:
+        """Publish unless a change did within ``every_s``; when to look again."""
         if now - self.last >= self.every_s:
             self.publish(now)
+        return self.last + self.every_s
 
     def publish(self, now: float) -> None:
         self.last = now
