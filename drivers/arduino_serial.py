@@ -492,7 +492,7 @@ class SerialBridgeDriver(MotorDriver):
 
     # -- encoders and keep-alive -------------------------------------------------------------
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         if not self.settings.encoders:
             return None
         if self.fault is not None:

@@ -130,12 +130,14 @@ class MotorDriver(ABC):
             raise InvalidCommand(f"wheel speed must be finite, got {speed}")
         return max(-self.max_wheel_speed, min(self.max_wheel_speed, float(speed)))
 
-    async def read_encoders(self) -> EncoderReading | None:
-        """Wheel positions, or ``None`` when this hardware has no encoders (open loop)."""
+    def read_encoders(self) -> EncoderReading | None:
+        """Wheel positions, or ``None`` when this hardware has no encoders (open loop). Never
+        waits: a driver keeps its latest reading in memory (a background poll, the encoder
+        callbacks, the controller's own messages), so the control tick never blocks on I/O."""
         if not self.is_open:
             return None
         try:
-            return await self._read_encoders()
+            return self._read_encoders()
         except DriverError:
             raise
         except Exception as exc:
@@ -257,7 +259,7 @@ class MotorDriver(ABC):
         zero command went out.
         """
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         return None
 
     async def _safe_stop(self) -> None:

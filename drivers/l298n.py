@@ -282,7 +282,7 @@ class L298NDriver(MotorDriver):
 
     # -- encoders and health ------------------------------------------------------------------
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         if not self.settings.encoders:
             return None
         left, right = (self._position(i, side) for i, side in enumerate(("left", "right")))

@@ -69,7 +69,7 @@ class MockDriver(MotorDriver):
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         self._record(left_rad_s, right_rad_s)
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         if not self.settings.encoders:
             return None
         if self.encoder_source is not None:

@@ -363,7 +363,7 @@ class ODriveCanDriver(MotorDriver):
             self._send(axis, CMD_SET_INPUT_VEL, encode_set_input_vel(rev_s))
             axis.command_rev_s = rev_s
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         if self.settings.request_encoders:
             self._request_estimates()
         left, right = self._left, self._right

@@ -403,7 +403,7 @@ class PigpioDriver(MotorDriver):
 
     # -- encoders and health ------------------------------------------------------------------
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         if not self.settings.encoders:
             return None
         left, right = (self._position(i) for i in range(2))

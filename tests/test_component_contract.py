@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import aiohttp
 import pytest
 
 from base.config import SectionSettings, field_name
@@ -14,6 +15,7 @@ from daemon.components import COMPONENTS
 from daemon.config import SETTINGS, all_sections
 from daemon.topics import TopicIn, TopicOut
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.wait import eventually
 
 REPO = Path(__file__).resolve().parent.parent
 DOCS = REPO / "docs"
@@ -144,3 +146,29 @@ def _scan_key() -> Any:
     from daemon.telemetry import SCAN
 
     return SCAN
+
+
+async def test_the_bridge_and_the_recorder_listen_to_the_bus_only_while_someone_watches(
+        tmp_path: Path) -> None:
+    """A topic nobody watches costs its publisher (the control tick, every command) nothing:
+    the bridge subscribes to a robot topic's bus key while a client subscribes to the topic,
+    and the recorder to the recorded topics while recording is on."""
+    from daemon.telemetry import COMMAND, ODOM
+
+    async with in_process_daemon(tmp_path, '[record]\nenabled = false\ndirectory = "'
+                                 f'{tmp_path / "rec"}"\n') as robot:
+        bus = robot.ctx.bus
+        quiet = bus.subscribers(ODOM), bus.subscribers(COMMAND)
+        async with aiohttp.ClientSession() as session, session.ws_connect(robot.ws_url) as ws:
+            await ws.send_json({"op": "subscribe", "topic": "/odom", "id": "odom"})
+            frame = await ws.receive_json(timeout=5)  # the latest /odom, then each new one
+            assert frame["topic"] == "/odom"
+            assert bus.subscribers(ODOM) == quiet[0] + 1
+            assert bus.subscribers(COMMAND) == quiet[1]
+            await ws.send_json({"op": "unsubscribe", "topic": "/odom", "id": "odom"})
+            await eventually(lambda: bus.subscribers(ODOM) == quiet[0], "the bridge to let go")
+        recorder = robot.ctx.components["recorder"]
+        recorder.set_recording(True)
+        assert bus.subscribers(ODOM) == quiet[0] + 1 and bus.subscribers(COMMAND) == quiet[1] + 1
+        recorder.set_recording(False)
+        assert (bus.subscribers(ODOM), bus.subscribers(COMMAND)) == quiet

@@ -57,7 +57,7 @@ async def test_encoders_follow_the_wheels(any_rig: Rig) -> None:
         step = 2 * math.pi / any_rig.options["encoder_counts_per_rev"]
 
         async def agrees() -> bool:
-            reading = await driver.read_encoders()
+            reading = driver.read_encoders()
             assert reading is not None
             truth = any_rig.motors.positions()
             return abs(reading.left_rad - truth[0]) <= step and \
@@ -130,10 +130,10 @@ async def test_pigpiod_stops_and_restarts_under_pigpio_factory(tmp_path: Path) -
             assert "pigpiod at 127.0.0.1" in (driver.fault or "")
             assert driver.health()["status"] == "error"
             assert the_rig.observed_targets() == (0.0, 0.0)
-            before = await driver.read_encoders()
+            before = driver.read_encoders()
             await driver.close()
             await restart_pigpiod_and_reopen(the_rig, driver)
-            after = await driver.read_encoders()
+            after = driver.read_encoders()
             assert before is not None and after is not None
             assert (after.left_rad, after.right_rad) == (before.left_rad, before.right_rad)
             await driver.set_wheel_speeds(5.0, 5.0)

@@ -262,7 +262,7 @@ async def test_odometry_of_1m_straight_and_90_degree_turn_matches_ground_truth(
         driver = ODriveCanDriver(odrive.options, max_wheel_speed=MAX_WHEEL_SPEED)
         await driver.open()
         try:
-            start = await driver.read_encoders()
+            start = driver.read_encoders()
             assert start is not None
             measured = [(start.left_rad, start.right_rad)]
             truth = [motors.positions()]
@@ -280,7 +280,7 @@ async def test_odometry_of_1m_straight_and_90_degree_turn_matches_ground_truth(
 
             async def sample() -> None:
                 await asyncio.sleep(0.003)
-                reading = await driver.read_encoders()
+                reading = driver.read_encoders()
                 assert reading is not None
                 measured.append((reading.left_rad, reading.right_rad))
                 truth.append(motors.positions())
@@ -365,7 +365,7 @@ async def test_heartbeat_loss_faults_zeroes_and_recovers(
     emulator.set_heartbeat(True)
     await reopens_still_then_drives(odrive, driver, 2.0)
     assert driver.fault is None and driver.health()["status"] == "ok"
-    reading = await driver.read_encoders()
+    reading = driver.read_encoders()
     assert reading is not None
     assert close_to((reading.left_rad, reading.right_rad), odrive.motors.positions(), 0.05)
 
@@ -438,7 +438,7 @@ async def test_garbled_frames_are_counted_not_trusted(
         await eventually(lambda: driver.bad_frames == 2, what="two bad frames")
     assert "not finite" in driver.health()["last_bad_frame"] or "5 data bytes" in \
         driver.health()["last_bad_frame"]
-    reading = await driver.read_encoders()
+    reading = driver.read_encoders()
     assert reading is not None and math.isfinite(reading.left_rad)
     assert driver.fault is None
 

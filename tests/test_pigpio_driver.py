@@ -192,7 +192,7 @@ async def test_encoders_track_the_motors_in_both_directions(tmp_path: Path) -> N
             await eventually(lambda: the_rig.motors.positions()[0] > 3.0, "the wheels to turn")
             await driver.stop()
             await settled(the_rig, driver)
-            reading = await driver.read_encoders()
+            reading = driver.read_encoders()
             assert reading is not None
             left, right = the_rig.motors.positions()
             count_rad = 2 * math.pi / COUNTS_PER_REV
@@ -261,7 +261,7 @@ async def test_odometry_1m_straight_and_90_degree_turn_match_ground_truth(
 
 
 async def wheel_positions(driver: PigpioDriver) -> tuple[float, float]:
-    reading = await driver.read_encoders()
+    reading = driver.read_encoders()
     assert reading is not None
     return reading.left_rad, reading.right_rad
 

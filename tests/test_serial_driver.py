@@ -363,7 +363,7 @@ async def fresh_reading(drv: SerialBridgeDriver) -> EncoderReading:
     """An encoder reading taken after the wheels settled (two polls later)."""
     polls = drv.polls
     await eventually(lambda: drv.polls >= polls + 2, "encoder polls")
-    reading = await drv.read_encoders()
+    reading = drv.read_encoders()
     assert reading is not None
     return reading
 
@@ -376,7 +376,7 @@ async def drive_until(drv: SerialBridgeDriver, motors: MotorPair, speeds: tuple[
     odometry, truth = tracks
 
     async def sampled_until_done() -> bool:
-        reading = await drv.read_encoders()
+        reading = drv.read_encoders()
         assert reading is not None
         odometry.add(reading.left_rad, reading.right_rad)
         truth.add(*motors.positions())
@@ -428,7 +428,7 @@ async def test_port_vanishes_mid_drive_and_comes_back(serial_rig: Rig) -> None:
     await drv.open()
     await drv.set_wheel_speeds(5.0, 5.0)
     await eventually(lambda: drv.polls > 3, "polls")
-    before = await drv.read_encoders()
+    before = drv.read_encoders()
     assert before is not None
     emulator.unplug()
     await eventually(lambda: drv.fault is not None, "fault")
@@ -487,7 +487,7 @@ async def test_silent_board_is_a_read_timeout(serial_rig: Rig) -> None:
     await eventually(lambda: drv.fault is not None, "fault")
     assert "no reply" in str(drv.fault)
     with pytest.raises(DriverFault):
-        await drv.read_encoders()
+        drv.read_encoders()
     await drv.close()
     emulator.mute = False
     await drv.open()

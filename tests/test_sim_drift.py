@@ -255,12 +255,12 @@ async def test_the_mock_driver_in_the_simulator_counts_the_worlds_wheel_turns() 
     try:
         await driver.set_wheel_speeds(5.0, 5.0)
         runtime.world.advance(1.0)
-        first = await driver.read_encoders()
+        first = driver.read_encoders()
         assert first is not None
         assert (first.left_rad, first.right_rad) == runtime.motors.encoder_positions()
         assert 0.0 < first.left_rad < 5.0  # the motor's lag: less than the command's 5 rad
         # the world is not stepped (its thread fell behind): the wheels did not turn
-        again = await driver.read_encoders()
+        again = driver.read_encoders()
         assert again is not None and again.left_rad == first.left_rad
     finally:
         await driver.close()

@@ -237,7 +237,7 @@ class SlowMotors(MockDriver):
         self.advance()
         self.target = [left_rad_s, right_rad_s]
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         self.advance()
         return EncoderReading(self.position[0], self.position[1], self.clock())
 

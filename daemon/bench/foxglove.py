@@ -158,13 +158,15 @@ async def _lateness(daemon: Daemon, seconds: float) -> list[float]:
 
 async def _alternate(daemon: Daemon, recorder: Any, seconds: float,
                      segment: float) -> tuple[list[float], list[float]]:
-    """Recorder off and on in turns of ``segment`` s, so both see the same machine load."""
+    """Recorder off and on in turns of ``segment`` s, so both see the same machine load
+    (``recorder``: the component, which listens to the bus only while recording)."""
     off: list[float] = []
     on: list[float] = []
     for i in range(max(2, round(seconds / segment))):
-        recorder.wanted = i % 2 == 1
-        (on if recorder.wanted else off).extend(await _lateness(daemon, segment))
-    recorder.wanted = False
+        recording = i % 2 == 1
+        recorder.set_recording(recording)
+        (on if recording else off).extend(await _lateness(daemon, segment))
+    recorder.set_recording(False)
     return off, on
 
 
@@ -176,12 +178,13 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
         async with bench_daemon(Path(tmp), record, serve_scan=True) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))
-            recorder = next(c for c in daemon.components if c.name == "recorder").recorder
+            component = next(c for c in daemon.components if c.name == "recorder")
+            recorder = component.recorder
             idle = await _lateness(daemon, seconds)
             worker = await _load(url, 2 * seconds + 1.0)
             assert worker.stdout is not None
             await asyncio.wait_for(worker.stdout.readline(), 20)  # "ready"
-            clients, recording = await _alternate(daemon, recorder, 2 * seconds, segment)
+            clients, recording = await _alternate(daemon, component, 2 * seconds, segment)
             load = await _load_result(worker)
             written, dropped = recorder.written, recorder.dropped
             stop.set()

@@ -58,7 +58,7 @@ async def run(driver: MotorDriver, options: Mapping[str, Any], observer: Observe
     """The whole test on an opened driver; returns the report (see :func:`report`), with the
     wheels' step response (``response``) when they are well."""
     speed = min(SPIN_RAD_S, 0.5 * driver.max_wheel_speed)
-    if await driver.read_encoders() is None:
+    if driver.read_encoders() is None:
         steps = {name: await spin(driver, wheels, speed) for name, wheels in _plan()}
         return open_loop_report(driver.name(), steps)
     hand = {}
@@ -103,7 +103,7 @@ async def settled(driver: MotorDriver, after: float, limit_s: float = 2.0) -> En
 
 
 async def _reading(driver: MotorDriver) -> EncoderReading:
-    reading = await driver.read_encoders()
+    reading = driver.read_encoders()
     assert reading is not None  # only called on drivers with encoders
     return reading
 
@@ -121,7 +121,7 @@ async def hand_turn(driver: MotorDriver, observer: Observer, side: str) -> float
 async def spin(driver: MotorDriver, wheels: tuple[float, float], speed: float) -> Step:
     """Drive ``wheels`` (fractions of ``speed``) for :data:`SPIN_S`, stop, let them settle."""
     commanded = (wheels[0] * speed, wheels[1] * speed)
-    before = await settled(driver, time.monotonic()) if await driver.read_encoders() else None
+    before = await settled(driver, time.monotonic()) if driver.read_encoders() else None
     start = time.monotonic()
     runaway = False
     try:

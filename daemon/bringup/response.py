@@ -37,7 +37,7 @@ class Wheel:
 async def measure(driver: MotorDriver, speed: float) -> tuple[Wheel, Wheel] | None:
     """Step both wheels to ``speed``, then to zero, reading the encoders every
     :data:`SAMPLE_S`; None when the driver has no encoders or a wheel did not turn."""
-    first = await driver.read_encoders()
+    first = driver.read_encoders()
     if first is None:
         return None
     t_go = time.monotonic()
@@ -69,7 +69,7 @@ async def _sample(driver: MotorDriver, done: Done, limit_s: float,
         await asyncio.sleep(SAMPLE_S)
         if hold is not None:
             await driver.set_wheel_speeds(*hold)
-        reading = await driver.read_encoders()
+        reading = driver.read_encoders()
         if reading is None:
             break
         if not readings or reading.t_mono > readings[-1].t_mono:

@@ -5,7 +5,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from typing import Any
 
@@ -307,12 +307,15 @@ class ControlLoop:
             for source in self.tick_sources:
                 source(now)
             lock = self._lock
-            await lock.acquire()
-            try:
-                await self._step(now)
-            finally:
-                lock.release()
-            await self._update_odometry(now)
+            if lock.locked() or not self._rest_step(now):
+                await lock.acquire()
+                try:
+                    await self._step(now)
+                finally:
+                    lock.release()
+            problem = self._update_odometry(now)
+            if problem is not None:
+                await problem
             if self.guard is not None:
                 odo = self.odometry
                 self.guard.observe(now, odo.x, odo.y, odo.theta)
@@ -331,9 +334,31 @@ class ControlLoop:
 
     # -- shared step -----------------------------------------------------------------------
 
+    def _rest_step(self, now: float) -> bool:
+        """The step of a robot at rest with nothing to follow while the zero written last
+        still stands (most ticks of an idle robot): all :meth:`_step` would do, without the
+        driver, so without the lock. False when a full step is needed."""
+        self._forget_after_stall(now)
+        linear, angular = self.linear, self.angular
+        if now - self._rest_written >= self.rest_write_s or now <= self._last_step \
+                or self.fault or self.guard is not None \
+                or not (linear.at_rest() and angular.at_rest()):
+            return False
+        decision = self.arbiter.decide(now)
+        if decision.twist is not ZERO:
+            return False
+        self.decision, self._last_step = decision, now
+        linear.rest()
+        angular.rest()
+        self.last_clamped = []
+        if decision.source is None:
+            self.arbiter.idle()
+        return True
+
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
-        self._forget_after_stall(now)
+        if self._rest_step(now):
+            return True
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now
@@ -347,8 +372,6 @@ class ControlLoop:
             self.last_clamped = []
             if decision.source is None:
                 self.arbiter.idle()
-            if now - self._rest_written < self.rest_write_s and not self.fault:
-                return True  # the zero written is still standing: at most every rest_write_s
             left = right = 0.0
         else:
             target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
@@ -403,21 +426,25 @@ class ControlLoop:
     def _count_clamp(self, name: str) -> None:
         self.clamps[name] = self.clamps.get(name, 0) + 1
 
-    async def _update_odometry(self, now: float) -> None:
+    def _update_odometry(self, now: float) -> Coroutine[Any, Any, None] | None:
+        """Read the encoders, feed the wheel guard and integrate odometry (nothing here waits:
+        drivers keep their latest reading); what to do about a fault or a wheel mismatch."""
         reading = None
+        problem: Coroutine[Any, Any, None] | None = None
         if not self.open_loop and not self.fault:
             try:
-                reading = await self.driver.read_encoders()
+                reading = self.driver.read_encoders()
             except DriverError as exc:
-                await self._on_fault(str(exc))
+                return self._on_fault(str(exc))
         if (mismatch := self.wheel_guard.update(reading, self.wheels, now)) is not None:
-            await self._stop_for(f"wheel mismatch: {mismatch}")
+            problem = self._stop_for(f"wheel mismatch: {mismatch}")
         if reading is not None:
             self.odometry.update_from_encoders(reading.left_rad, reading.right_rad,
                                                reading.t_mono)
         else:
             linear, angular = self.geometry.body_twist(*self.wheels)
             self.odometry.update_open_loop(linear, angular, self.period_s)
+        return problem
 
     # -- faults ------------------------------------------------------------------------------
 

@@ -34,7 +34,7 @@ class WorldDriver(MotorDriver):
     async def _apply(self, left_rad_s: float, right_rad_s: float) -> None:
         self.motors.set_targets(left_rad_s, right_rad_s)
 
-    async def _read_encoders(self) -> EncoderReading | None:
+    def _read_encoders(self) -> EncoderReading | None:
         left, right = self.motors.positions()
         return EncoderReading(left, right, self.clock())
 

@@ -50,6 +50,8 @@ class RecorderComponent(BaseComponent):
         self.index = RecordingIndex(self.directory, self.recorder.live_file)
         self._unsubscribers: list[Callable[[], None]] = []
         self._latched: list[tuple[TopicOut[Any], tuple[Channel, ...]]] = []
+        #: the recorded topics' bus keys and channels: listened to only while recording is on
+        self._groups: list[tuple[TopicOut[Any], tuple[Channel, ...]]] = []
 
     def _writer_options(self) -> WriterOptions:
         o = self.options
@@ -68,16 +70,29 @@ class RecorderComponent(BaseComponent):
             group = groups.pop(topic.bus.name, None)
             if group is None:
                 continue  # the bus key's other topics share this group
-            self._unsubscribers.append(self.bus.subscribe(topic.bus, self._enqueuer(group)))
+            self._groups.append((topic, group))
             if topic.latched:
                 self._latched.append((topic, group))
-        self.recorder.wanted = bool(self.options.enabled)
+        self.set_recording(bool(self.options.enabled))
         self.recorder.start()
 
-    async def stop(self) -> None:
+    def set_recording(self, enabled: bool) -> None:
+        """Switch recording on or off; the bus is listened to only while it is on, so a
+        recorder that is off costs the publishers (the control tick, every command) nothing."""
+        if enabled and not self._unsubscribers:
+            self._unsubscribers = [self.bus.subscribe(topic.bus, self._enqueuer(group))
+                                   for topic, group in self._groups]
+        elif not enabled:
+            self._unsubscribe()
+        self.recorder.wanted = enabled
+
+    def _unsubscribe(self) -> None:
         for unsubscribe in self._unsubscribers:
             unsubscribe()
         self._unsubscribers.clear()
+
+    async def stop(self) -> None:
+        self._unsubscribe()
         await asyncio.to_thread(self.recorder.stop)
 
     def health(self) -> dict[str, Any]:
@@ -118,7 +133,7 @@ class RecorderComponent(BaseComponent):
         if set(body) != {"enabled"} or not isinstance(enabled, bool):
             raise ApiError(422, 'expected {"enabled": true} or {"enabled": false}',
                            f"got {json.dumps(body)[:200]}")
-        self.recorder.wanted = enabled
+        self.set_recording(enabled)
         log.info("flight recorder %s through the HTTP API", "enabled" if enabled else "disabled")
         await self._settled(enabled)
         return json_response(self.health())

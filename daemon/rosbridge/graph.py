@@ -98,6 +98,9 @@ class BridgeGraph:
         self._services_of: Counter[Peer] = Counter()
         self._calls_of: Counter[Peer] = Counter()
         self._views: dict[str, tuple[int, dict[str, str]]] = {}
+        #: told ``(topic, True)`` when one of the robot's topics gets its first subscriber and
+        #: ``(topic, False)`` when it loses its last (the server listens to the bus meanwhile)
+        self.on_watch: Callable[[Topic, bool], None] = lambda topic, watched: None
 
     # -- topics ---------------------------------------------------------------------------
 
@@ -120,14 +123,22 @@ class BridgeGraph:
         topic = self._topic_for(name, type_name)
         if peer not in topic.subscribers:
             topic.subscribers.add(peer)
+            if len(topic.subscribers) == 1 and topic.robot_out:
+                self.on_watch(topic, True)
             self._send_latest(topic, peer)
         return topic
 
     def remove_subscriber(self, peer: Peer, name: str) -> None:
         topic = self.topics.get(name)
         if topic is not None:
-            topic.subscribers.discard(peer)
+            self._unsubscribe(topic, peer)
             self._forget_if_unused(topic)
+
+    def _unsubscribe(self, topic: Topic, peer: Peer) -> None:
+        if peer in topic.subscribers:
+            topic.subscribers.discard(peer)
+            if not topic.subscribers and topic.robot_out:
+                self.on_watch(topic, False)
 
     def fan_out(self, topic: Topic, shared: SharedMessage) -> None:
         for peer in topic.subscribers:
@@ -252,7 +263,7 @@ class BridgeGraph:
         for topic in [t for t in self.topics.values()
                       if peer in t.publishers or peer in t.subscribers]:
             topic.publishers.pop(peer, None)
-            topic.subscribers.discard(peer)
+            self._unsubscribe(topic, peer)
             self._forget_if_unused(topic)
         for service in [s for s in self.services.values() if s.provider is peer]:
             self.withdraw_service(service, f"Service {service.name} was unadvertised")

@@ -71,7 +71,8 @@ class RosbridgeServer(BaseComponent):
         self._sweeper: asyncio.Task[None] | None = None
         #: set when a client without the token's proof connects: the idle sweeper sleeps without
         self._unproved = asyncio.Event()
-        self._bus_unsubscribers: list[Callable[[], None]] = []
+        #: the bus subscriptions of the robot topics clients watch now, by topic name
+        self._bus_unsubscribers: dict[str, Callable[[], None]] = {}
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -104,7 +105,8 @@ class RosbridgeServer(BaseComponent):
             with contextlib.suppress(asyncio.CancelledError):
                 await self._sweeper
             self._sweeper = None
-        for unsubscribe in self._bus_unsubscribers:
+        self.graph.on_watch = lambda topic, watched: None
+        for unsubscribe in self._bus_unsubscribers.values():
             unsubscribe()
         self._bus_unsubscribers.clear()
         closing = [asyncio.create_task(client.ws.close(code=WSCloseCode.GOING_AWAY,
@@ -223,18 +225,26 @@ class RosbridgeServer(BaseComponent):
     # -- telemetry fan-out ------------------------------------------------------------------------
 
     def _wire_bus(self) -> None:
-        for topic in self.graph.topics.values():
-            robot = topic.robot
-            if isinstance(robot, TopicOut):
-                self._bus_unsubscribers.append(
-                    self.ctx.bus.subscribe(robot.bus, self._bus_callback(topic, robot)))
+        """Listen to a robot topic's bus key only while a client subscribes to it: a topic
+        nobody watches costs its publisher (the control tick, every command) nothing here."""
+        self.graph.on_watch = self._watch
+
+    def _watch(self, topic: Topic, watched: bool) -> None:
+        robot = topic.robot
+        if not isinstance(robot, TopicOut):
+            return
+        if watched and topic.name not in self._bus_unsubscribers:
+            self._bus_unsubscribers[topic.name] = self.ctx.bus.subscribe(
+                robot.bus, self._bus_callback(topic, robot))
+        elif not watched and topic.name in self._bus_unsubscribers:
+            self._bus_unsubscribers.pop(topic.name)()
 
     def _bus_callback(self, topic: Topic, robot: TopicOut[Any]) -> Callable[[Any], None]:
-        convert = robot.convert
+        convert, fan_out = robot.convert, self.graph.fan_out
 
         def on_message(message: Any) -> None:  # runs inside the publisher (control tick)
             if topic.subscribers:
-                self.graph.fan_out(topic, SharedMessage(topic.name, message, convert))
+                fan_out(topic, SharedMessage(topic.name, message, convert))
 
         return on_message
 
