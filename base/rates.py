@@ -40,6 +40,11 @@ class TokenBucket:
         self._refill()
         return self._tokens
 
+    @property
+    def left(self) -> float:
+        """Units there after the last take or reserve (negative: owed), without a refill."""
+        return self._tokens
+
     def _refill(self) -> None:
         now = self.clock()
         self._tokens = min(self.burst, self._tokens + (now - self._t_last) * self.rate)

@@ -16,21 +16,23 @@ class HookList(Generic[F]):
 
     def __init__(self) -> None:
         self._items: list[F] = []
-        self._snapshot: tuple[F, ...] = ()  # what iteration walks: safe to change meanwhile
+        #: the callbacks now, as a tuple: what iteration walks (safe to change meanwhile);
+        #: a hot path iterates it directly, without a call to ``__iter__``
+        self.snapshot: tuple[F, ...] = ()
 
     def add(self, item: F) -> Remove:
         self._items.append(item)
-        self._snapshot = tuple(self._items)
+        self.snapshot = tuple(self._items)
 
         def remove() -> None:
             if item in self._items:
                 self._items.remove(item)
-                self._snapshot = tuple(self._items)
+                self.snapshot = tuple(self._items)
 
         return remove
 
     def __iter__(self) -> Iterator[F]:
-        return iter(self._snapshot)
+        return iter(self.snapshot)
 
     def __len__(self) -> int:
         return len(self._items)

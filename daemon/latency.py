@@ -163,22 +163,37 @@ class LatencyTracker:
                        cmd_id: str | int | None = None,
                        t_sent_ms: float | None = None) -> LatencyReport:
         """Record one applied command; times are ``time.monotonic()`` seconds."""
+        report = self.report(t_recv_mono, t_exec_mono, source=source, cmd_id=cmd_id,
+                             t_sent_ms=t_sent_ms)
+        self.account(report)
+        return report
+
+    @staticmethod
+    def report(t_recv_mono: float, t_exec_mono: float, *, source: str,
+               cmd_id: str | int | None = None,
+               t_sent_ms: float | None = None) -> LatencyReport:
+        """One applied command's report, not yet counted (:meth:`account` counts it: the
+        control loop answers the sender first)."""
         exec_ms = (t_exec_mono - t_recv_mono) * 1e3
         wall_exec_ms = (time.time() - time.monotonic() + t_exec_mono) * 1e3
-        wall_recv_ms = wall_exec_ms - exec_ms
+        return LatencyReport(cmd_id, t_sent_ms, wall_exec_ms - exec_ms, wall_exec_ms, exec_ms,
+                             source)
+
+    def account(self, report: LatencyReport) -> None:
+        """Count one command's report in the statistics."""
+        exec_ms, source, t_sent_ms = report.exec_ms, report.source, report.t_sent
         self.commands += 1
         self.per_source.add(source)
         self.exec_ms.append(exec_ms)
         self.metrics.exec_s.observe(exec_ms / 1e3)
         self.metrics.count(source)
         if t_sent_ms is not None:
-            transit = wall_recv_ms - t_sent_ms
+            transit = report.t_recv - t_sent_ms
             self.transit_ms.append(transit)
             if transit < 0:
                 self.metrics.clock_skew += 1
             else:
                 self.metrics.transit_s.observe(transit / 1e3)
-        return LatencyReport(cmd_id, t_sent_ms, wall_recv_ms, wall_exec_ms, exec_ms, source)
 
     def record_tick(self, lateness_s: float, late: bool) -> None:
         self.ticks += 1

@@ -268,3 +268,18 @@ def test_supervisor_counts_from_the_first_tick_after_start() -> None:
         assert driver.calls == 1 and sup.stalled()
     finally:
         sup.stop()
+
+
+@given(st.lists(st.tuples(st.sampled_from([0.0, -0.0, 0.2, 0.2, 0.2, -0.3, 1.5]),
+                          st.sampled_from([0.02, 0.02, 0.013, 0.5]), st.booleans()),
+                max_size=60),
+       st.sampled_from([0.0, 5.0]))
+def test_the_held_speed_shortcut_steps_as_the_arithmetic(steps: list[tuple[float, float, bool]],
+                                                         jerk: float) -> None:
+    limits = AxisLimits(1.0, 2.0, 3.0, 6.0, jerk)
+    fast, full = AxisLimiter(limits), AxisLimiter(limits)
+    for target, dt, emergency in steps:
+        got = fast.step(target, dt, emergency)
+        want = full.limited_step(target, dt, emergency)
+        assert (got, math.copysign(1, got)) == (want, math.copysign(1, want))
+        assert (fast.velocity, fast.acceleration) == (full.velocity, full.acceleration)

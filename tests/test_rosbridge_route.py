@@ -1,13 +1,18 @@
 # The command fast paths equal the general ones: routes, the held answer, the report's text.
 from __future__ import annotations
 
+import asyncio
 import json
 import random
 import time
 from pathlib import Path
 from typing import Any
 
+import aiohttp
 import orjson
+import pytest
+from aiohttp import web
+from aiohttp.test_utils import TestServer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -28,6 +33,7 @@ from daemon.rosbridge.graph import Topic
 from daemon.rosbridge.outbox import Outbox, SharedMessage, SubscribeOptions, TopicQueue
 from daemon.rosbridge.route import Route, fast_frame
 from daemon.rosbridge.session import ClientSession
+from daemon.rosbridge.writer import text_frame
 from daemon.telemetry import LatencyReport
 from daemon.topics import TopicIn
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
@@ -332,3 +338,52 @@ def test_the_one_pass_stamped_check_takes_the_common_command() -> None:
     assert plain_stamped(body) == (Twist(0.1, -0.2), 7, 1.5e12)
     assert plain_stamped({**body, "linear": {"x": 0.1, "y": 0.5}}) is None
     assert plain_stamped({**body, "id": True}) is None
+
+
+# -- the answer written from inside its publisher ------------------------------------------------
+
+
+@pytest.mark.parametrize("length", [0, 1, 125, 126, 245, 65535, 65536, 70000])
+async def test_a_frame_written_to_the_socket_is_the_text_a_client_reads(length: int) -> None:
+    """:func:`text_frame` on a real socket: an aiohttp client reads the payload as aiohttp's
+    own writer would have sent it, on each side of the 7-, 16- and 64-bit length boundaries."""
+    text = ("é" * length)[:length] if length % 2 else "x" * length
+    payload = text.encode()
+
+    async def handler(request: web.Request) -> web.WebSocketResponse:
+        ws = web.WebSocketResponse()
+        await ws.prepare(request)
+        assert isinstance(request.transport, asyncio.WriteTransport) and not ws.compress
+        request.transport.write(text_frame(payload))
+        await ws.send_str("after")  # aiohttp's writer goes on from where the frame ended
+        await ws.receive()
+        return ws
+
+    app = web.Application()
+    app.router.add_get("/", handler)
+    async with TestServer(app) as server, aiohttp.ClientSession() as session, \
+            session.ws_connect(server.make_url("/")) as ws:
+        assert (await ws.receive_str(timeout=5)) == text
+        assert (await ws.receive_str(timeout=5)) == "after"
+
+
+async def test_a_commands_answer_leaves_from_the_control_loop_in_order(
+        robot: InProcessDaemon) -> None:
+    """The latency report is written to the socket while the command is applied (the
+    statistics are counted after); the client reads each answer whole and in order, with a
+    refusal between them answered in its place."""
+    async with aiohttp.ClientSession() as session, session.ws_connect(robot.ws_url) as ws:
+        await ws.send_json({"op": "subscribe", "topic": "/latency_reports"})
+        await ws.send_json({"op": "advertise", "topic": STAMPED, "type": STRING})
+        before = robot.daemon.latency.commands
+        for seq in range(40):
+            data = "{" if seq == 20 else json.dumps({"linear": {"x": 0.05}, "id": seq})
+            await ws.send_json({"op": "publish", "topic": STAMPED, "id": f"p{seq}",
+                                "msg": {"data": data}})
+            answer = await ws.receive_json(timeout=5)
+            if seq == 20:
+                assert answer["op"] == "status" and answer["id"] == "p20"
+                continue
+            assert answer["topic"] == "/latency_reports"
+            assert json.loads(answer["msg"]["data"])["id"] == seq
+        assert robot.daemon.latency.commands == before + 39

@@ -37,6 +37,15 @@ class AxisLimiter:
     def step(self, target: float, dt: float, emergency: bool = False) -> float:
         if dt <= 0:
             return self.velocity
+        if target == self.velocity and self.acceleration == 0.0:
+            # holding a speed (a steady command, every command and tick): what the arithmetic
+            # below gives, the velocity plus a zero step (-0.0 becomes 0.0 there too)
+            self.velocity = new = self.velocity + 0.0
+            return new
+        return self.limited_step(target, dt, emergency)
+
+    def limited_step(self, target: float, dt: float, emergency: bool = False) -> float:
+        """:meth:`step` without its shortcut for a held speed (``dt`` > 0)."""
         limits = self.limits
         vmax = limits.max_velocity
         target = max(-vmax, min(vmax, target))

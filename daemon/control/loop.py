@@ -215,14 +215,15 @@ class ControlLoop:
             applied = Applied(False, self.decision.source, self.wheels, [], None, refusal)
         else:
             clock = self.clock
-            self._forget_after_stall(clock())  # older commands are stale, this one is fresh
-            self.arbiter.submit(source, twist, clock(), priority, timeout_s)
-            for callback in self.on_command:
+            now = clock()
+            self._forget_after_stall(now)  # older commands are stale, this one is fresh
+            self.arbiter.submit(source, twist, now, priority, timeout_s)
+            for callback in self.on_command.snapshot:
                 callback(source)
             lock = self._lock
             await lock.acquire()
             try:
-                written = await self._step(clock())
+                written = await self._step(now)
             finally:
                 lock.release()
             applied = self._applied(written, source, t_recv, clock(), cmd_id, t_sent_ms)
@@ -237,10 +238,12 @@ class ControlLoop:
         if not written:
             reason = self._refusal_reason() or "driver did not take the command"
             return Applied(False, self.decision.source, self.wheels, [], None, reason)
-        report = self.latency.record_command(t_recv, t_exec, source=source, cmd_id=cmd_id,
-                                             t_sent_ms=t_sent_ms)
+        latency = self.latency
+        report = latency.report(t_recv, t_exec, source=source, cmd_id=cmd_id,
+                                t_sent_ms=t_sent_ms)
         if cmd_id is not None or t_sent_ms is not None:
-            self.bus.publish(LATENCY_REPORT, report)
+            self.bus.publish(LATENCY_REPORT, report)  # the sender's answer may leave here
+        latency.account(report)
         return Applied(True, self.decision.source, self.wheels, self.last_clamped, report,
                        guard_action=self.guard_action)
 
@@ -304,7 +307,7 @@ class ControlLoop:
         try:
             if self.driver.fault and not self.fault:
                 await self._on_fault(self.driver.fault)
-            for source in self.tick_sources:
+            for source in self.tick_sources.snapshot:
                 source(now)
             lock = self._lock
             if lock.locked() or not self._rest_step(now):
@@ -329,7 +332,7 @@ class ControlLoop:
         except Exception:
             log.exception("control tick failed")
             on_time = False
-        for callback in self.on_tick:
+        for callback in self.on_tick.snapshot:
             callback(now, on_time)
 
     # -- shared step -----------------------------------------------------------------------
@@ -357,8 +360,7 @@ class ControlLoop:
 
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
-        if self._rest_step(now):
-            return True
+        self._forget_after_stall(now)
         self.decision = decision = self.arbiter.decide(now)
         dt = now - self._last_step
         self._last_step = now

@@ -271,6 +271,8 @@ class Outbox:
         #: right after (see :meth:`hold`)
         self.holding = False
         self._held: tuple[TopicQueue, SharedMessage] | None = None
+        #: while holding: writes the answer to the socket at once; False when it cannot
+        self.send_now: Callable[[TopicQueue, SharedMessage], bool] | None = None
 
     def hold(self) -> None:
         """The reader handles a request: the first topic message it brings while nothing
@@ -316,7 +318,9 @@ class Outbox:
         if self.holding:
             if self._held is None and not self.replies and not self._ready \
                     and not self._waiting and not queue.queue and queue.plain:
-                self._held = (queue, message)  # the answer: sent by the reader, or queued
+                send_now = self.send_now
+                if send_now is None or not send_now(queue, message):
+                    self._held = (queue, message)  # the answer: sent by the reader, or queued
                 return
             self._release()
         if queue.offer(message, self._clock()):

@@ -169,11 +169,11 @@ class ClientSession:
         if wait > 0:
             if not await self._throttle(wait, t_recv):
                 return False
-        elif self._bucket.level() >= self._bucket.burst / 2:
+        elif self._bucket.left >= self._bucket.burst / 2:
             # a break: the client sent less than its rate for a while (one frame let through
             # because a sleep overran is none, or a steady flood would never be closed)
             self._throttled_since = None
-        self.writer.begin_inline()  # what the request queues is sent below, from here
+        self.writer.begin_inline(self.transport)  # what the request queues is sent from here
         try:
             await self.handle_text(data, t_recv)
         finally:

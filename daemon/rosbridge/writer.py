@@ -40,6 +40,7 @@ class Writer:
         #: the reader is handling a request and sends what it queued itself (send_inline):
         #: waking the writer task for it would only cost a task switch
         self.inline = False
+        self._transport: asyncio.WriteTransport | None = None
 
     def wake(self) -> None:
         if not self.inline:
@@ -58,11 +59,28 @@ class Writer:
         except (ConnectionError, RuntimeError) as exc:
             log.debug("rosbridge writer stopped: %s", exc)
 
-    def begin_inline(self) -> None:
+    def begin_inline(self, transport: asyncio.BaseTransport | None = None) -> None:
         """The reader handles a request and then calls :meth:`send_inline`: the writer task
-        is not woken for what the request queues, and the outbox holds its answer aside."""
+        is not woken for what the request queues, and the outbox holds its answer aside, or
+        with ``transport`` writes it at once when nothing else is on its way (:meth:`_now`)."""
         self.inline = True
         self.outbox.hold()
+        if isinstance(transport, asyncio.WriteTransport):
+            self._transport = transport
+            self.outbox.send_now = self._now
+
+    def _now(self, queue: TopicQueue, message: SharedMessage) -> bool:
+        """Write the request's answer to the socket from inside its publisher (the command's
+        latency report from the control loop), when nothing else is on its way: the writer
+        task sleeps, no send is under way, the socket holds nothing unsent, the connection
+        is open and uncompressed. False: the outbox holds it as before."""
+        transport, ws = self._transport, self.ws
+        if not self._idle or self._sending.locked() or getattr(ws, "compress", True) \
+                or ws.closed or getattr(ws, "_closing", True) or transport is None \
+                or transport.is_closing() or _buffered(transport):
+            return False
+        transport.write(text_frame(message.frame(queue.spelling).encode()))
+        return True
 
     async def send_inline(self, transport: asyncio.BaseTransport | None) -> None:
         """Answer from the reader while the writer sleeps and the socket takes data at once:
@@ -70,6 +88,7 @@ class Writer:
         outbox held aside skips its queue). Ends :attr:`inline`: the writer task is woken for
         whatever is left."""
         self.inline = False
+        self.outbox.send_now = None
         held = self.outbox.take_held()
         try:
             if self._idle and not self._sending.locked() and transport is not None \
@@ -159,6 +178,19 @@ class Writer:
                       f"cannot be sent as {compression}: {exc}; dropped", None)
             return
         await self.ws.send_bytes(data)
+
+
+def text_frame(payload: bytes) -> bytes:
+    """One WebSocket text frame as a server sends it (RFC 6455 5.2): final, unmasked,
+    uncompressed, the payload length in 7, 16 or 64 bits."""
+    length = len(payload)
+    if length < 126:
+        head = bytes((0x81, length))
+    elif length < 65536:
+        head = bytes((0x81, 126)) + length.to_bytes(2, "big")
+    else:
+        head = bytes((0x81, 127)) + length.to_bytes(8, "big")
+    return head + payload
 
 
 def _buffered(transport: asyncio.BaseTransport) -> int:
