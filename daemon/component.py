@@ -174,10 +174,6 @@ class BusyHooks:
         self._hooks = (tick_source, on_tick, on_command)
         self._removers: list[Remove] = []
 
-    @property
-    def started(self) -> bool:
-        return bool(self._removers)
-
     def start(self) -> None:
         if self._removers:
             return

@@ -48,10 +48,9 @@ class Schedule:
         #: the earliest time any callback is due
         self.next_due = math.inf
 
-    def add(self, callback: Callable[[float], float], first_due: float = -math.inf) -> Remove:
-        """Run ``callback`` at the first tick at or after ``first_due``, then when it says."""
-        self._due[callback] = first_due
-        self.next_due = min(self.next_due, first_due)
+    def add(self, callback: Callable[[float], float]) -> Remove:
+        """Run ``callback`` at the next tick, then when it says."""
+        self._due[callback] = self.next_due = -math.inf
 
         def remove() -> None:
             self._due.pop(callback, None)

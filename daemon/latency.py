@@ -159,21 +159,12 @@ class LatencyTracker:
         self.late_ticks = 0
         self.missed_ticks = 0
 
-    def record_command(self, t_recv_mono: float, t_exec_mono: float, *, source: str,
-                       cmd_id: str | int | None = None,
-                       t_sent_ms: float | None = None) -> LatencyReport:
-        """Record one applied command; times are ``time.monotonic()`` seconds."""
-        report = self.report(t_recv_mono, t_exec_mono, source=source, cmd_id=cmd_id,
-                             t_sent_ms=t_sent_ms)
-        self.account(report)
-        return report
-
     @staticmethod
     def report(t_recv_mono: float, t_exec_mono: float, *, source: str,
                cmd_id: str | int | None = None,
                t_sent_ms: float | None = None) -> LatencyReport:
-        """One applied command's report, not yet counted (:meth:`account` counts it: the
-        control loop answers the sender first)."""
+        """One applied command's report (times are ``time.monotonic()`` seconds), not yet
+        counted (:meth:`account` counts it: the control loop answers the sender first)."""
         exec_ms = (t_exec_mono - t_recv_mono) * 1e3
         wall_exec_ms = (time.time() - time.monotonic() + t_exec_mono) * 1e3
         return LatencyReport(cmd_id, t_sent_ms, wall_exec_ms - exec_ms, wall_exec_ms, exec_ms,

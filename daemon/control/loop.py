@@ -351,12 +351,17 @@ class ControlLoop:
         if decision.twist is not ZERO:
             return False
         self.decision, self._last_step = decision, now
-        linear.rest()
-        angular.rest()
+        self._settle(decision)
+        return True
+
+    def _settle(self, decision: Decision) -> None:
+        """At rest with nothing to follow: what the limiters, the geometry and the scaling
+        would give (zero everywhere), without them."""
+        self.linear.rest()
+        self.angular.rest()
         self.last_clamped = []
         if decision.source is None:
             self.arbiter.idle()
-        return True
 
     async def _step(self, now: float) -> bool:
         """Arbitrate, limit, convert and write once; True when the driver was written."""
@@ -367,13 +372,7 @@ class ControlLoop:
         linear, angular = self.linear, self.angular
         if decision.twist is ZERO and dt > 0.0 and self.guard is None and linear.at_rest() \
                 and angular.at_rest():
-            # at rest with nothing to follow (an idle robot, most ticks): the limiters, the
-            # geometry and the scaling below would all give zero; zero is still written
-            linear.rest()
-            angular.rest()
-            self.last_clamped = []
-            if decision.source is None:
-                self.arbiter.idle()
+            self._settle(decision)  # an idle robot: zero is still written
             left = right = 0.0
         else:
             target_v, clamped_v = linear.clamp_target(decision.twist.linear_x)
