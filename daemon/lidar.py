@@ -71,7 +71,7 @@ class LidarComponent(BaseComponent):
         return (Route("GET", "/api/scan", self.get_scan, "read"),)
 
     def topics(self) -> Sequence[Topic]:
-        return (TopicOut("/scan", LASER_SCAN, SCAN, scan_msg, "per revolution"),
+        return (TopicOut("/scan", LASER_SCAN, SCAN, scan_msg, "per revolution", bulk=True),
                 TopicOut("/tf_static", TF_MESSAGE, STATIC_TRANSFORMS, tf_msg, "once",
                          latched=True))
 

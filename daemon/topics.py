@@ -24,7 +24,9 @@ class TopicOut(Generic[T]):
     ``rate`` is what the docs say about it ("20 Hz", "per revolution"). ``bridge``: rosbridge
     (and any later transport) serves it; ``record``: the flight recorder writes it. ``state``:
     the latest value is all a new subscriber needs (else every message counts, as for logs).
-    ``latched``: every new recording starts with the latest message (health).
+    ``latched``: every new recording starts with the latest message (health). ``bulk``: large
+    messages (scans, maps) that a transport sends in the wake-up of the next control tick,
+    after the tick, so that no tick waits behind their encoding and sends.
     """
 
     name: str
@@ -36,6 +38,7 @@ class TopicOut(Generic[T]):
     record: bool = True
     state: bool = True
     latched: bool = False
+    bulk: bool = False
 
 
 @dataclass(frozen=True)

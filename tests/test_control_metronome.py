@@ -5,6 +5,7 @@ import asyncio
 import itertools
 import sys
 import time
+from collections.abc import Awaitable, Callable
 
 import pytest
 
@@ -25,12 +26,33 @@ KINDS = [Metronome, pytest.param(TimerMetronome, marks=pytest.mark.skipif(
     not sys.platform.startswith("linux"), reason="timerfd is Linux only"))]
 
 
+async def deadlines_from(ticker: Metronome | TimerMetronome, count: int,
+                         on_tick: Callable[[float], Awaitable[None] | None] | None = None,
+                         ) -> list[float]:
+    """The first ``count`` deadlines ``ticker.run`` delivers (each also to ``on_tick``)."""
+    seen: list[float] = []
+    done = asyncio.get_running_loop().create_future()
+
+    def record(deadline: float) -> Awaitable[None] | None:
+        seen.append(deadline)
+        if len(seen) == count and not done.done():
+            done.set_result(None)
+        return on_tick(deadline) if on_tick else None
+
+    runner = asyncio.create_task(ticker.run(record))
+    try:
+        await done
+    finally:
+        runner.cancel()
+    return seen
+
+
 @pytest.mark.parametrize("kind", KINDS)
 async def test_ticks_come_on_absolute_deadlines_one_period_apart(kind: Kind) -> None:
     ticker = make(kind, asyncio.get_running_loop())
     ticker.start()
     try:
-        deadlines = [await ticker.wait() for _ in range(5)]
+        deadlines = await deadlines_from(ticker, 5)
     finally:
         ticker.stop()
     for earlier, later in itertools.pairwise(deadlines):
@@ -42,16 +64,51 @@ async def test_ticks_come_on_absolute_deadlines_one_period_apart(kind: Kind) -> 
 async def test_a_blocked_loop_gets_one_tick_and_the_rest_counted_missed(kind: Kind) -> None:
     ticker = make(kind, asyncio.get_running_loop())
     ticker.start()
+
+    def block_once(deadline: float) -> None:
+        if ticker.missed == 0:
+            time.sleep(8 * PERIOD_S)  # the event loop blocked (a stall)
+
     try:
-        await ticker.wait()
-        time.sleep(8 * PERIOD_S)  # noqa: ASYNC251 - the event loop blocked (a stall)
-        late = await ticker.wait()
-        missed = ticker.missed
-        assert missed >= 4  # the deadlines that passed while blocked were not queued
-        after = await ticker.wait()
-        assert after > late  # and the next tick is a fresh deadline, not a stale one
+        first, late, after = await deadlines_from(ticker, 3, block_once)
+        assert ticker.missed >= 4  # the deadlines that passed while blocked were not queued
+        assert late - first >= 4 * PERIOD_S  # the tick after the stall is the latest deadline
+        assert after > late
     finally:
         ticker.stop()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+async def test_a_tick_that_waits_holds_the_next_one_back_and_never_overlaps(kind: Kind) -> None:
+    """The part of a tick that waits runs on the metronome's task; deadlines that come
+    meanwhile are not handed to the tick (one waits, the rest are missed), so ticks never run
+    side by side, and a free tick is handled in the callback itself."""
+    ticker = make(kind, asyncio.get_running_loop())
+    ticker.start()
+    running = 0
+    overlaps = 0
+
+    async def wait_a_while() -> None:
+        nonlocal running
+        await asyncio.sleep(3.5 * PERIOD_S)
+        running -= 1
+
+    def every_other_tick_waits(deadline: float) -> Awaitable[None] | None:
+        nonlocal running, overlaps
+        overlaps += running > 0
+        running += 1
+        if round(deadline / PERIOD_S) % 2:
+            return wait_a_while()
+        running -= 1
+        return None
+
+    try:
+        deadlines = await deadlines_from(ticker, 12, every_other_tick_waits)
+    finally:
+        ticker.stop()
+    assert overlaps == 0
+    assert ticker.missed >= 2  # 3.5 periods of waiting: more deadlines than one came
+    assert deadlines == sorted(deadlines)
 
 
 async def test_linux_gets_the_kernel_timer() -> None:
@@ -67,16 +124,20 @@ async def test_housekeeping_wakes_with_a_tick() -> None:
     ticker = TimerMetronome(loop, PERIOD_S, _Timer.create())
     ticker.start()
     try:
-        first = await ticker.wait()
+        first, = await deadlines_from(ticker, 1)
         when = time.monotonic() + 2.5 * PERIOD_S
         due = ticker.next_at(when)
         assert when <= due < when + PERIOD_S
         assert (due - first) / PERIOD_S == pytest.approx(round((due - first) / PERIOD_S))
         woken = loop.create_future()
         loop.call_at(due, woken.set_result, None)
-        deadline = await ticker.wait()
-        while deadline < due:
-            deadline = await ticker.wait()
-        assert deadline == pytest.approx(due) and woken.done()
+        timer_done_at_due: list[bool] = []
+
+        def note(deadline: float) -> None:
+            if deadline >= due - PERIOD_S / 2:
+                timer_done_at_due.append(woken.done())
+
+        deadlines = await deadlines_from(ticker, 8, note)
+        assert any(d == pytest.approx(due) for d in deadlines) and timer_done_at_due
     finally:
         ticker.stop()

@@ -14,7 +14,7 @@ import pytest
 
 from daemon.telemetry import ROBOT_INFO, SCAN
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
-from tests.support.rosbridge import TIMEOUT, TWIST, FakeScan, connect, upgrade_status
+from tests.support.rosbridge import TIMEOUT, TWIST, FakeScan, bridge, connect, upgrade_status
 from tests.support.wait import eventually
 
 # -- driving ---------------------------------------------------------------------------------
@@ -159,6 +159,36 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: InProcessDaemon) -> 
         assert scan["msg"]["ranges"][1:3] == [None, None]
         raw = client.raw[client.received.index(scan)]
         assert "NaN" not in raw and "Infinity" not in raw
+
+
+async def test_a_scan_goes_out_after_the_next_control_tick(robot: InProcessDaemon) -> None:
+    """A scan (a bulk topic) is encoded and sent in the wake-up of the control tick after it
+    came, never at once: its encoding and ten clients' sends then cannot hold a tick up."""
+    control, server = robot.ctx.control, bridge(robot)
+    ticks: list[float] = []
+    fanned_out: list[tuple[str, float]] = []
+    fan_out = server.graph.fan_out
+
+    def note_fan_out(topic: Any, shared: Any) -> None:
+        fanned_out.append((topic.name, time.monotonic()))
+        fan_out(topic, shared)
+
+    remove = control.tick_sources.add(ticks.append)
+    server.graph.fan_out = note_fan_out
+    try:
+        async with connect(robot.ws_url) as client:
+            await client.send(op="subscribe", topic="/scan", id="s")
+            await client.call("/rosapi/get_time")
+            published = time.monotonic()
+            robot.ctx.bus.publish(SCAN, FakeScan())  # type: ignore[arg-type]
+            assert not [name for name, _ in fanned_out if name == "/scan"]  # not at once
+            await client.expect(lambda m: m.get("topic") == "/scan" and m["msg"]["header"][
+                "stamp"]["sec"] == int(FakeScan.stamp), what="the fake scan")
+    finally:
+        server.graph.fan_out = fan_out
+        remove()
+    sent = next(t for name, t in fanned_out if name == "/scan" and t >= published)
+    assert any(published <= tick <= sent for tick in ticks)  # a tick came between
 
 
 async def test_robot_info_latest_value_on_subscribe(robot: InProcessDaemon) -> None:

@@ -5,7 +5,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass
 from typing import Any
 
@@ -202,6 +202,17 @@ class ControlLoop:
         finally:
             timer.cancel()
 
+    def call_after_tick(self, callback: Callable[[], None]) -> asyncio.Handle:
+        """Run ``callback`` in the event-loop wake-up of the next control tick, right after
+        the tick: bulk work (a scan's encoding and sends to many clients) that would hold a
+        tick up if it ran when it came, as late as one period (with the thread metronome, or
+        not ticking in real time: at once)."""
+        loop = asyncio.get_running_loop()
+        metronome = self._metronome
+        if not isinstance(metronome, TimerMetronome):
+            return loop.call_soon(callback)
+        return loop.call_at(metronome.next_at(loop.time()), callback)
+
     # -- event path ----------------------------------------------------------------------
 
     async def submit(self, source: str, twist: Twist, *, t_recv: float,
@@ -287,51 +298,89 @@ class ControlLoop:
     # -- tick path -----------------------------------------------------------------------
 
     async def _tick_forever(self) -> None:
-        metronome, supervisor, latency = self._metronome, self.supervisor, self.latency
+        metronome = self._metronome
         assert metronome is not None
-        while True:
-            deadline = await metronome.wait()
+        supervisor, latency, tick_now = self.supervisor, self.latency, self._tick_now
+
+        def on_deadline(deadline: float) -> Awaitable[None] | None:
             supervisor.beat()
             latency.missed_ticks = metronome.missed
-            await self.tick(deadline)
+            return tick_now(deadline)
+
+        await metronome.run(on_deadline)
 
     async def tick(self, deadline: float) -> None:
         """One tick that was due at ``deadline`` (clock seconds): record its lateness, run
-        the internal sources, step, integrate odometry, publish, then the tick callbacks.
-        (One coroutine, the step's lock taken without ``async with``: this runs 50 times a
-        second, mostly for an idle robot, and each layer costs.)"""
+        the internal sources, step, integrate odometry, publish, then the tick callbacks."""
+        rest = self._tick_now(deadline)
+        if rest is not None:
+            await rest
+
+    def _tick_now(self, deadline: float) -> Coroutine[Any, Any, None] | None:
+        """The tick as far as it goes without waiting: all of it for a robot at rest (the
+        metronome calls this from its own callback), else what is left to await (a step that
+        takes the lock and writes the driver, a fault to handle)."""
         now = self.clock()
         lateness = now - deadline
         on_time = lateness <= self.late_s
         self.latency.record_tick(lateness, not on_time)
         try:
-            if self.driver.fault and not self.fault:
-                await self._on_fault(self.driver.fault)
             for source in self.tick_sources.snapshot:
                 source(now)
-            lock = self._lock
-            if lock.locked() or not self._rest_step(now):
-                await lock.acquire()
-                try:
-                    await self._step(now)
-                finally:
-                    lock.release()
+            if (self.driver.fault and not self.fault) or self._lock.locked() \
+                    or not self._rest_step(now):
+                return self._tick_stepping(now, on_time)
             problem = self._update_odometry(now)
             if problem is not None:
-                await problem
-            if self.guard is not None:
-                odo = self.odometry
-                self.guard.observe(now, odo.x, odo.y, odo.theta)
-            self._ticks += 1
-            self._publish_credit += self._publish_earned
-            if self._publish_credit >= self._publish_cost:
-                self._publish_credit -= self._publish_cost
-                self.bus.publish(ODOM, self.odom_sample())
-            if now >= self.schedule.next_due:
-                self.schedule.run(now)
+                return self._tick_after(now, on_time, problem)
+            self._tick_publish(now)
         except Exception:
             log.exception("control tick failed")
             on_time = False
+        self._tick_done(now, on_time)
+        return None
+
+    async def _tick_stepping(self, now: float, on_time: bool) -> None:
+        """The rest of a tick whose step has to wait (lock, driver) or whose driver faulted."""
+        try:
+            if self.driver.fault and not self.fault:
+                await self._on_fault(self.driver.fault)
+            async with self._lock:
+                await self._step(now)
+            problem = self._update_odometry(now)
+            if problem is not None:
+                await problem
+            self._tick_publish(now)
+        except Exception:
+            log.exception("control tick failed")
+            on_time = False
+        self._tick_done(now, on_time)
+
+    async def _tick_after(self, now: float, on_time: bool,
+                          problem: Coroutine[Any, Any, None]) -> None:
+        """The rest of a tick whose odometry found a fault or a wheel mismatch."""
+        try:
+            await problem
+            self._tick_publish(now)
+        except Exception:
+            log.exception("control tick failed")
+            on_time = False
+        self._tick_done(now, on_time)
+
+    def _tick_publish(self, now: float) -> None:
+        """After the step and odometry: the motion guard's pose, odometry, the schedule."""
+        if self.guard is not None:
+            odo = self.odometry
+            self.guard.observe(now, odo.x, odo.y, odo.theta)
+        self._ticks += 1
+        self._publish_credit += self._publish_earned
+        if self._publish_credit >= self._publish_cost:
+            self._publish_credit -= self._publish_cost
+            self.bus.publish(ODOM, self.odom_sample())
+        if now >= self.schedule.next_due:
+            self.schedule.run(now)
+
+    def _tick_done(self, now: float, on_time: bool) -> None:
         for callback in self.on_tick.snapshot:
             callback(now, on_time)
 

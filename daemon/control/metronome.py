@@ -3,35 +3,89 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
+import inspect
 import logging
 import math
 import os
 import sys
 import threading
 import time
+from collections.abc import Awaitable, Callable
 
 log = logging.getLogger("arbiterd.control")
 
+#: what a metronome calls at each deadline: the tick, done when it returns None, else what is
+#: left of it (it had to wait: for the step's lock, a driver write, a fault's handling)
+OnTick = Callable[[float], Awaitable[None] | None]
 
-class Metronome:
-    """Delivers ticks at ``next += period`` deadlines to a coroutine waiting in :meth:`wait`.
+
+class _Delivery:
+    """The event loop's side that both metronomes share. A deadline goes to the tick at once,
+    from the callback that noticed it (no task to wake: an idle robot's tick is one callback).
+    Only the part of a tick that has to wait runs on the metronome's task; while it does, the
+    next deadline waits for it, and any more are counted as missed, never queued."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, period_s: float) -> None:
+        self.loop = loop
+        self.period_s = period_s
+        self.missed = 0
+        self._on_tick: OnTick | None = None
+        self._waiter: asyncio.Future[Awaitable[None]] | None = None  # the task's, while free
+        self._queued: float | None = None  # a deadline waiting for the task
+
+    async def run(self, on_tick: OnTick) -> None:
+        """Call ``on_tick(deadline)`` at each deadline until cancelled; await what it leaves."""
+        self._on_tick = on_tick
+        waiter: asyncio.Future[Awaitable[None]] | None = None
+        try:
+            while True:
+                self._waiter = waiter = self.loop.create_future()
+                rest: Awaitable[None] | None = await waiter
+                self._waiter = waiter = None
+                while rest is not None:
+                    await rest
+                    deadline, self._queued = self._queued, None
+                    rest = None if deadline is None else on_tick(deadline)
+        finally:
+            self._on_tick = self._waiter = None
+            if waiter is not None and waiter.done() and not waiter.cancelled():
+                left = waiter.result()  # handed over as the task was cancelled: never run
+                if inspect.iscoroutine(left):
+                    left.close()
+
+    def _due(self, deadline: float, skipped: int) -> None:
+        """``deadline`` came, and ``skipped`` earlier ones passed while the loop could not
+        take them."""
+        self.missed += skipped
+        waiter, on_tick = self._waiter, self._on_tick
+        if on_tick is None:
+            return
+        if waiter is None:  # the last tick is still waiting for something: this one waits
+            if self._queued is not None:
+                self.missed += 1
+            self._queued = deadline
+            return
+        rest = on_tick(deadline)
+        if rest is not None:
+            self._waiter = None
+            waiter.set_result(rest)
+
+
+class Metronome(_Delivery):
+    """Delivers ticks at ``next += period`` deadlines, from a thread.
 
     Sleeping in a thread with ``time.sleep`` is accurate to tens of microseconds, where the
-    event loop's own timers round up to whole milliseconds. If the loop has not consumed the
-    previous tick (it is blocked), the deadline is counted as missed instead of queued, so a
-    stalled loop never receives a burst of stale ticks.
+    event loop's own timers round up to whole milliseconds. If the loop has not taken the
+    previous deadline (it is blocked), the deadline is counted as missed instead of queued, so
+    a stalled loop never receives a burst of stale ticks.
 
     This is the portable fallback of :class:`TimerMetronome` (see :func:`metronome`): it costs
     a thread that wakes every period and then wakes the event loop through its self-pipe.
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, period_s: float) -> None:
-        self.loop = loop
-        self.period_s = period_s
-        self.missed = 0
-        self._deadline = 0.0
-        self._event = asyncio.Event()
-        self._pending = False
+        super().__init__(loop, period_s)
+        self._posted: float | None = None  # a deadline on its way to the loop
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="metronome", daemon=True)
@@ -42,14 +96,6 @@ class Metronome:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=1.0)
-
-    async def wait(self) -> float:
-        """Wait for the next tick; returns its deadline (monotonic seconds)."""
-        await self._event.wait()
-        self._event.clear()
-        with self._lock:
-            self._pending = False
-            return self._deadline
 
     def _run(self) -> None:
         deadline = time.monotonic()
@@ -67,18 +113,23 @@ class Metronome:
 
     def _post(self, deadline: float) -> None:
         with self._lock:
-            if self._pending:
-                self.missed += 1
-                return
-            self._pending = True
-            self._deadline = deadline
+            posted, self._posted = self._posted, deadline
+        if posted is not None:  # the loop has not taken the last one: it takes this instead
+            self.missed += 1
+            return
         try:
-            self.loop.call_soon_threadsafe(self._event.set)
+            self.loop.call_soon_threadsafe(self._take)
         except RuntimeError:  # loop closed
             self._stop.set()
 
+    def _take(self) -> None:
+        with self._lock:
+            deadline, self._posted = self._posted, None
+        if deadline is not None:
+            self._due(deadline, 0)
 
-class TimerMetronome:
+
+class TimerMetronome(_Delivery):
     """The same ticks from a kernel timer (Linux ``timerfd`` on ``CLOCK_MONOTONIC``, the clock
     of ``time.monotonic``) that the event loop watches like a socket: the kernel wakes the loop
     at each absolute deadline (``next += period`` is the timer's own interval, so nothing
@@ -90,14 +141,9 @@ class TimerMetronome:
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, period_s: float, timer: _Timer) -> None:
-        self.loop = loop
-        self.period_s = period_s
-        self.missed = 0
+        super().__init__(loop, period_s)
         self._timer = timer
         self._next = 0.0  # the timer's next expiration
-        self._deadline = 0.0
-        self._pending = False
-        self._waiter: asyncio.Future[None] | None = None  # what :meth:`wait` awaits
 
     def start(self) -> None:
         self._next = time.monotonic() + self.period_s
@@ -108,17 +154,6 @@ class TimerMetronome:
         if self._timer.fd >= 0:
             self.loop.remove_reader(self._timer.fd)
             self._timer.close()
-
-    async def wait(self) -> float:
-        """Wait for the next tick; returns its deadline (monotonic seconds)."""
-        if not self._pending:  # a bare future: an asyncio.Event costs two more layers a tick
-            self._waiter = waiter = self.loop.create_future()
-            try:
-                await waiter
-            finally:
-                self._waiter = None
-        self._pending = False
-        return self._deadline
 
     def next_at(self, when: float) -> float:
         """The first deadline at or after ``when`` (monotonic seconds): a loop timer set for it
@@ -132,15 +167,7 @@ class TimerMetronome:
             return
         latest = self._next + (expirations - 1) * self.period_s
         self._next += expirations * self.period_s
-        if self._pending:  # the last tick is not consumed yet: all of these are missed
-            self.missed += expirations
-            return
-        self.missed += expirations - 1
-        self._pending = True
-        self._deadline = latest
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+        self._due(latest, expirations - 1)
 
 
 def metronome(loop: asyncio.AbstractEventLoop,

@@ -413,7 +413,7 @@ class MappingComponent(BaseComponent):
     def topics(self) -> Sequence[Topic]:
         return (TopicOut("/map", OCCUPANCY_GRID, MAP, messages.map_msg,
                          f"on change, at most every {self.settings.publish_period_s:g} s",
-                         latched=True),
+                         latched=True, bulk=True),
                 TopicOut("/pose", POSE_WITH_COVARIANCE_STAMPED, MAP_POSE, messages.pose_msg,
                          "per revolution"),
                 TopicIn("/initialpose", POSE_WITH_COVARIANCE_STAMPED, self.on_initial_pose,

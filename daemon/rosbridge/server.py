@@ -73,6 +73,9 @@ class RosbridgeServer(BaseComponent):
         self._unproved = asyncio.Event()
         #: the bus subscriptions of the robot topics clients watch now, by topic name
         self._bus_unsubscribers: dict[str, Callable[[], None]] = {}
+        #: bulk messages waiting for the next control tick, and its timer
+        self._bulk: list[tuple[Topic, SharedMessage]] = []
+        self._bulk_handle: asyncio.Handle | None = None
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -109,6 +112,9 @@ class RosbridgeServer(BaseComponent):
         for unsubscribe in self._bus_unsubscribers.values():
             unsubscribe()
         self._bus_unsubscribers.clear()
+        if self._bulk_handle is not None:
+            self._bulk_handle.cancel()
+            self._bulk_handle, self._bulk = None, []
         closing = [asyncio.create_task(client.ws.close(code=WSCloseCode.GOING_AWAY,
                                                        message=b"arbiterd stopping"))
                    for client in list(self.clients.values())]
@@ -241,12 +247,28 @@ class RosbridgeServer(BaseComponent):
 
     def _bus_callback(self, topic: Topic, robot: TopicOut[Any]) -> Callable[[Any], None]:
         convert, fan_out = robot.convert, self.graph.fan_out
+        if robot.bulk:
+            fan_out = self._fan_out_after_tick
 
         def on_message(message: Any) -> None:  # runs inside the publisher (control tick)
             if topic.subscribers:
                 fan_out(topic, SharedMessage(topic.name, message, convert))
 
         return on_message
+
+    def _fan_out_after_tick(self, topic: Topic, shared: SharedMessage) -> None:
+        """A bulk message (a scan, a map) goes to its subscribers right after the next control
+        tick: its encoding and sends then never hold a tick up."""
+        self._bulk.append((topic, shared))
+        if self._bulk_handle is None:
+            self._bulk_handle = self.control.call_after_tick(self._send_bulk)
+
+    def _send_bulk(self) -> None:
+        self._bulk_handle = None
+        waiting, self._bulk = self._bulk, []
+        for topic, message in waiting:
+            if topic.subscribers:
+                self.graph.fan_out(topic, message)
 
 
 def _refuse_unmasked(request: web.Request, ws: web.WebSocketResponse) -> None:
