@@ -175,6 +175,7 @@ class StubDriver:
         self.answers = list(answers)
         self.calls = 0
         self.last_emergency_error = "no reply from pigpiod (timed out)"
+        self.last_command = (1.0, 1.0)  # the wheels turn: the supervisor's thread watches
 
     def emergency_stop(self) -> bool:
         self.calls += 1

@@ -13,6 +13,7 @@ import pytest
 
 from daemon.cli import _toml_value
 from daemon.control.commands import Twist
+from daemon.control.supervisor import StallSupervisor
 from drivers import DRIVERS, create_driver, driver_class
 from drivers.mock import MockDriver
 from sim.motor_model import MotorPair, WheelMotor
@@ -132,6 +133,43 @@ async def test_emergency_stop_never_raises_and_counts_failures() -> None:
 
 
 # -- the supervisor in the control loop (in-process robot, mock driver) ------------------------
+
+
+class CountingSupervisor(StallSupervisor):
+    """Counts the thread's checks of the tick."""
+
+    checks = 0
+
+    def check(self) -> float:
+        self.checks += 1
+        return super().check()
+
+
+async def test_at_rest_the_supervisor_sleeps_and_a_turning_wheel_wakes_it() -> None:
+    """While the wheels were last told zero there is nothing to stop: the thread does not
+    check the tick at all. A write that turns a wheel wakes it, and a stall then stops them."""
+    driver = MockDriver({}, max_wheel_speed=MAX_WHEEL_SPEED)
+    await driver.open()
+    supervisor = CountingSupervisor(driver, STALL_STOP_S / 4)
+    supervisor.start()
+    try:
+        for _ in range(8):  # two stall periods of a beating loop at rest, then none at all
+            supervisor.beat()
+            await asyncio.sleep(STALL_STOP_S / 16)
+        await asyncio.sleep(STALL_STOP_S)  # a stall at rest: nothing to stop
+        assert (supervisor.checks, supervisor.stall_stops) == (0, 0)
+
+        supervisor.beat()
+        await driver.set_wheel_speeds(2.0, 2.0)
+        supervisor.turning()  # then no more beats: the loop stalls with the wheels turning
+        wait_for(lambda: driver.commands[-1][1:] == STILL, "the supervisor to zero the wheels")
+        assert supervisor.checks >= 1 and supervisor.stall_stops == 1
+        wait_for(lambda: supervisor._watched is False, "the supervisor to sleep again")
+    finally:
+        supervisor.stop()
+        await driver.close()
+
+
 
 
 async def test_a_blocked_event_loop_cannot_keep_the_robot_driving(tmp_path: Path) -> None:

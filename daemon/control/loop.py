@@ -450,6 +450,8 @@ class ControlLoop:
         except DriverError as exc:
             await self._on_fault(str(exc))
             return False
+        if wheels[0] or wheels[1]:
+            self.supervisor.turning()
         self._rest_written = now if wheels == (0.0, 0.0) and decision.twist is ZERO \
             else -math.inf
         return True
@@ -459,10 +461,12 @@ class ControlLoop:
         if not self.driver.is_open:
             return False
         try:
-            self.wheels = await self.driver.set_wheel_speeds(left, right)
+            self.wheels = wheels = await self.driver.set_wheel_speeds(left, right)
         except DriverError as exc:
             await self._on_fault(str(exc))
             return False
+        if wheels[0] or wheels[1]:
+            self.supervisor.turning()
         return True
 
     def _target_clamps(self, linear: bool, angular: bool) -> list[str]:

@@ -23,6 +23,10 @@ class StallSupervisor:
     logs once, counts, and latches: :meth:`take_stop` then answers True once, so the loop,
     when it runs again, can forget every command it had and wait for a fresh one. One stall
     stops the wheels once; a failed emergency stop is retried while the stall lasts.
+
+    While the wheels were last told zero there is nothing to stop, and the thread sleeps
+    until the loop says it wrote a speed that turns a wheel (:meth:`turning`): an idle robot's
+    supervisor never wakes.
     """
 
     def __init__(self, driver: MotorDriver, stall_stop_s: float,
@@ -43,6 +47,9 @@ class StallSupervisor:
         self._latched = False
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
+        #: set while the wheels may turn (the thread watches the tick); cleared at rest
+        self._watching = threading.Event()
+        self._watched = False  # the loop's view of it: set() only on a change
 
     @property
     def enabled(self) -> bool:
@@ -59,11 +66,14 @@ class StallSupervisor:
             self._last_beat = self.clock()
             self._ticking = False
         self._halt.clear()
+        self._watched = True
+        self._watching.set()
         self._thread = threading.Thread(target=self._run, name="stall-supervisor", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
         self._halt.set()
+        self._watching.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
@@ -83,6 +93,13 @@ class StallSupervisor:
             self._last_beat = now
             self._ticking = True
 
+    def turning(self) -> None:
+        """The loop wrote a speed that turns a wheel (called after every such write): the
+        thread watches the tick again if it slept at rest."""
+        if not self._watched:
+            self._watched = True
+            self._watching.set()
+
     def take_stop(self) -> bool:
         """True once after the wheels were zeroed behind the loop's back."""
         if not self._latched:  # every step asks: no lock while nothing happened (a latch
@@ -94,8 +111,20 @@ class StallSupervisor:
     # -- the thread's side --------------------------------------------------------------------
 
     def _run(self) -> None:
-        while not self._halt.wait(self.check()):
-            pass
+        while not self._halt.is_set():
+            if self._at_rest():
+                self._watched = False
+                self._watching.clear()
+                if self._at_rest():  # again: a write that came between is not missed
+                    self._watching.wait()
+                    continue
+            if self._halt.wait(self.check()):
+                return
+
+    def _at_rest(self) -> bool:
+        """The wheels were last told zero: a stall now would stop nothing."""
+        left, right = self.driver.last_command
+        return left == 0.0 and right == 0.0
 
     def check(self) -> float:
         """Stop the wheels if the tick is overdue; seconds until the next check is due."""
