@@ -102,7 +102,12 @@ class MotorDriver(ABC):
         """Command both wheels (rad/s, forward positive); returns the clamped pair written."""
         if self.is_closed or not self.is_open:
             raise DriverClosed("driver is closed" if self.is_closed else "driver is not open")
-        left, right = self.clamp(left_rad_s), self.clamp(right_rad_s)
+        limit = self.max_wheel_speed
+        if type(left_rad_s) is float and type(right_rad_s) is float \
+                and -limit <= left_rad_s <= limit and -limit <= right_rad_s <= limit:
+            left, right = left_rad_s, right_rad_s  # the common case: nothing to clamp
+        else:
+            left, right = self.clamp(left_rad_s), self.clamp(right_rad_s)
         start = time.monotonic()
         try:
             await self._apply(left, right)

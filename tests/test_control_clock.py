@@ -172,7 +172,7 @@ async def test_a_fault_or_a_stall_stop_writes_the_zero_at_the_next_tick(loop: Co
     driver = loop.driver
     assert isinstance(driver, MockDriver)
     before = len(driver.commands)
-    loop.supervisor._latched = True  # the supervisor zeroed the wheels behind the loop's back
+    loop.supervisor.latched = True  # the supervisor zeroed the wheels behind the loop's back
     await run_ticks(loop, 0.52)
     assert len(driver.commands) == before + 1  # the next tick writes zero again
 

@@ -112,14 +112,21 @@ def plain_stamped(body: Any) -> Stamped | None:
     lx = az = 0.0
     cmd_id = t_sent = None
     for key, value in body.items():
-        if key == "linear" or key == "angular":
-            axes = _plain_axes(value)
-            if axes is None or axes[1] or axes[2 if key == "linear" else 0]:
+        if key == "linear" or key == "angular":  # finite floats on x, y, z; only one not 0
+            if type(value) is not dict:
                 return None
+            wanted = "x" if key == "linear" else "z"
+            speed = 0.0
+            for axis, number in value.items():
+                if type(number) is not float or number - number != 0.0 or axis not in _AXIS \
+                        or (number and axis != wanted):
+                    return None
+                if axis == wanted:
+                    speed = number
             if key == "linear":
-                lx = axes[0]
+                lx = speed
             else:
-                az = axes[2]
+                az = speed
         elif key == "id":
             if type(value) is not str and type(value) is not int:
                 return None
@@ -129,19 +136,6 @@ def plain_stamped(body: Any) -> Stamped | None:
         else:
             return None
     return Twist(lx, az), cmd_id, t_sent
-
-
-def _plain_axes(value: Any) -> list[float] | None:
-    """``[x, y, z]`` of an object of finite floats with no other keys, else None."""
-    if type(value) is not dict:
-        return None
-    out = [0.0, 0.0, 0.0]
-    for key, number in value.items():
-        index = _AXIS.get(key)
-        if index is None or type(number) is not float or number - number != 0.0:
-            return None
-        out[index] = number
-    return out
 
 
 def parse_stamp(body: Mapping[str, Any],

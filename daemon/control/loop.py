@@ -515,7 +515,8 @@ class ControlLoop:
         """The supervisor zeroed the wheels while this loop stood still: every command and the
         ramp state are stale, so the robot waits for a fresh command (as after a reconnect);
         and the wheel guard starts afresh (a stall stop is no miswiring)."""
-        if not self.supervisor.take_stop():
+        supervisor = self.supervisor  # every step asks: the latch is read before the call
+        if not supervisor.latched or not supervisor.take_stop():
             return
         self.arbiter.invalidate_all()
         self.invalidations += 1

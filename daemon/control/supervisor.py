@@ -44,7 +44,9 @@ class StallSupervisor:
         #: and the start-up is no stall (longest_stall_ms is the longest time between ticks)
         self._ticking = True
         self._stopped_beat: float | None = None  # the beat after which the wheels were zeroed
-        self._latched = False
+        #: the wheels were zeroed behind the loop's back and the loop has not taken it yet
+        #: (read without the lock: :meth:`take_stop` takes it under the lock)
+        self.latched = False
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
         #: set while the wheels may turn (the thread watches the tick); cleared at rest
@@ -102,10 +104,10 @@ class StallSupervisor:
 
     def take_stop(self) -> bool:
         """True once after the wheels were zeroed behind the loop's back."""
-        if not self._latched:  # every step asks: no lock while nothing happened (a latch
+        if not self.latched:  # no lock while nothing happened (a latch
             return False       # set just after this read is taken at the next step)
         with self._lock:
-            latched, self._latched = self._latched, False
+            latched, self.latched = self.latched, False
         return latched
 
     # -- the thread's side --------------------------------------------------------------------
@@ -151,7 +153,7 @@ class StallSupervisor:
             return RETRY_S
         with self._lock:
             self._stopped_beat = last_beat
-            self._latched = True
+            self.latched = True
         self.stall_stops += 1
         self.last_stall_s = now - last_beat
         log.error("control tick stalled for %.0f ms (event loop blocked?): wheels zeroed "

@@ -26,12 +26,21 @@ class MaskGate:
     def feed_data(self, data: bytes) -> tuple[bool, bytes]:
         if self._refused:
             return REFUSED
+        end = len(data)
+        if not self._skip and not self._head and end >= 4:  # the common case first: one
+            length = data[1] & 0x7F                         # whole frame, nothing to walk
+            one_frame = end == 2 + (4 if data[1] & 0x80 else 0) + length if length < 126 \
+                else length == 126 and end == 4 + (4 if data[1] & 0x80 else 0) + (
+                    data[2] << 8 | data[3])
+            if one_frame and data[1] & 0x80:
+                result: tuple[bool, bytes] = self.parser.feed_data(data)
+                return result
         if not self._check(data):
             self._refused = True
             self.refuse(WebSocketError(WSCloseCode.PROTOCOL_ERROR,
                                        "a frame from the client was not masked"))
             return REFUSED
-        result: tuple[bool, bytes] = self.parser.feed_data(data)
+        result = self.parser.feed_data(data)
         return result
 
     def feed_eof(self) -> None:
@@ -40,8 +49,6 @@ class MaskGate:
     def _check(self, data: bytes) -> bool:
         """Walk the frame headers in ``data``; False at one without the mask bit."""
         end = len(data)
-        if not self._skip and not self._head and end >= 4 and _one_frame(data, end):
-            return bool(data[1] & 0x80)  # the common case: one whole frame, nothing to walk
         pos = 0
         while pos < end:
             if self._skip:
@@ -66,15 +73,6 @@ class MaskGate:
             self._skip = length
             self._head = bytearray()
         return True
-
-
-def _one_frame(data: bytes, end: int) -> bool:
-    """Whether ``data`` (at least 4 bytes, from a frame's first byte) is exactly one frame
-    with a payload of less than 64 KiB."""
-    length = data[1] & 0x7F
-    if length == 126:
-        return end == 4 + (4 if data[1] & 0x80 else 0) + (data[2] << 8 | data[3])
-    return length < 126 and end == 2 + (4 if data[1] & 0x80 else 0) + length
 
 
 def _header_size(head: bytearray) -> int:

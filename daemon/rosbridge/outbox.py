@@ -146,6 +146,9 @@ class TopicQueue:
         self.type_name = type_name  # what binary encodings serialise the messages as
         self.entries: dict[Id, SubscribeOptions] = {}
         self.options = SubscribeOptions()
+        #: a message is sent as one JSON text as soon as it may (no throttle, no fragments,
+        #: no binary encoding): kept with the options, read for every message offered
+        self.plain = True
         self.queue: deque[SharedMessage] = deque(maxlen=1)
         self.last_accept = -1e18
         self.next_send = 0.0
@@ -192,17 +195,12 @@ class TopicQueue:
                                         int(self._length.min() or 0),
                                         int(fragment) if fragment else None,
                                         self._compression())
+        options = self.options
+        self.plain = options.throttle_s == 0 and options.fragment_size is None \
+            and options.compression == "none"
         length = self.options.queue_length or (1 if self.state else EVENT_QUEUE)
         if self.queue.maxlen != length:
             self.queue = deque(self.queue, maxlen=length)
-
-    @property
-    def plain(self) -> bool:
-        """Whether a message is sent as one JSON text as soon as it may (no throttle, no
-        fragments, no binary encoding)."""
-        options = self.options
-        return options.throttle_s == 0 and options.fragment_size is None \
-            and options.compression == "none"
 
     def offer(self, message: SharedMessage, now: float) -> bool:
         """Queue ``message`` (runs inside the publisher: O(1), never blocks); False if dropped."""

@@ -41,6 +41,7 @@ class Writer:
         #: waking the writer task for it would only cost a task switch
         self.inline = False
         self._transport: asyncio.WriteTransport | None = None
+        self._compressed: bool | None = None  # permessage-deflate: fixed at the handshake
 
     def wake(self) -> None:
         if not self.inline:
@@ -75,9 +76,12 @@ class Writer:
         task sleeps, no send is under way, the socket holds nothing unsent, the connection
         is open and uncompressed. False: the outbox holds it as before."""
         transport, ws = self._transport, self.ws
-        if not self._idle or self._sending.locked() or getattr(ws, "compress", True) \
-                or ws.closed or getattr(ws, "_closing", True) or transport is None \
-                or transport.is_closing() or _buffered(transport):
+        compressed = self._compressed
+        if compressed is None:
+            compressed = self._compressed = bool(getattr(ws, "compress", True))
+        if not self._idle or compressed or self._sending.locked() or ws.closed \
+                or getattr(ws, "_closing", True) or transport is None \
+                or transport.is_closing() or transport.get_write_buffer_size():
             return False
         transport.write(text_frame(message.frame(queue.spelling).encode()))
         return True
