@@ -25,8 +25,8 @@ class TopicOut(Generic[T]):
     (and any later transport) serves it; ``record``: the flight recorder writes it. ``state``:
     the latest value is all a new subscriber needs (else every message counts, as for logs).
     ``latched``: every new recording starts with the latest message (health). ``bulk``: large
-    messages (scans, maps) that a transport sends in the wake-up of the next control tick,
-    after the tick, so that no tick waits behind their encoding and sends.
+    messages (scans, maps) that rosbridge sends in the wake-up of the next control tick, after
+    the tick, so that no tick waits behind their encoding and sends.
     """
 
     name: str
