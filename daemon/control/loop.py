@@ -329,7 +329,7 @@ class ControlLoop:
                 source(now)
             if (self.driver.fault and not self.fault) or self._lock.locked() \
                     or not self._rest_step(now):
-                return self._tick_stepping(now, on_time)
+                return self._tick_stepping(on_time)
             problem = self._update_odometry(now)
             if problem is not None:
                 return self._tick_after(now, on_time, problem)
@@ -340,8 +340,13 @@ class ControlLoop:
         self._tick_done(now, on_time)
         return None
 
-    async def _tick_stepping(self, now: float, on_time: bool) -> None:
-        """The rest of a tick whose step has to wait (lock, driver) or whose driver faulted."""
+    async def _tick_stepping(self, on_time: bool) -> None:
+        """The rest of a tick whose step has to wait (lock, driver) or whose driver faulted.
+        It runs on the metronome's task, a loop iteration or more after the deadline's
+        callback: the step, odometry and what follows take the time they run at, so that a
+        pose is stamped with the time its encoders were read (the mapper's odometry history,
+        the published /odom) even when that iteration was long."""
+        now = self.clock()
         try:
             if self.driver.fault and not self.fault:
                 await self._on_fault(self.driver.fault)
