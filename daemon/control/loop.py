@@ -353,19 +353,19 @@ class ControlLoop:
             async with self._lock:
                 await self._step(now)
             problem = self._update_odometry(now)
-            if problem is not None:
-                await problem
-            self._tick_publish(now)
         except Exception:
             log.exception("control tick failed")
-            on_time = False
-        self._tick_done(now, on_time)
+            self._tick_done(now, False)
+            return
+        await self._tick_after(now, on_time, problem)
 
     async def _tick_after(self, now: float, on_time: bool,
-                          problem: Coroutine[Any, Any, None]) -> None:
-        """The rest of a tick whose odometry found a fault or a wheel mismatch."""
+                          problem: Coroutine[Any, Any, None] | None) -> None:
+        """The rest of a tick after its step and odometry: what the odometry found (a fault,
+        a wheel mismatch) handled, then the publications and the tick callbacks."""
         try:
-            await problem
+            if problem is not None:
+                await problem
             self._tick_publish(now)
         except Exception:
             log.exception("control tick failed")
