@@ -11,20 +11,20 @@ from base.config import Config, ConfigError
 from daemon import __version__
 from daemon.bus import Bus
 from daemon.component import Component, DaemonContext, Plugs, worst
-from daemon.components import COMPONENTS
+from daemon.components.collision_monitor.component import scan_points
+from daemon.components.control.loop import ControlLoop
+from daemon.components.http.component import HttpServer
+from daemon.components.http.settings import HttpSettings
+from daemon.components.sim.component import SimRuntime
 from daemon.config import build_driver
-from daemon.control.loop import ControlLoop
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw
-from daemon.http_api import HttpServer
-from daemon.http_settings import HttpSettings
 from daemon.latency import LatencyTracker
 from daemon.listen import EXIT_PORT_IN_USE, PortInUse, taken
 from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
-from daemon.safety.component import scan_points
+from daemon.registry import COMPONENTS
 from daemon.security import Security
 from daemon.settings import DriverSettings, LimitsSettings, RobotSettings, SecuritySettings
-from daemon.simulator import SimRuntime
 from daemon.telemetry import HEALTH, HEALTH_CHANGE, ROBOT_INFO
 from daemon.topics import TopicTable
 from drivers import DriverError

@@ -20,12 +20,12 @@ from typing import Any
 from daemon import __version__
 from daemon.app import EXIT_CONFIG, EXIT_HARDWARE, EXIT_OK, EXIT_USAGE, Daemon
 from daemon.bench import SUITES, suites_help
+from daemon.components.http.settings import HttpSettings
+from daemon.components.recorder import cli as record_cli
+from daemon.components.recorder.paths import listing_directory
+from daemon.components.recorder.settings import RecordSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
-from daemon.http_settings import HttpSettings
 from daemon.messages.convert import problem as problem_text
-from daemon.recorder import cli as record_cli
-from daemon.recorder.paths import listing_directory
-from daemon.recorder.settings import RecordSettings
 from daemon.settings import LoggingSettings
 from sensors.rplidar import cli as lidar_cli
 from sensors.rplidar.settings import LidarSettings
@@ -432,8 +432,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from daemon.mapping import cli as map_cli
-    from daemon.mapping.settings import MappingSettings
+    from daemon.components.mapping import cli as map_cli
+    from daemon.components.mapping.settings import MappingSettings
     from daemon.paths import listing_directory as state_listing
 
     if args.map_command == "save":
@@ -451,7 +451,7 @@ def cmd_map(args: argparse.Namespace) -> int:
 
 
 def cmd_mission(args: argparse.Namespace) -> int:
-    from daemon.navigation import cli as mission_cli
+    from daemon.components.navigation import cli as mission_cli
 
     address = _daemon_address(args, "mission")
     if isinstance(address, int):
@@ -526,13 +526,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_mission(sub: Any) -> None:
-    from daemon.navigation import cli as mission_cli
+    from daemon.components.navigation import cli as mission_cli
 
     mission_cli.add_parser(sub).set_defaults(func=cmd_mission, sim=False)
 
 
 def _add_map(sub: Any) -> None:
-    from daemon.mapping import cli as map_cli
+    from daemon.components.mapping import cli as map_cli
 
     map_cli.add_parser(sub).set_defaults(func=cmd_map)
 

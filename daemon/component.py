@@ -15,12 +15,12 @@ from daemon.topics import Access, Topic, TopicTable
 if TYPE_CHECKING:
     from aiohttp import web
 
-    from daemon.control.guard import MotionGuard
-    from daemon.control.loop import ControlLoop
-    from daemon.http_api import HttpServer
+    from daemon.components.control.guard import MotionGuard
+    from daemon.components.control.loop import ControlLoop
+    from daemon.components.http.component import HttpServer
+    from daemon.components.sim.component import SimRuntime
     from daemon.latency import LatencyTracker
     from daemon.security import Security
-    from daemon.simulator import SimRuntime
     from sensors.scan import ScanPoints
 
 T = TypeVar("T")

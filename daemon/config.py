@@ -10,8 +10,8 @@ from typing import Any
 
 from base.config import BUILTIN, Config, ConfigError, SectionSettings
 from base.options import Options, defaults
-from daemon.components import COMPONENTS
-from daemon.control.kinematics import DiffDrive
+from daemon.components.control.kinematics import DiffDrive
+from daemon.registry import COMPONENTS
 from daemon.settings import CORE_SETTINGS, CORE_SETTINGS_LAST, LimitsSettings, RobotSettings
 from drivers import DRIVERS, DriverError, MotorDriver, create_driver, driver_class
 from drivers.base import renamed_hint

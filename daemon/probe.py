@@ -27,7 +27,7 @@ async def probe_hardware(config: Config) -> list[str]:
 
 async def probe_arm(config: Config) -> list[str]:
     """Ask the arm's servo output (``[arm]`` on) whether it answers, without moving a servo."""
-    from daemon.arm.component import build_servo
+    from daemon.components.arm.component import build_servo
 
     if not config["arm"]["enabled"]:
         return []
@@ -51,8 +51,8 @@ async def safe_stop_arm(config: Config) -> str | None:
     """``[arm] on_stop``: ``relax`` turns the servo pulses off; ``home`` sends the home pose's
     pulses at once (after a crash nothing knows where the arm is: each servo moves there at
     its own speed). None when the arm is off."""
-    from daemon.arm.component import build_servo
-    from daemon.arm.settings import ArmSettings
+    from daemon.components.arm.component import build_servo
+    from daemon.components.arm.settings import ArmSettings
 
     settings = config.get(ArmSettings)
     if not settings.enabled:

@@ -116,7 +116,7 @@ HEAVY_AT_START = ("scipy", "rosbags", "cyclonedds", "mcap_ros2")
 
 
 def test_the_daemon_and_its_cli_start_without_the_heavy_libraries() -> None:
-    code = ("import sys, daemon.cli, daemon.app, daemon.components\n"
+    code = ("import sys, daemon.cli, daemon.app, daemon.registry\n"
             f"print(' '.join(m for m in {HEAVY_AT_START!r} if m in sys.modules))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             cwd=REPO, check=True).stdout.split()

@@ -13,9 +13,9 @@ import pytest
 
 from base import ports
 from base.options import defaults
+from daemon.components.http.component import HttpServer
+from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
 from daemon.config import ConfigError, load_config
-from daemon.http_api import HttpServer
-from daemon.http_settings import HTTP_OPTIONS, HttpSettings
 from daemon.listen import PortInUse
 from daemon.security import Security
 from drivers import DriverFault, create_driver

@@ -11,8 +11,8 @@ import aiohttp
 import pytest
 
 from base.config import SectionSettings, field_name
-from daemon.components import COMPONENTS
 from daemon.config import SETTINGS, all_sections
+from daemon.registry import COMPONENTS
 from daemon.topics import TopicIn, TopicOut
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
 from tests.support.wait import eventually

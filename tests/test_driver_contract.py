@@ -14,10 +14,10 @@ from typing import Any
 import pytest
 
 from daemon.bus import Bus
+from daemon.components.control.commands import Twist
+from daemon.components.control.kinematics import DiffDrive
+from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
-from daemon.control.commands import Twist
-from daemon.control.kinematics import DiffDrive
-from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from daemon.settings import DRIVER_OPTIONS
 from drivers import DRIVERS, create_driver

@@ -168,7 +168,8 @@ def test_release_venv_runs_the_installed_package(
                             text=True, timeout=60, check=False)
     assert result.returncode == 0 and result.stdout.startswith("arbiterd "), result.stderr
     console = subprocess.run(  # the web console's files are inside the installed wheel
-        [str(venv / "bin/python"), "-c", "from daemon.console import FILES, load\n"
+        [str(venv / "bin/python"), "-c",
+         "from daemon.components.console.component import FILES, load\n"
          "print(sum(len(load(name).body) for name in FILES))"],
         capture_output=True, text=True, timeout=60, check=False)
     assert console.returncode == 0 and int(console.stdout) > 10_000, console.stderr

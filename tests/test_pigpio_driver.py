@@ -18,8 +18,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from daemon.bus import Bus
+from daemon.components.control.loop import ControlLoop
 from daemon.config import load_config
-from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from drivers.base import DriverFault
 from drivers.pigpio_pwm import PigpioDriver, speed_to_duty

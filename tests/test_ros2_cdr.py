@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from daemon.components.ros2 import announce
 from daemon.messages import cdr, cdr_read
 from daemon.messages.cdr import CdrError
 from daemon.messages.msgtypes import known_types
-from daemon.ros2 import announce
 
 typesys = pytest.importorskip("rosbags.typesys", reason="rosbags is in the test extra")
 STORES = {"jazzy": typesys.get_typestore(typesys.Stores.ROS2_JAZZY),

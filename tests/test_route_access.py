@@ -55,8 +55,8 @@ async def status_of(robot: InProcessDaemon, method: str, path: str,
 
 def test_access_levels_are_checked_at_registration() -> None:
     from base.options import defaults
-    from daemon.http_api import HttpServer
-    from daemon.http_settings import HTTP_OPTIONS, HttpSettings
+    from daemon.components.http.component import HttpServer
+    from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
     from daemon.security import Security
 
     http = HttpServer(HttpSettings.from_values(defaults(HTTP_OPTIONS) | {

@@ -13,8 +13,8 @@ import pytest
 from base.config import Config
 from base.options import defaults
 from daemon.bus import Bus
+from daemon.components.lidar.component import create
 from daemon.hooks import HookMap
-from daemon.lidar import create
 from daemon.settings import ROBOT_OPTIONS
 from daemon.telemetry import SCAN
 from sensors.rplidar.assembler import Revolution
@@ -214,7 +214,7 @@ def test_create_returns_none_when_disabled() -> None:
 
 
 async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None:
-    from daemon.http_api import ApiError
+    from daemon.components.http.component import ApiError
 
     with RplidarEmulator(tmp_path / "lidar", A1, ranges_fn=lambda a, t: np.full(len(a), 2.0)):
         ctx = FakeCtx(str(tmp_path / "lidar"))

@@ -15,9 +15,9 @@ import pytest
 from daemon.app import STOP_TIMEOUT_S
 from daemon.bus import Bus
 from daemon.component import BaseComponent
+from daemon.components.control.commands import Twist
+from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
-from daemon.control.commands import Twist
-from daemon.control.loop import ControlLoop
 from daemon.latency import LatencyTracker
 from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.deploy import SYSTEMD_DIR, unit_values

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from daemon.components.control.commands import parse_twist
 from daemon.config import load_config
-from daemon.control.commands import parse_twist
 from daemon.lockstep.runner import Lockstep
 from daemon.lockstep.script import Step
 from sim.noise import Noise, NoiseConfig
@@ -243,7 +243,7 @@ async def test_the_mock_driver_in_the_simulator_counts_the_worlds_wheel_turns() 
     # run --sim with the mock driver: its encoders read the world's wheels, so odometry
     # counts what the wheels truly turned (motor lag, a world thread that fell behind and
     # skipped ahead), not the commands integrated over the daemon's clock
-    from daemon.simulator import SimRuntime
+    from daemon.components.sim.component import SimRuntime
     from drivers.mock import MockDriver
 
     config = load_config(None, sim=True, env={})

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from daemon.safety.settings import COLLISION_MONITOR_OPTIONS
+from daemon.components.collision_monitor.settings import COLLISION_MONITOR_OPTIONS
 from tests.support.paths import REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"

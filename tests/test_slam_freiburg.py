@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.mapping.build import build_map
+from daemon.components.mapping.build import build_map
 from slam.datasets import freiburg_dataset, read_scans
 from slam.mapper import Mapper, MapperConfig
 from slam.relations import load_relations, relation_errors

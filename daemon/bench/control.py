@@ -6,9 +6,9 @@ import time
 
 from daemon.bench import BenchResult
 from daemon.bus import Bus
+from daemon.components.control.commands import Twist
+from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
-from daemon.control.commands import Twist
-from daemon.control.loop import ControlLoop
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 

@@ -19,9 +19,9 @@ import aiohttp
 import numpy as np
 
 from daemon.bench import BenchResult, bench_daemon, percentile_ms, run_quietly, scan_subscribers
+from daemon.components.rosbridge.outbox import SharedMessage
 from daemon.messages.convert import scan_msg
 from daemon.messages.definitions import LASER_SCAN
-from daemon.rosbridge.outbox import SharedMessage
 from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 

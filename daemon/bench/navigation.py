@@ -12,15 +12,15 @@ from typing import Any
 import numpy as np
 
 from daemon.bench import BenchResult
+from daemon.components.navigation import component as navigation_component
+from daemon.components.navigation.messages import GoalRequest
+from daemon.components.navigation.planning import Planned, Scans
 from daemon.lockstep.navigation import (
     NavigationRun,
     figure_eight_run,
     planning_cost,
     summarise,
 )
-from daemon.navigation import component as navigation_component
-from daemon.navigation.messages import GoalRequest
-from daemon.navigation.planning import Planned, Scans
 from nav.costmap import Costmap
 from nav.pursuit import Pursuit, PursuitSettings, densify, figure_eight
 from slam.pose import Pose2

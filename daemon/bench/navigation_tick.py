@@ -9,8 +9,8 @@ from pathlib import Path
 from daemon.bench import BenchResult, bench_daemon, run_quietly
 from daemon.bench.mapping_cost import publish_scans
 from daemon.bench.turns import lateness_in_turns, lateness_results
-from daemon.navigation.component import NavigationComponent
-from daemon.navigation.messages import GoalRequest
+from daemon.components.navigation.component import NavigationComponent
+from daemon.components.navigation.messages import GoalRequest
 
 SUITE = "navigation-tick"
 #: goals tried in turn, ahead, behind and to the sides of the start (odometry frame, m): the

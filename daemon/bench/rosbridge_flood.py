@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from daemon.bench import BenchResult, percentile_ms, run_quietly
 from daemon.bench.rosbridge import _publish_scans, bench_daemon
 from daemon.bench.rosbridge_attacks import run_attack
-from daemon.rosbridge.server import RosbridgeServer
+from daemon.components.rosbridge.component import RosbridgeServer
 
 if TYPE_CHECKING:
     from daemon.app import Daemon

@@ -12,14 +12,14 @@ import numpy as np
 from daemon.bench import BenchResult
 from daemon.bus import Bus
 from daemon.component import Plugs
+from daemon.components.collision_monitor.component import SafetyComponent, monitor_settings
+from daemon.components.collision_monitor.monitor import CollisionMonitor
+from daemon.components.control.commands import Twist
+from daemon.components.control.loop import ControlLoop
 from daemon.config import Config, build_driver, load_config
-from daemon.control.commands import Twist
-from daemon.control.loop import ControlLoop
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker, summarize
 from daemon.lockstep.runner import Lockstep
-from daemon.safety.component import SafetyComponent, monitor_settings
-from daemon.safety.monitor import CollisionMonitor
 from daemon.telemetry import SCAN
 from sensors.scan import LaserScan
 from sim.raycast import RayCaster, ray_angles

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from daemon.components.navigation.component import NavigationComponent
 from daemon.config import load_config
 from daemon.lockstep.runner import Lockstep
-from daemon.navigation.component import NavigationComponent
 from sim.mapping_truth import clearances, flood, reachable_free_cells, world_grid
 from sim.world import World
 from slam.pose import Pose2

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from daemon.components.fetch.component import FetchComponent
+from daemon.components.fetch.sequence import FetchError
 from daemon.config import load_config
-from daemon.fetch.component import FetchComponent
-from daemon.fetch.sequence import FetchError
 from daemon.lockstep.navigation import GOAL_ROOM_M
 from daemon.lockstep.runner import Lockstep
 from sim.mapping_truth import clearances, reachable_free_cells, world_grid

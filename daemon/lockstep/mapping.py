@@ -9,12 +9,12 @@ import numpy as np
 
 from base.config import Config
 from daemon.component import Plugs
-from daemon.control.clock import VirtualClock
-from daemon.mapping.component import MAP_POSE, MappingComponent, maps_directory
-from daemon.mapping.mapfile import MapData, save_map
-from daemon.mapping.messages import MapPose
-from daemon.mapping.runner import snapshot_of
-from daemon.mapping.settings import MappingSettings
+from daemon.components.control.clock import VirtualClock
+from daemon.components.mapping.component import MAP_POSE, MappingComponent, maps_directory
+from daemon.components.mapping.mapfile import MapData, save_map
+from daemon.components.mapping.messages import MapPose
+from daemon.components.mapping.runner import snapshot_of
+from daemon.components.mapping.settings import MappingSettings
 from daemon.settings import RobotSettings
 from sensors.scan import ScanPoints
 from sim.mapping_truth import (

@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from daemon.components.navigation.component import NavigationComponent
+from daemon.components.navigation.messages import GoalRequest
 from daemon.config import load_config
 from daemon.lockstep.runner import Lockstep
-from daemon.navigation.component import NavigationComponent
-from daemon.navigation.messages import GoalRequest
 from nav.costmap import GridArea
 from nav.planner import cheapest_path, shortcut
 from nav.pursuit import figure_eight, transform

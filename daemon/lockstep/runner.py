@@ -10,25 +10,25 @@ from typing import Any
 import numpy as np
 
 from base.config import Config
-from daemon.arm.component import tool_at
-from daemon.arm.controller import ArmController
-from daemon.arm.settings import ArmSettings
-from daemon.autonomy.component import AutonomyComponent
 from daemon.bus import Bus
 from daemon.component import Plugs
+from daemon.components.arm.component import tool_at
+from daemon.components.arm.controller import ArmController
+from daemon.components.arm.settings import ArmSettings
+from daemon.components.autonomy.component import AutonomyComponent
+from daemon.components.collision_monitor.component import SafetyComponent, scan_points
+from daemon.components.collision_monitor.settings import CollisionMonitorSettings
+from daemon.components.control.clock import VirtualClock
+from daemon.components.control.commands import Twist
+from daemon.components.control.loop import ControlLoop
+from daemon.components.fetch.component import FetchComponent
+from daemon.components.fetch.settings import FetchSettings
+from daemon.components.navigation.component import NavigationComponent
 from daemon.config import wheel_speed_clamp
-from daemon.control.clock import VirtualClock
-from daemon.control.commands import Twist
-from daemon.control.loop import ControlLoop
-from daemon.fetch.component import FetchComponent
-from daemon.fetch.settings import FetchSettings
 from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
 from daemon.lockstep.mapping import MappingProbe
 from daemon.lockstep.script import Step
-from daemon.navigation.component import NavigationComponent
-from daemon.safety.component import SafetyComponent, scan_points
-from daemon.safety.settings import CollisionMonitorSettings
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN
 from drivers.devices import create_device

@@ -1,1 +1,1 @@
-# ROS 2 face checks that run inside a private network namespace (tests/test_ros2_face.py).
+# ROS 2 face checks run inside a private network namespace (tests/components/ros2/).

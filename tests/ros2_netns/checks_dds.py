@@ -7,9 +7,9 @@ import threading
 import time
 from typing import Any
 
-from daemon.ros2 import announce
-from daemon.ros2.dds import ANNOUNCE_QOS, DdsNode, announcement_type
-from daemon.ros2.inlet import Inlet
+from daemon.components.ros2 import announce
+from daemon.components.ros2.dds import ANNOUNCE_QOS, DdsNode, announcement_type
+from daemon.components.ros2.inlet import Inlet
 from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
@@ -19,8 +19,8 @@ WRITE_S = 4.0
 #: another participant (another process) writing announcements for ``argv[1]`` seconds
 OTHER = f"""
 import sys, time
-from daemon.ros2 import announce
-from daemon.ros2.dds import ANNOUNCE_QOS, DdsNode, announcement_type
+from daemon.components.ros2 import announce
+from daemon.components.ros2.dds import ANNOUNCE_QOS, DdsNode, announcement_type
 node = DdsNode({DOMAIN}, True, False)
 writer = node.writer(announce.TOPIC, announcement_type(16), ANNOUNCE_QOS)
 data = announce.encode(node.guid, [announce.NodeInfo("/", "other")], 16)

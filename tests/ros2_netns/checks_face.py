@@ -1,4 +1,4 @@
-# The ROS 2 face against a real rclpy node; run by tests/test_ros2_face.py in a private netns.
+# The ROS 2 face against a real rclpy node, in a private netns (tests/components/ros2/).
 from __future__ import annotations
 
 import math

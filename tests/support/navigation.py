@@ -4,9 +4,9 @@ from __future__ import annotations
 import contextlib
 from collections.abc import AsyncIterator
 
+from daemon.components.navigation.component import NavigationComponent
 from daemon.config import load_config
 from daemon.lockstep.runner import Lockstep
-from daemon.navigation.component import NavigationComponent
 
 
 @contextlib.asynccontextmanager

@@ -1,0 +1,1 @@
+# The components: one package each, folder = component name = config section.

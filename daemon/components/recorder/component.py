@@ -1,0 +1,193 @@
+# The daemon's "recorder" component: bus and log lines into the writer thread, /api/record(ings).
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import re
+import stat
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, BinaryIO
+
+from aiohttp import web
+
+from daemon import __version__
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
+from daemon.components.http.component import ApiError, json_response, read_json_object
+from daemon.components.recorder.channels import Channel, channels_by_bus
+from daemon.components.recorder.files import RecordingIndex
+from daemon.components.recorder.paths import record_directory
+from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.writer import FlightRecorder, WriterOptions
+from daemon.security import hide_paths
+from daemon.telemetry import ROBOT_INFO
+from daemon.topics import TopicOut
+
+log = logging.getLogger("arbiterd.recorder")
+
+_NAME = re.compile(r"^arbiterd-[A-Za-z0-9_-]+\.mcap$")
+MB = 1_000_000
+
+
+class RecorderComponent(BaseComponent):
+    """Non-core: a recorder that cannot write degrades health; the robot keeps driving.
+
+    It records every topic of the topic table marked ``record``; the channels are registered
+    when it starts, once every component has declared its topics."""
+
+    name = "recorder"
+    core = False
+
+    def __init__(self, ctx: DaemonContext, options: RecordSettings) -> None:
+        self.ctx = ctx
+        self.bus = ctx.bus
+        self.options = options
+        self.directory = record_directory({"directory": options.directory})
+        self.recorder = FlightRecorder(self._writer_options(), [], self._metadata,
+                                       self._on_open)
+        self.index = RecordingIndex(self.directory, self.recorder.live_file)
+        self._unsubscribers: list[Callable[[], None]] = []
+        self._latched: list[tuple[TopicOut[Any], tuple[Channel, ...]]] = []
+        #: the recorded topics' bus keys and channels: listened to only while recording is on
+        self._groups: list[tuple[TopicOut[Any], tuple[Channel, ...]]] = []
+
+    def _writer_options(self) -> WriterOptions:
+        o = self.options
+        total = int(o.max_total_mb * MB)
+        return WriterOptions(self.directory, min(int(o.max_file_mb * MB), total // 2),
+                             o.max_file_s, total, o.compression, o.flush_interval_s,
+                             o.queue_size)
+
+    # -- lifecycle --------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        topics = self.ctx.topics.recorded()
+        groups = channels_by_bus(topics)
+        self.recorder.channels = [c for group in groups.values() for c in group]
+        for topic in topics:
+            group = groups.pop(topic.bus.name, None)
+            if group is None:
+                continue  # the bus key's other topics share this group
+            self._groups.append((topic, group))
+            if topic.latched:
+                self._latched.append((topic, group))
+        self.set_recording(bool(self.options.enabled))
+        self.recorder.start()
+
+    def set_recording(self, enabled: bool) -> None:
+        """Switch recording on or off; the bus is listened to only while it is on, so a
+        recorder that is off costs the publishers (the control tick, every command) nothing."""
+        if enabled and not self._unsubscribers:
+            self._unsubscribers = [self.bus.subscribe(topic.bus, self._enqueuer(group))
+                                   for topic, group in self._groups]
+        elif not enabled:
+            self._unsubscribe()
+        self.recorder.wanted = enabled
+
+    def _unsubscribe(self) -> None:
+        for unsubscribe in self._unsubscribers:
+            unsubscribe()
+        self._unsubscribers.clear()
+
+    async def stop(self) -> None:
+        self._unsubscribe()
+        await asyncio.to_thread(self.recorder.stop)
+
+    def health(self) -> dict[str, Any]:
+        state = self.recorder.snapshot()
+        state["status"] = "degraded" if state["error"] else "ok"
+        return state
+
+    def routes(self) -> Sequence[Route]:
+        return (Route("POST", "/api/record", self.post_record, "drive"),
+                Route("GET", "/api/recordings", self.get_recordings, "read"),
+                Route("GET", "/api/recordings/{name}", self.get_recording, "read"))
+
+    # -- feeding the writer (hot path: enqueue only) ----------------------------------------------
+
+    def _enqueuer(self, channels: tuple[Channel, ...]) -> Callable[[Any], None]:
+        enqueue = self.recorder.enqueue
+        return lambda message: enqueue(channels, message)
+
+    def _on_open(self) -> list[tuple[tuple[Channel, ...], Any]]:
+        """Each new file starts with the latest message of every latched topic (health)."""
+        out = []
+        for topic, group in self._latched:
+            latest = self.bus.latest(topic.bus)
+            if latest is not None:
+                out.append((group, latest))
+        return out
+
+    def _metadata(self) -> dict[str, str]:
+        info = self.bus.latest(ROBOT_INFO)
+        return {"version": __version__, "mode": self.ctx.mode,
+                "robot_info": json.dumps(info, default=str) if info is not None else ""}
+
+    # -- HTTP ----------------------------------------------------------------------------------
+
+    async def post_record(self, request: web.Request) -> web.Response:
+        body = await read_json_object(request, self.ctx.http.max_body_bytes)
+        enabled = body.get("enabled")
+        if set(body) != {"enabled"} or not isinstance(enabled, bool):
+            raise ApiError(422, 'expected {"enabled": true} or {"enabled": false}',
+                           f"got {json.dumps(body)[:200]}")
+        self.set_recording(enabled)
+        log.info("flight recorder %s through the HTTP API", "enabled" if enabled else "disabled")
+        await self._settled(enabled)
+        return json_response(self.health())
+
+    async def _settled(self, enabled: bool, within_s: float = 3.0) -> None:
+        """Wait (briefly) until the writer thread opened or closed its file, or failed."""
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline:
+            recording = self.recorder.current is not None
+            if recording == enabled or (enabled and self.recorder.error):
+                return
+            await asyncio.sleep(0.02)
+
+    async def get_recordings(self, request: web.Request) -> web.Response:
+        infos = await asyncio.to_thread(self.index.list)
+        shown = str(self.directory)
+        if not self.ctx.security.sees_paths(request.headers, request.query,
+                                            request.remote):
+            shown = hide_paths(shown)
+        return json_response({
+            "directory": shown,
+            "recordings": [i.to_json(topics=False) for i in infos]})
+
+    async def get_recording(self, request: web.Request) -> web.StreamResponse:
+        name = request.match_info["name"]
+        if _NAME.match(name) is None:
+            raise ApiError(404, f"no recording named {name[:80]!r}", "see GET /api/recordings")
+        try:
+            file = await asyncio.to_thread(self._open, name)
+        except OSError:  # missing, a link, not a regular file, a name too long for the disk
+            raise ApiError(404, f"no recording named {name[:80]!r}",
+                           "see GET /api/recordings") from None
+        try:
+            return await self.ctx.http.send_file(request, file, os.fstat(file.fileno()).st_size, {
+                "Content-Type": "application/octet-stream",
+                "Content-Disposition": f'attachment; filename="{name}"'})
+        finally:
+            file.close()
+
+    def _open(self, name: str) -> BinaryIO:
+        """A recording opened for reading: a regular file, never through a symbolic link."""
+        fd = os.open(self.directory / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise OSError(f"{name}: not a regular file")
+            return os.fdopen(fd, "rb")
+        except BaseException:
+            os.close(fd)
+            raise
+
+
+def create(ctx: DaemonContext) -> RecorderComponent:
+    """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
+    return RecorderComponent(ctx, ctx.settings(RecordSettings))
+
+
+COMPONENT = ComponentSpec("recorder", create, RecordSettings)
