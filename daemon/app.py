@@ -11,7 +11,6 @@ from base.config import Config, ConfigError
 from daemon import __version__
 from daemon.bus import Bus
 from daemon.component import Component, DaemonContext, Plugs, worst
-from daemon.components.collision_monitor.component import scan_points
 from daemon.components.control.loop import ControlLoop
 from daemon.components.http.component import HttpServer
 from daemon.components.http.settings import HttpSettings
@@ -23,6 +22,7 @@ from daemon.listen import EXIT_PORT_IN_USE, PortInUse, taken
 from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
 from daemon.registry import COMPONENTS
+from daemon.robot import scan_points
 from daemon.security import Security
 from daemon.settings import DriverSettings, LimitsSettings, RobotSettings, SecuritySettings
 from daemon.telemetry import HEALTH, HEALTH_CHANGE, ROBOT_INFO
@@ -96,6 +96,8 @@ class Daemon:
         self._shutdown_done = False
         self._tasks: list[asyncio.Task[None]] = []
         self.ctx: DaemonContext | None = None
+        #: the control loop, once built (the robot base every component gets as ctx.robot)
+        self.control: ControlLoop | None = None
         self.driver_name = self._driver_name()
 
     # -- building ------------------------------------------------------------------------
@@ -128,9 +130,10 @@ class Daemon:
         if self.notifier.watchdog_interval_s is not None:  # else its tick hook does nothing
             loop.on_tick.add(self.notifier.tick)
         http = HttpServer(self.config.get(HttpSettings), self.security)
+        self.control = loop
         ctx = DaemonContext(self.config, self.bus, http, loop, self.security, self.latency,
                             self.mode, TopicTable(), scan_points(self.config), self,
-                            Plugs(loop, self.bus), sim=runtime)
+                            Plugs(loop, loop, self.bus), sim=runtime)
         for spec in COMPONENTS:
             scoped = ctx.scoped()
             self._plugs.append(scoped.plugs)
@@ -214,7 +217,7 @@ class Daemon:
         self.notifier.stopping(f"stopping: {reason or 'requested'}")
         for task in self._tasks:
             task.cancel()
-        control = self.ctx.control if self.ctx else None
+        control = self.control
         if control is not None:
             await self._halt(control)
         budget_end = time.monotonic() + SHUTDOWN_BUDGET_S
@@ -256,8 +259,8 @@ class Daemon:
     async def _supervise(self) -> None:
         """Once a second (with a control tick: no wake-up of its own): recompute health
         state, publish it and /robot_info."""
-        assert self.ctx is not None
-        control = self.ctx.control
+        assert self.control is not None
+        control = self.control
         while True:
             self._update_state()
             self._publish_health(self.health())
@@ -318,9 +321,9 @@ class Daemon:
         parts = [self.state, f"{self.mode} mode", f"driver {self.driver_name}"]
         if self.mode == "sim":
             parts.append(f"simulated robot, {self.driver_name} emulator")
-        if self.ctx and self.ctx.control.fault:
-            parts.append(f"driver fault: {self.ctx.control.fault}")
-        if self.ctx and self.ctx.control.arbiter.estop_engaged:
+        if self.control and self.control.fault:
+            parts.append(f"driver fault: {self.control.fault}")
+        if self.control and self.control.estop_engaged:
             parts.append("e-stop engaged")
         return ", ".join(parts)
 

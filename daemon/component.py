@@ -9,19 +9,17 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 from base.config import Config, SectionSettings
 from daemon.bus import Bus, BusKey
 from daemon.hooks import HookMap, Remove
+from daemon.latency import LatencyTracker
 from daemon.listen import Listener
+from daemon.robot import RobotBase, TickHooks
+from daemon.security import Security
 from daemon.topics import Access, Topic, TopicTable
+from daemon.web import HttpPort
+from sensors.scan import ScanPoints
+from sim.stepper import SimWorld
 
 if TYPE_CHECKING:
     from aiohttp import web
-
-    from daemon.components.control.guard import MotionGuard
-    from daemon.components.control.loop import ControlLoop
-    from daemon.components.http.component import HttpServer
-    from daemon.components.sim.component import SimRuntime
-    from daemon.latency import LatencyTracker
-    from daemon.security import Security
-    from sensors.scan import ScanPoints
 
 T = TypeVar("T")
 S = TypeVar("S", bound=SectionSettings)
@@ -107,8 +105,9 @@ class Plugs:
     :meth:`release` takes them all out (newest first). The daemon gives every component its
     own; so does the lockstep simulator, which builds components without the rest."""
 
-    def __init__(self, control: ControlLoop, bus: Bus) -> None:
-        self.control = control
+    def __init__(self, hooks: TickHooks, robot: RobotBase, bus: Bus) -> None:
+        self.hooks = hooks
+        self.robot = robot
         self.bus = bus
         self._undo: list[Remove] = []
 
@@ -125,28 +124,24 @@ class Plugs:
 
     def on_tick(self, callback: Callable[[float, bool], None]) -> Remove:
         """``callback(now, on_time)`` after every control tick."""
-        return self._keep(self.control.on_tick.add(callback))
+        return self._keep(self.hooks.on_tick.add(callback))
 
     def schedule(self, callback: Callable[[float], float]) -> Remove:
         """``callback(now)`` from the first control tick, then from the first tick at or after
         the time it returns (periodic work that costs an idle tick nothing in between)."""
-        return self._keep(self.control.schedule.add(callback))
+        return self._keep(self.hooks.schedule.add(callback))
 
     def add_tick_source(self, callback: Callable[[float], None]) -> Remove:
         """``callback(now)`` at the start of every tick, before the step (internal sources)."""
-        return self._keep(self.control.tick_sources.add(callback))
+        return self._keep(self.hooks.tick_sources.add(callback))
 
     def on_command(self, callback: Callable[[str], None]) -> Remove:
         """``callback(source)`` after every accepted command from a source."""
-        return self._keep(self.control.on_command.add(callback))
+        return self._keep(self.hooks.on_command.add(callback))
 
     def add_status(self, name: str, supplier: Callable[[], Any]) -> Remove:
         """A field of ``/api/status``."""
-        return self._keep(self.control.status_fields.add(name, supplier))
-
-    def set_guard(self, guard: MotionGuard) -> Remove:
-        """The guard between the arbiter and the limiter (the collision monitor)."""
-        return self._keep(self.control.set_guard(guard))
+        return self._keep(self.hooks.status_fields.add(name, supplier))
 
     def add(self, remove: Remove) -> Remove:
         """Any other registration's remover, to be called on release."""
@@ -156,7 +151,7 @@ class Plugs:
                    on_tick: Callable[[float, bool], None] | None = None,
                    on_command: Callable[[str], None] | None = None) -> BusyHooks:
         """Hooks a component needs only while it is busy (see :class:`BusyHooks`)."""
-        hooks = BusyHooks(self.control, tick_source, on_tick, on_command)
+        hooks = BusyHooks(self.hooks, tick_source, on_tick, on_command)
         self._keep(hooks.stop)
         return hooks
 
@@ -167,17 +162,17 @@ class BusyHooks:
     control tick and every command nothing. A hook that finds nothing to do may call
     :meth:`stop` itself (no end of the work has to be caught where it happens)."""
 
-    def __init__(self, control: ControlLoop, tick_source: Callable[[float], None] | None,
+    def __init__(self, hooks: TickHooks, tick_source: Callable[[float], None] | None,
                  on_tick: Callable[[float, bool], None] | None,
                  on_command: Callable[[str], None] | None) -> None:
-        self._control = control
+        self._tick_hooks = hooks
         self._hooks = (tick_source, on_tick, on_command)
         self._removers: list[Remove] = []
 
     def start(self) -> None:
         if self._removers:
             return
-        control, (tick_source, on_tick, on_command) = self._control, self._hooks
+        control, (tick_source, on_tick, on_command) = self._tick_hooks, self._hooks
         if tick_source is not None:
             self._removers.append(control.tick_sources.add(tick_source))
         if on_tick is not None:
@@ -188,6 +183,18 @@ class BusyHooks:
     def stop(self) -> None:
         while self._removers:
             self._removers.pop()()
+
+
+class SimPort(Protocol):
+    """The simulated world of ``run --sim`` as components see it (``ctx.sim``)."""
+
+    @property
+    def world(self) -> SimWorld: ...
+
+    @property
+    def device_emulators(self) -> dict[str, Any]:
+        """The emulator of each emulated device, by the config section that uses it."""
+        ...
 
 
 @dataclass
@@ -201,8 +208,9 @@ class DaemonContext:
 
     config: Config
     bus: Bus
-    http: HttpServer
-    control: ControlLoop
+    http: HttpPort
+    #: the robot base: pose, velocity, commands through the arbiter, e-stop and fault state
+    robot: RobotBase
     security: Security
     latency: LatencyTracker
     mode: str
@@ -212,7 +220,7 @@ class DaemonContext:
     reports: Reports
     plugs: Plugs
     #: the simulated world and emulators (``run --sim``), else None
-    sim: SimRuntime | None = None
+    sim: SimPort | None = None
     #: extra fields of /api/robot_info and /robot_info, by name
     robot_info: HookMap[Callable[[], Any]] = field(default_factory=HookMap)
     #: the components built so far (earlier rows of the table), by name: a behaviour that
@@ -223,7 +231,7 @@ class DaemonContext:
         return self.config.get(settings)
 
     def scoped(self) -> DaemonContext:
-        return dataclasses.replace(self, plugs=Plugs(self.control, self.bus))
+        return dataclasses.replace(self, plugs=Plugs(self.plugs.hooks, self.robot, self.bus))
 
     def add_robot_info(self, name: str, supplier: Callable[[], Any]) -> Remove:
         return self.plugs.add(self.robot_info.add(name, supplier))

@@ -125,7 +125,7 @@ def test_every_section_but_the_drivers_has_typed_settings() -> None:
 
 async def test_what_a_component_plugs_in_goes_when_the_daemon_stops(tmp_path: Path) -> None:
     async with in_process_daemon(tmp_path) as robot:
-        control, bus = robot.ctx.control, robot.ctx.bus
+        control, bus = robot.control, robot.ctx.bus
         assert len(control.schedule) >= 4  # the components' periodic state publications
         assert len(control.tick_sources) == 1  # navigation's pose history (autonomy is off)
         assert len(control.on_tick) == len(control.on_command) == 0  # nothing busy

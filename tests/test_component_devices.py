@@ -15,9 +15,9 @@ import daemon.config
 from base.config import Config, ConfigError, SectionSettings
 from base.options import Option, Options
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
-from daemon.components.http.component import json_response
 from daemon.config import load_config
 from daemon.registry import COMPONENTS
+from daemon.web import json_response
 from drivers.devices import Actuator, create_device
 from drivers.pigpio_servo import SERVO_OPTIONS, ServoSettings
 from tests.support.in_process_daemon import in_process_daemon

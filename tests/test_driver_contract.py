@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from daemon.bus import Bus
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.control.kinematics import DiffDrive
 from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config

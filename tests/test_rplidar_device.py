@@ -214,7 +214,7 @@ def test_create_returns_none_when_disabled() -> None:
 
 
 async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None:
-    from daemon.components.http.component import ApiError
+    from daemon.web import ApiError
 
     with RplidarEmulator(tmp_path / "lidar", A1, ranges_fn=lambda a, t: np.full(len(a), 2.0)):
         ctx = FakeCtx(str(tmp_path / "lidar"))

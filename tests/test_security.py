@@ -12,9 +12,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon.components.http.component import MAX_INT_DIGITS, MAX_JSON_DEPTH, ApiError, parse_json
 from daemon.components.http.conn import AcceptErrorFilter, LogLimiter
 from daemon.security import Guesses, Security, hide_paths, host_name
+from daemon.web import MAX_INT_DIGITS, MAX_JSON_DEPTH, ApiError, parse_json
 from tests.support.in_process_daemon import in_process_daemon
 from tests.support.rosbridge import OWNER, WITH_TOKEN, connect, upgrade_status
 

@@ -14,8 +14,8 @@ import pytest
 
 from daemon.app import STOP_TIMEOUT_S
 from daemon.bus import Bus
+from daemon.commands import Twist
 from daemon.component import BaseComponent
-from daemon.components.control.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
 from daemon.latency import LatencyTracker

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daemon.components.control.commands import parse_twist
+from daemon.commands import parse_twist
 from daemon.config import load_config
 from daemon.lockstep.runner import Lockstep
 from daemon.lockstep.script import Step

@@ -6,7 +6,7 @@ import time
 
 from daemon.bench import BenchResult
 from daemon.bus import Bus
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw

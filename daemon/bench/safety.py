@@ -11,10 +11,10 @@ import numpy as np
 
 from daemon.bench import BenchResult
 from daemon.bus import Bus
+from daemon.commands import Twist
 from daemon.component import Plugs
 from daemon.components.collision_monitor.component import SafetyComponent, monitor_settings
 from daemon.components.collision_monitor.monitor import CollisionMonitor
-from daemon.components.control.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.config import Config, build_driver, load_config
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw
@@ -152,7 +152,7 @@ async def _latency_p99(count: int, *, monitor: bool) -> float:
     bus = Bus()
     loop = ControlLoop(config, build_driver(config, "mock"), bus, latency)
     if monitor:
-        SafetyComponent(config, Plugs(loop, bus), latency.metrics.registry)
+        SafetyComponent(config, Plugs(loop, loop, bus), latency.metrics.registry)
     collect_before_start()
     await loop.start()
     freeze_startup_heap()  # as the daemon does once it has started

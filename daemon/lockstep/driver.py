@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from daemon.components.control.clock import Clock
+from daemon.clock import Clock
 from drivers.base import EncoderReading, MotorDriver
 from sim.motor_model import MotorPair
 

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 
 from base.config import Config
+from daemon.clock import VirtualClock
 from daemon.component import Plugs
-from daemon.components.control.clock import VirtualClock
 from daemon.components.mapping.component import MAP_POSE, MappingComponent, maps_directory
 from daemon.components.mapping.mapfile import MapData, save_map
 from daemon.components.mapping.messages import MapPose

@@ -11,15 +11,15 @@ import numpy as np
 
 from base.config import Config
 from daemon.bus import Bus
+from daemon.clock import VirtualClock
+from daemon.commands import Twist
 from daemon.component import Plugs
 from daemon.components.arm.component import tool_at
 from daemon.components.arm.controller import ArmController
 from daemon.components.arm.settings import ArmSettings
 from daemon.components.autonomy.component import AutonomyComponent
-from daemon.components.collision_monitor.component import SafetyComponent, scan_points
+from daemon.components.collision_monitor.component import SafetyComponent
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
-from daemon.components.control.clock import VirtualClock
-from daemon.components.control.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.components.fetch.component import FetchComponent
 from daemon.components.fetch.settings import FetchSettings
@@ -29,6 +29,7 @@ from daemon.latency import LatencyTracker
 from daemon.lockstep.driver import WorldDriver
 from daemon.lockstep.mapping import MappingProbe
 from daemon.lockstep.script import Step
+from daemon.robot import scan_points
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN
 from drivers.devices import create_device
@@ -91,7 +92,7 @@ class Lockstep:
         self.driver = WorldDriver(self.world.motors, self.clock, max_wheel_speed=max_wheel)
         self.control = ControlLoop(config, self.driver, self.bus, self.latency, clock=self.clock)
         points = scan_points(config)
-        self.plugs = Plugs(self.control, self.bus)
+        self.plugs = Plugs(self.control, self.control, self.bus)
         self.safety = (SafetyComponent(config, self.plugs, self.latency.metrics.registry,
                                        wall_clock=self.clock, points=points)
                        if config.get(CollisionMonitorSettings).enabled else None)

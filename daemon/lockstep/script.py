@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from daemon.components.control.commands import CommandError, Twist, parse_twist
+from daemon.commands import CommandError, Twist, parse_twist
 from sim.world import finite_number, load_document
 
 #: the actions a step can take; exactly one per step

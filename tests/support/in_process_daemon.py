@@ -27,8 +27,14 @@ class InProcessDaemon:
         return self.daemon.ctx
 
     @property
+    def control(self) -> Any:
+        """The control loop (white-box: components see it only as ``ctx.robot``)."""
+        assert self.daemon.control is not None
+        return self.daemon.control
+
+    @property
     def driver(self) -> Any:
-        return self.ctx.control.driver
+        return self.control.driver
 
     def component(self, name: str) -> Any:
         return next(c for c in self.daemon.components if c.name == name)
@@ -42,7 +48,7 @@ class InProcessDaemon:
 
 def may_drive(daemon: Daemon) -> bool:
     """The collision monitor, when there is one, has a fresh scan to judge commands by."""
-    safety = daemon.ctx.control.status().get("safety", {}) if daemon.ctx else {}
+    safety = daemon.control.status().get("safety", {}) if daemon.control else {}
     return not safety.get("enabled") or safety.get("zone") != "unknown"
 
 

@@ -16,11 +16,11 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Device
 from daemon.components.arm.controller import ArmController, ArmRefused
 from daemon.components.arm.kinematics import forward
 from daemon.components.arm.settings import ArmSettings
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.messages.convert import header
 from daemon.messages.definitions import FLOAT64, JOINT_STATE, STRING
 from daemon.telemetry import COMMAND, CommandEvent
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 from drivers.devices import DeviceError, create_device
 from drivers.servo_array import ServoArray
 from sim.objects import Tool
@@ -71,9 +71,9 @@ class ArmComponent(BaseComponent):
         self.settings = settings
         self.make_servo = make_servo
         self.servo = servo = make_servo()
-        self.control = plugs.control
+        self.robot = plugs.robot
         self.bus = plugs.bus
-        self.clock = self.control.clock
+        self.clock = self.robot.clock
         self.readback = readback
         self.arm = ArmController(settings, servo, self.clock(), self._estop)
         self._task: asyncio.Task[None] | None = None
@@ -85,8 +85,8 @@ class ArmComponent(BaseComponent):
         plugs.subscribe(COMMAND, self._on_command_event)
 
     def _estop(self) -> str | None:
-        arbiter = self.control.arbiter
-        return (arbiter.estop_reason or "latched") if arbiter.estop_engaged else None
+        robot = self.robot
+        return (robot.estop_reason or "latched") if robot.estop_engaged else None
 
     def _on_command_event(self, event: CommandEvent) -> None:
         """An e-stop freezes the arm at once, not only at the next servo update."""

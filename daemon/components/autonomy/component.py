@@ -12,20 +12,21 @@ from aiohttp import web
 
 from base.config import Config
 from daemon.bus import BusKey
+from daemon.commands import Twist
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.components.autonomy.sectors import Sectors
 from daemon.components.autonomy.settings import AutonomySettings
 from daemon.components.autonomy.wander import Perception, Wander, WanderSettings
-from daemon.components.collision_monitor.component import StatePublisher, scan_points
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
-from daemon.components.control.commands import Twist
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.components.navigation.component import NavigationComponent
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.robot import scan_points
 from daemon.settings import LimitsSettings
+from daemon.state_publisher import StatePublisher
 from daemon.telemetry import SCAN
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 
@@ -76,10 +77,10 @@ class AutonomyComponent(BaseComponent):
         #: the daemon's components by name, filled as they are built (navigation comes after
         #: this one in the table): the mode explore drives navigation's explorer
         self.components = components if components is not None else {}
-        control = self.control = plugs.control
+        robot = self.robot = plugs.robot
         self.bus = plugs.bus
         self.lidar = lidar
-        self.clock = control.clock
+        self.clock = robot.clock
         cm = config.get(CollisionMonitorSettings)
         radius = _footprint_reach(cm)
         autonomy = config.get(AutonomySettings)
@@ -95,8 +96,8 @@ class AutonomyComponent(BaseComponent):
         self._scan: LaserScan | None = None
         self.scan_time: float | None = None
         self._next_decision = -math.inf
-        self._invalidations = control.invalidations
-        self._stall_invalidations = control.stall_invalidations
+        self._invalidations = robot.invalidations
+        self._stall_invalidations = robot.stall_invalidations
         self._latched = False
         #: after a stall stop: when the tick has been healthy long enough to move again
         self._resume_at: float | None = None
@@ -117,10 +118,10 @@ class AutonomyComponent(BaseComponent):
             return f"{mode} needs the lidar: enable [lidar]"
         if mode == "explore" and self._navigation() is None:
             return "explore needs the navigation component: enable [navigation]"
-        if self.control.arbiter.estop_engaged:
+        if self.robot.estop_engaged:
             return "e-stop engaged: release it first"
-        if self.control.fault:
-            return f"driver fault: {self.control.fault}"
+        if self.robot.fault:
+            return f"driver fault: {self.robot.fault}"
         return None
 
     def set_mode(self, mode: str, reason: str) -> None:
@@ -131,15 +132,15 @@ class AutonomyComponent(BaseComponent):
             return
         previous, self.mode = self.mode, mode
         if mode == "wander":
-            self._invalidations = self.control.invalidations
-            self._stall_invalidations = self.control.stall_invalidations
+            self._invalidations = self.robot.invalidations
+            self._stall_invalidations = self.robot.stall_invalidations
             self._latched = False
             self._resume_at = None
             self._next_decision = now
-            self.wander.start(now, self.control.odometry.theta)
+            self.wander.start(now, self.robot.heading())
         else:
             self.wander.stop(now, reason)
-            self.control.arbiter.drop(SOURCE)
+            self.robot.withdraw(SOURCE)
         navigation = self._navigation()
         if previous == "explore" and navigation is not None:
             navigation.stop_exploring(reason)
@@ -194,19 +195,19 @@ class AutonomyComponent(BaseComponent):
         return self.free
 
     def _blocked(self, now: float) -> str | None:
-        control = self.control
-        if control.invalidations != self._invalidations:
-            stalls = control.stall_invalidations - self._stall_invalidations
-            if control.invalidations - self._invalidations > stalls:
+        robot = self.robot
+        if robot.invalidations != self._invalidations:
+            stalls = robot.stall_invalidations - self._stall_invalidations
+            if robot.invalidations - self._invalidations > stalls:
                 self._latched = True  # an e-stop, a fault, a reconnect: ask again to resume
             else:
                 self._resume_at = now + RESUME_AFTER_STALL_S  # only stalls: wait, go on
-            self._invalidations = control.invalidations
-            self._stall_invalidations = control.stall_invalidations
-        if control.arbiter.estop_engaged:
+            self._invalidations = robot.invalidations
+            self._stall_invalidations = robot.stall_invalidations
+        if robot.estop_engaged:
             return "e-stop engaged"
-        if control.fault:
-            return f"driver fault: {control.fault}"
+        if robot.fault:
+            return f"driver fault: {robot.fault}"
         if self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S:
             return "no fresh lidar scan"
         if self._resume_at is not None:
@@ -220,7 +221,7 @@ class AutonomyComponent(BaseComponent):
     def _tick(self, now: float) -> None:
         last, self._last_tick = self._last_tick, now
         if self._resume_at is not None and last is not None \
-                and now - last > HEALTHY_GAP_PERIODS * self.control.period_s:
+                and now - last > HEALTHY_GAP_PERIODS * self.robot.period_s:
             self._resume_at = now + RESUME_AFTER_STALL_S  # a late tick: the wait starts over
         if self.mode == "explore":
             self._watch_exploration()
@@ -234,11 +235,11 @@ class AutonomyComponent(BaseComponent):
             return
         histogram = self._histogram()
         free = histogram if histogram is not None else np.zeros((2, self.sectors.count))
-        seen = Perception(free[0], self.sectors.angles, self.control.odometry.theta, blocked,
+        seen = Perception(free[0], self.sectors.angles, self.robot.heading(), blocked,
                           self._held(), free[1])
         previous = self.wander.state
         v, w = self.wander.decide(now, seen)
-        self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)
+        self.robot.propose(SOURCE, Twist(v, w), now, PRIORITY)
         if self.wander.state != previous:
             log.debug("wander %s -> %s (%s)", previous, self.wander.state, self.wander.reason)
             self.publisher.publish(now)
@@ -254,9 +255,7 @@ class AutonomyComponent(BaseComponent):
             self.set_mode("off", why)
 
     def _held(self) -> bool:
-        guard = self.control.guard
-        action = getattr(guard, "action", "none")
-        return action == "stop"
+        return self.robot.safety_action() == "stop"
 
     def status(self) -> dict[str, Any]:
         now = self.clock()

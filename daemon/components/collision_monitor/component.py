@@ -4,24 +4,26 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Counter
 
 from base.config import Config
 from daemon.bus import BusKey
+from daemon.clock import Clock
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs
 from daemon.components.collision_monitor.braking import BrakingCheck
 from daemon.components.collision_monitor.footprint import Footprint
 from daemon.components.collision_monitor.monitor import ACTIONS, CollisionMonitor, MonitorSettings
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from daemon.components.collision_monitor.sweep import path_direction
-from daemon.components.control.clock import Clock
-from daemon.components.control.guard import Guarded
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.motion_guard import Guarded
+from daemon.robot import scan_points
 from daemon.settings import ControlSettings, LimitsSettings
+from daemon.state_publisher import StatePublisher
 from daemon.telemetry import SCAN
 from daemon.topics import Topic, TopicOut
 from sensors.rplidar.settings import LidarSettings
@@ -31,8 +33,6 @@ log = logging.getLogger("arbiterd.safety")
 
 #: a less severe action is reported only after the more severe one is this long gone (s)
 HOLD_S = 0.25
-#: the state is published on change and at least this often (s)
-PUBLISH_EVERY_S = 1.0
 #: the monitor's state, on change and once a second
 STATE: BusKey[dict[str, Any]] = BusKey("collision_monitor_state")
 SEVERE_FIRST = ACTIONS[:0:-1]  # stop, limit, slowdown
@@ -76,36 +76,6 @@ def horizon_warning(settings: MonitorSettings) -> str | None:
             f"{v:g} m/s: obstacles may be seen too late; raise it")
 
 
-class StatePublisher:
-    """Publishes a component's ``status()`` on the bus: on change (:meth:`publish`) and at least
-    every ``every_s`` from the control tick."""
-
-    def __init__(self, plugs: Plugs, key: BusKey[dict[str, Any]],
-                 status: Callable[[], dict[str, Any]], every_s: float = PUBLISH_EVERY_S) -> None:
-        self.bus = plugs.bus
-        self.key = key
-        self.status = status
-        self.every_s = every_s
-        self.last = -math.inf
-        plugs.schedule(self.when_due)
-
-    def when_due(self, now: float) -> float:
-        """Publish unless a change did within ``every_s``; when to look again."""
-        if now - self.last >= self.every_s:
-            self.publish(now)
-        return self.last + self.every_s
-
-    def publish(self, now: float) -> None:
-        self.last = now
-        self.bus.publish(self.key, self.status())
-
-
-def scan_points(config: Config) -> ScanPoints:
-    """The scan converter for the ``[lidar]`` mounting pose."""
-    lidar = config.get(LidarSettings)
-    return ScanPoints(lidar.mount_x, lidar.mount_y, lidar.mount_yaw_deg)
-
-
 class SafetyMetrics:
     """Prometheus counters of the monitor's interventions."""
 
@@ -130,15 +100,15 @@ class SafetyComponent(BaseComponent):
 
     def __init__(self, config: Config, plugs: Plugs, registry: CollectorRegistry, *,
                  wall_clock: Clock = time.time, points: ScanPoints | None = None) -> None:
-        control, bus = plugs.control, plugs.bus
+        robot, bus = plugs.robot, plugs.bus
         self.settings = monitor_settings(config)
         self.monitor = CollisionMonitor(self.settings)
         self.braking = BrakingCheck(self.settings.motor_lag)
         self.points = points or scan_points(config)
-        self.clock = control.clock
+        self.clock = robot.clock
         self.wall_clock = wall_clock
         self.bus = bus
-        self.control = control
+        self.robot = robot
         self.metrics = SafetyMetrics(registry)
         self.action = "stop"  # until the first revolution arrives (not logged as a change)
         self.reason = "no lidar revolution yet"
@@ -148,7 +118,7 @@ class SafetyComponent(BaseComponent):
         self._seen: dict[str, float] = dict.fromkeys(ACTIONS, -math.inf)
         self._last_target = (0.0, 0.0)
         self._last_report = -math.inf
-        plugs.set_guard(self)
+        plugs.add(robot.set_guard(self))
         plugs.add_status("safety", self.status)
         self.publisher = StatePublisher(plugs, STATE, self.status)
         plugs.subscribe(SCAN, self.on_scan)
@@ -166,9 +136,8 @@ class SafetyComponent(BaseComponent):
 
     def observe(self, now: float, x: float, y: float, theta: float) -> None:
         self.monitor.observe(now, x, y, theta)
-        if self.control.wheel_guard.measured is not None:  # only what encoders measured
-            commanded = path_direction(self.control.linear.velocity,
-                                       self.control.angular.velocity)[1]
+        if self.robot.measured_wheel_speeds() is not None:  # only what encoders measured
+            commanded = path_direction(*self.robot.limited_velocity())[1]
             self.braking.observe(now, commanded, (x, y, theta))
 
     def on_scan(self, scan: LaserScan) -> None:
@@ -179,8 +148,7 @@ class SafetyComponent(BaseComponent):
         px, py = self.points(scan)
         t_first = now - age
         self.monitor.on_scan(px, py, t_first, t_first + max(0.0, scan.scan_time))
-        self.monitor.warm(self._last_target,
-                          (self.control.linear.velocity, self.control.angular.velocity))
+        self.monitor.warm(self._last_target, self.robot.limited_velocity())
 
     # -- reporting -----------------------------------------------------------------------------
 
@@ -229,7 +197,7 @@ class SafetyComponent(BaseComponent):
         out = {"status": "degraded" if stale or slow_brakes else "ok", **self.status(),
                "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
                "entries": dict(self.entries),
-               "braking": self.braking.health(self.control.wheel_guard.measured is not None)}
+               "braking": self.braking.health(self.robot.measured_wheel_speeds() is not None)}
         if slow_brakes and not stale:
             out["reason"] = slow_brakes
         return out

@@ -15,7 +15,7 @@ from daemon.components.http.settings import HttpSettings
 from daemon.components.rosbridge.settings import RosbridgeSettings
 
 if TYPE_CHECKING:
-    from daemon.components.http.component import Handler
+    from daemon.web import Handler
 
 # The console's files (in static/ beside this module): the page is served at /, every other
 # one at /console/<name>. Nothing else is served: a request names an entry of this table or

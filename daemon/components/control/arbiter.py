@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from daemon.components.control.commands import ZERO, Twist
+from daemon.commands import ZERO, Twist
 
 
 @dataclass

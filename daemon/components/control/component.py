@@ -8,8 +8,7 @@ from typing import Any
 import orjson
 from aiohttp import web
 
-from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
-from daemon.components.control.commands import (
+from daemon.commands import (
     STAMP_FIELDS,
     CommandError,
     Twist,
@@ -19,9 +18,9 @@ from daemon.components.control.commands import (
     parse_twist,
     plain_stamped,
 )
+from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.components.control.estop import LATCH, LatchLimit, estop_access
 from daemon.components.control.loop import Applied, ControlLoop
-from daemon.components.http.component import ApiError, HttpServer, json_object, json_response
 from daemon.messages.convert import command_msg, latency_msg, odometry_msg, tf_msg
 from daemon.messages.definitions import (
     BOOL,
@@ -37,6 +36,7 @@ from daemon.settings import ControlSettings
 from daemon.telemetry import COMMAND as COMMAND_KEY
 from daemon.telemetry import LATENCY_REPORT, ODOM, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from daemon.web import ApiError, HttpPort, json_object, json_response
 
 
 class ControlComponent(BaseComponent):
@@ -47,14 +47,14 @@ class ControlComponent(BaseComponent):
     name = "control"
     core = True
 
-    def __init__(self, control: ControlLoop, http: HttpServer, settings: ControlSettings,
+    def __init__(self, control: ControlLoop, http: HttpPort, settings: ControlSettings,
                  security: Security | None = None, plugs: Plugs | None = None) -> None:
         self.control = control
         self.settings = settings
         self.security = security or Security("")
         self.read_json = http.read_json
         self.read_json_body = http.read_json_body
-        self.authorize = http.guard.authorize
+        self.authorize = http.authorize
         self.latches = LatchLimit()
         if settings.enable_odom_tf and plugs is not None:
             bus = plugs.bus
@@ -241,7 +241,9 @@ def _refused(applied: Applied) -> Refusal:
 
 
 def create(ctx: DaemonContext) -> ControlComponent:
-    return ControlComponent(ctx.control, ctx.http, ctx.settings(ControlSettings), ctx.security,
+    if not isinstance(ctx.robot, ControlLoop):
+        raise TypeError(f"ctx.robot is a {type(ctx.robot).__name__}, not the ControlLoop it runs")
+    return ControlComponent(ctx.robot, ctx.http, ctx.settings(ControlSettings), ctx.security,
                             ctx.plugs)
 
 

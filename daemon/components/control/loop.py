@@ -12,18 +12,19 @@ from typing import Any
 from base.config import Config
 from base.retrylog import RetryLog
 from daemon.bus import Bus
+from daemon.clock import MONOTONIC, Clock
+from daemon.commands import ZERO, Twist
 from daemon.components.control.arbiter import Arbiter, Decision
-from daemon.components.control.clock import MONOTONIC, Clock
-from daemon.components.control.commands import ZERO, Twist
-from daemon.components.control.guard import MotionGuard
 from daemon.components.control.kinematics import DiffDrive, scale_to_limit
 from daemon.components.control.limiter import AxisLimiter, AxisLimits
 from daemon.components.control.metronome import Metronome, TimerMetronome, metronome
-from daemon.components.control.odometry import Odometry, Pose2D
+from daemon.components.control.odometry import Odometry
 from daemon.components.control.supervisor import StallSupervisor
 from daemon.components.control.wheel_guard import GuardSettings, WheelGuard
 from daemon.hooks import HookList, HookMap, Remove, Schedule
 from daemon.latency import LatencyTracker
+from daemon.motion_guard import MotionGuard
+from daemon.robot import Pose2D
 from daemon.settings import ControlSettings, LimitsSettings, RobotSettings
 from daemon.telemetry import COMMAND, LATENCY_REPORT, ODOM, CommandEvent, LatencyReport, OdomSample
 from drivers import DriverError, MotorDriver
@@ -583,6 +584,44 @@ class ControlLoop:
             return
 
     # -- reports ---------------------------------------------------------------------------
+
+    # -- the robot base as components see it (daemon.robot.RobotBase) ------------------------
+
+    @property
+    def estop_engaged(self) -> bool:
+        return self.arbiter.estop_engaged
+
+    @property
+    def estop_reason(self) -> str:
+        return self.arbiter.estop_reason
+
+    def pose(self) -> Pose2D:
+        return self.odometry.reported
+
+    def pose_xyt(self) -> tuple[float, float, float]:
+        return self.odometry.reported_xyt()
+
+    def heading(self) -> float:
+        return self.odometry.theta
+
+    def odometry_speed(self) -> float:
+        return self.odometry.linear
+
+    def limited_velocity(self) -> tuple[float, float]:
+        return self.linear.velocity, self.angular.velocity
+
+    def measured_wheel_speeds(self) -> tuple[float, float] | None:
+        return self.wheel_guard.measured
+
+    def safety_action(self) -> str:
+        action: str = getattr(self.guard, "action", "none")
+        return action
+
+    def propose(self, source: str, twist: Twist, now: float, priority: int) -> None:
+        self.arbiter.submit(source, twist, now, priority)
+
+    def withdraw(self, source: str) -> None:
+        self.arbiter.drop(source)
 
     def reset_odometry(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0,
                        by: str = "") -> None:

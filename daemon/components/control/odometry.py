@@ -2,16 +2,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from daemon.components.control.kinematics import DiffDrive
+from daemon.robot import Pose2D
 
-
-@dataclass(frozen=True)
-class Pose2D:
-    x: float = 0.0
-    y: float = 0.0
-    theta: float = 0.0
+ORIGIN = Pose2D()
 
 
 class Odometry:
@@ -64,7 +59,7 @@ class Odometry:
         pose = self.reported
         return pose.x, pose.y, pose.theta
 
-    def reset(self, pose: Pose2D = Pose2D()) -> None:
+    def reset(self, pose: Pose2D = ORIGIN) -> None:
         """Report ``pose`` for where the robot stands now (the origin by default)."""
         self._origin = (self.pose, pose)
 

@@ -12,7 +12,6 @@ from aiohttp import web
 
 from daemon.bus import Bus
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Reports, Route
-from daemon.components.http.component import json_response
 from daemon.latency import LatencyTracker
 from daemon.messages.convert import diagnostics_msg, json_string_msg, log_msg
 from daemon.messages.definitions import DIAGNOSTIC_ARRAY, LOG, STRING
@@ -21,6 +20,7 @@ from daemon.security import Security, hide_paths
 from daemon.settings import SecuritySettings
 from daemon.telemetry import HEALTH_CHANGE, LOG_RECORD, ROBOT_INFO
 from daemon.topics import Topic, TopicOut
+from daemon.web import json_response
 
 
 class CoreApi(BaseComponent):

@@ -14,16 +14,16 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs,
 from daemon.components.arm.component import ArmComponent
 from daemon.components.arm.controller import ArmController, ArmRefused
 from daemon.components.arm.kinematics import forward
-from daemon.components.collision_monitor.component import StatePublisher
-from daemon.components.control.loop import ControlLoop
 from daemon.components.fetch.sequence import ArmError, ArmStep, FetchError, FetchSequence, Pose2
 from daemon.components.fetch.settings import FetchSettings
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.components.navigation.component import NavigationComponent
 from daemon.components.navigation.messages import GoalRequest
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
+from daemon.robot import RobotBase
+from daemon.state_publisher import StatePublisher
 from daemon.topics import Topic, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 
 log = logging.getLogger("arbiterd.fetch")
 
@@ -165,8 +165,8 @@ class FetchComponent(BaseComponent):
                  held: Callable[[], bool | None] = lambda: None,
                  miss: Callable[[], str] = lambda: "") -> None:
         self.settings = settings
-        self.control: ControlLoop = plugs.control
-        self.clock = self.control.clock
+        self.robot: RobotBase = plugs.robot
+        self.clock = self.robot.clock
         self.nav, self.arm = nav, arm
         self.held = held
         self.link: NavigationLink | None = NavigationLink(nav) if nav is not None else None
@@ -239,10 +239,10 @@ class FetchComponent(BaseComponent):
         if sequence is None or not sequence.active:
             self.hooks.stop()
             return
-        arbiter = self.control.arbiter
-        estop = (arbiter.estop_reason or "latched") if arbiter.estop_engaged else None
-        if estop is None and self.control.fault:
-            estop = f"driver fault: {self.control.fault}"
+        robot = self.robot
+        estop = (robot.estop_reason or "latched") if robot.estop_engaged else None
+        if estop is None and self.robot.fault:
+            estop = f"driver fault: {self.robot.fault}"
         sequence.tick(now, estop)
         self._changed(now)
 

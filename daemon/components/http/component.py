@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import socket
 import struct
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, BinaryIO
 
 from aiohttp import HttpVersion10, web
@@ -20,22 +19,22 @@ from daemon.components.http.conn import (
     CappedRunner,
     LogLimiter,
     bad_request_log,
-    one_line,
 )
 from daemon.components.http.settings import HttpSettings
 from daemon.listen import Listener, start_listening
-from daemon.messages.convert import to_json
 from daemon.security import Security
 from daemon.topics import ACCESS_LEVELS, Access, Topic
+from daemon.web import (
+    REFUSED,
+    ApiError,
+    Handler,
+    error_response,
+    json_object,
+    read_json_body,
+)
 
 log = logging.getLogger("arbiterd.http")
 
-Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-#: a valid request the robot refuses in its present state (e-stop latched, driver fault)
-REFUSED = 409
-MAX_JSON_DEPTH = 32
-MAX_INT_DIGITS = 64
-READ_CHUNK = 65536
 #: on stop, how long a request in progress (a download to a reader that stalls) may go on
 #: before it is cancelled; its connection is closed after as long again at most
 SHUTDOWN_GRACE_S = 1.0
@@ -48,33 +47,6 @@ PRIORITY_ROUTES = frozenset({("POST", "/api/estop"), ("GET", "/api/health"),
 slow_reader_log = LogLimiter(log, "slow-reader", burst=5, window_s=10.0)
 
 internal_error_log = LogLimiter(log, "internal-error", burst=2, window_s=60.0)
-
-
-class ApiError(Exception):
-    """An error answered as ``{"error": message, "detail": detail}`` with ``status``."""
-
-    def __init__(self, status: int, message: str, detail: Any = None,
-                 headers: Mapping[str, str] | None = None) -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
-        self.detail = detail
-        self.headers = dict(headers or {})
-
-
-def json_response(data: Any, status: int = 200) -> web.Response:
-    return web.json_response(data, status=status, dumps=_dumps)
-
-
-def _dumps(data: Any) -> str:
-    return json.dumps(data, allow_nan=False, default=to_json)
-
-
-def error_response(status: int, message: str, detail: Any = None,
-                   headers: Mapping[str, str] | None = None) -> web.Response:
-    response = web.json_response({"error": message, "detail": detail}, status=status)
-    response.headers.update(headers or {})
-    return response
 
 
 @web.middleware
@@ -179,99 +151,6 @@ class Guard:
         self.check(access, request, request.headers.get("Host"))
 
 
-# -- request bodies ------------------------------------------------------------------------
-
-async def read_body(request: web.Request, max_bytes: int, timeout_s: float) -> bytes:
-    """The whole body (however many TCP segments it takes), decoded from its
-    Content-Encoding, at most ``max_bytes``, within ``timeout_s``; or :class:`ApiError`."""
-    if request.content_length is not None and request.content_length > max_bytes:
-        raise ApiError(413, f"body too large: {request.content_length} bytes, "
-                       f"limit {max_bytes}")
-    chunks: list[bytes] = []
-    size = 0
-    try:
-        async with asyncio.timeout(timeout_s):
-            while chunk := await request.content.read(READ_CHUNK):
-                size += len(chunk)
-                if size > max_bytes:
-                    raise ApiError(413, f"body too large: over {max_bytes} bytes")
-                chunks.append(chunk)
-    except TimeoutError:
-        raise ApiError(408, f"body not received within {timeout_s:g} s",
-                       f"got {size} bytes; [http] body_timeout_s sets the limit") from None
-    except ConnectionError:  # the client went away mid-body: one line, no traceback
-        raise ApiError(400, "body cut off", f"the client closed the connection after {size} "
-                       "bytes") from None
-    except web.RequestPayloadError as exc:
-        raise ApiError(400, "body cannot be read", one_line(str(exc))) from None
-    return b"".join(chunks)
-
-
-async def read_json_body(request: web.Request, max_bytes: int, timeout_s: float) -> bytes:
-    """The raw body of a request that says it is JSON (415 otherwise)."""
-    if request.content_type != "application/json":
-        raise ApiError(415, "content type must be application/json",
-                       f"got {request.content_type or 'none'}")
-    return await read_body(request, max_bytes, timeout_s)
-
-
-async def read_json_object(request: web.Request, max_bytes: int,
-                           timeout_s: float = 10.0) -> dict[str, Any]:
-    """The request body as a JSON object, or :class:`ApiError` saying what is wrong with it."""
-    return json_object(await read_json_body(request, max_bytes, timeout_s))
-
-
-def json_object(raw: bytes) -> dict[str, Any]:
-    body = parse_json(raw)
-    if not isinstance(body, dict):
-        raise ApiError(400, "body must be a JSON object", f"got {type(body).__name__}")
-    return body
-
-
-def parse_json(raw: bytes) -> Any:
-    """Strict JSON: UTF-8 only, no NaN/Infinity, integers of at most 64 digits, nesting at
-    most 32 deep; anything else is :class:`ApiError` 400 saying where."""
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ApiError(400, "body is not valid UTF-8", f"byte 0x{raw[exc.start]:02x} at "
-                       f"offset {exc.start}: {exc.reason}") from None
-    try:
-        value = json.loads(text, parse_constant=_refuse_constant, parse_int=_bounded_int)
-    except RecursionError:
-        raise ApiError(400, "body is not valid JSON", f"nested more than {MAX_JSON_DEPTH} "
-                       "deep") from None
-    except ValueError as exc:
-        raise ApiError(400, "body is not valid JSON", str(exc)) from None
-    if _depth(value) > MAX_JSON_DEPTH:
-        raise ApiError(400, "body is not valid JSON", f"nested more than {MAX_JSON_DEPTH} deep")
-    return value
-
-
-def _refuse_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not a valid JSON number")
-
-
-def _bounded_int(digits: str) -> int:
-    if len(digits.lstrip("-")) > MAX_INT_DIGITS:
-        raise ValueError(f"an integer of {len(digits.lstrip('-'))} digits; at most "
-                         f"{MAX_INT_DIGITS} are accepted")
-    return int(digits)
-
-
-def _depth(value: Any) -> int:
-    """Nesting depth of a parsed JSON value, without recursion."""
-    deepest, stack = 0, [(value, 1)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, dict | list):
-            deepest = max(deepest, depth)
-            children = item.values() if isinstance(item, dict) else item
-            stack.extend((child, depth + 1) for child in children
-                         if isinstance(child, dict | list))
-    return deepest
-
-
 def reset(transport: asyncio.Transport | None) -> None:
     """Close a connection at once with a reset, dropping what is still queued for it (a plain
     close would leave the kernel sending it to a client that reads nothing, for minutes)."""
@@ -326,6 +205,10 @@ class HttpServer:
         """(method, path, access) of every route, in registration order."""
         return [(route.method, route.resource.canonical if route.resource else "", access)
                 for route, access in self.guard.access.items()]
+
+    def authorize(self, access: Access, request: web.Request) -> None:
+        """:meth:`Guard.authorize`: from inside a handler, check the caller's access."""
+        self.guard.authorize(access, request)
 
     async def read_json(self, request: web.Request) -> dict[str, Any]:
         """The body as a JSON object within this server's size and time limits."""
@@ -397,6 +280,8 @@ class HttpServer:
 
 def create(ctx: DaemonContext) -> HttpServer | None:
     """The server every route is added to (built first, started last, stopped first)."""
+    if not isinstance(ctx.http, HttpServer):
+        raise TypeError(f"ctx.http is a {type(ctx.http).__name__}, not the HttpServer it serves")
     return ctx.http if ctx.settings(HttpSettings).enabled else None
 
 

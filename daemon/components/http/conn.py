@@ -12,6 +12,8 @@ from aiohttp import web
 from aiohttp.web_protocol import RequestHandler
 from aiohttp.web_request import BaseRequest
 
+from daemon.web import one_line
+
 log = logging.getLogger("arbiterd.http")
 
 ACCEPT_ERRNOS = {errno.EMFILE: "too many open files (EMFILE)",
@@ -102,12 +104,6 @@ class JsonRequestHandler(RequestHandler):
     def idle(self) -> bool:
         """Waiting for (the rest of) a request line and headers, nothing being answered."""
         return not self._request_in_progress and not self._messages and not self.closing
-
-
-def one_line(text: str, limit: int = 200) -> str:
-    """aiohttp's multi-line parser messages as one line, without the caret marker line."""
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and set(ln.strip()) != {"^"}]
-    return " ".join(lines)[:limit]
 
 
 class CappedServer(web.Server):

@@ -12,12 +12,12 @@ from typing import Any
 from aiohttp import web
 
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
-from daemon.components.http.component import ApiError
 from daemon.messages.convert import scan_msg, tf_msg
 from daemon.messages.definitions import LASER_SCAN, TF_MESSAGE
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN, STATIC_TRANSFORMS, Transform
 from daemon.topics import Topic, TopicOut
+from daemon.web import ApiError
 from sensors.rplidar.assembler import Revolution, ScanGeometry, to_laser_scan
 from sensors.rplidar.client import open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig, OpenPort

@@ -17,7 +17,6 @@ from aiohttp import web
 
 from daemon.bus import BusKey
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.components.mapping import messages
 from daemon.components.mapping.mapfile import (
     MapData,
@@ -40,6 +39,7 @@ from daemon.paths import state_directory
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 from slam.mapper import MapperConfig, ScanResult
@@ -88,8 +88,8 @@ class MappingComponent(BaseComponent):
                  wall_clock: Callable[[], float] = time.time) -> None:
         self.settings = settings
         self.bus = plugs.bus
-        self.control = plugs.control
-        self.clock = self.control.clock
+        self.robot = plugs.robot
+        self.clock = self.robot.clock
         self.wall_clock = wall_clock
         self.points = points
         self.maps_dir = maps_dir
@@ -307,7 +307,7 @@ class MappingComponent(BaseComponent):
         """Localise from ``pose`` (map frame) at the current odometry."""
         if self.runner is None:
             raise ApiError(409, f"mapping is not running: {self.problem or 'no mapper'}")
-        odom = self.control.odometry.reported
+        odom = self.robot.pose()
         await self.runner.set_pose(pose, (odom.x, odom.y, odom.theta))
         log.info("pose in the map set to (%.2f m, %.2f m, %.0f deg)", pose[0], pose[1],
                  math.degrees(pose[2]))
@@ -460,7 +460,7 @@ class MappingComponent(BaseComponent):
         self._on_tick_map(now)
 
     def _record_odometry(self, now: float) -> None:
-        pose = self.control.odometry.reported
+        pose = self.robot.pose()
         history = self.history
         history.append((now, pose.x, pose.y, pose.theta))
         while history and history[0][0] < now - HISTORY_S:

@@ -14,11 +14,9 @@ from aiohttp import web
 
 from base.config import Config
 from daemon.bus import BusKey
+from daemon.commands import Twist
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
-from daemon.components.collision_monitor.component import StatePublisher, scan_points
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
-from daemon.components.control.commands import Twist
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.components.mapping.settings import MappingSettings
 from daemon.components.navigation.explore import Explorer, ExploreSettings, Go
 from daemon.components.navigation.messages import (
@@ -42,9 +40,12 @@ from daemon.components.navigation.planning import (
 from daemon.components.navigation.settings import NavigationSettings
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import PATH, POINT_STAMPED, POSE_STAMPED, STRING
+from daemon.robot import scan_points
 from daemon.settings import LimitsSettings, RobotSettings
+from daemon.state_publisher import StatePublisher
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 from nav.costmap import Costmap, CostParams, GridArea, centred_area
 from nav.pursuit import PursuitSettings, figure_eight, transform
 from sensors.rplidar.settings import LidarSettings
@@ -120,7 +121,7 @@ class NavigationComponent(BaseComponent):
                  points: ScanPoints | None = None, inline: bool = False,
                  wall_clock: Callable[[], float] = time.time) -> None:
         self.settings = settings = config.get(NavigationSettings)
-        self.control = control = plugs.control
+        self.robot = control = plugs.robot
         self.bus = plugs.bus
         self.clock = control.clock
         self.wall_clock = wall_clock
@@ -201,7 +202,7 @@ class NavigationComponent(BaseComponent):
         return self.costs
 
     def _odom(self) -> Pose2:
-        pose = self.control.odometry.reported
+        pose = self.robot.pose()
         return (pose.x, pose.y, pose.theta)
 
     def on_transforms(self, transforms: tuple[Transform, ...]) -> None:
@@ -221,10 +222,10 @@ class NavigationComponent(BaseComponent):
         """Why no goal can start now, or None."""
         if not self.lidar:
             return "navigation needs the lidar: enable [lidar]"
-        if self.control.arbiter.estop_engaged:
+        if self.robot.estop_engaged:
             return "e-stop engaged: release it first"
-        if self.control.fault:
-            return f"driver fault: {self.control.fault}"
+        if self.robot.fault:
+            return f"driver fault: {self.robot.fault}"
         return None
 
     def to_frame(self, frame: str, x: float, y: float, yaw: float) -> Pose2:
@@ -254,7 +255,7 @@ class NavigationComponent(BaseComponent):
         if self.navigator.active:
             log.info("goal %d replaced by a new goal", self.navigator.goals)
             self.navigator.end("canceled", "replaced by a new goal", self.clock())
-        self._invalidations = self.control.invalidations - self.control.stall_invalidations
+        self._invalidations = self.robot.invalidations - self.robot.stall_invalidations
         now = self.clock()
         self.navigator.start(target, now)
         self.hooks.start()
@@ -319,7 +320,7 @@ class NavigationComponent(BaseComponent):
     def _end(self, state: str, reason: str) -> None:
         now = self.clock()
         self.navigator.end(state, reason, now)
-        self.control.arbiter.drop(SOURCE)
+        self.robot.withdraw(SOURCE)
         log.info("goal %d %s%s", self.navigator.goals, state, f": {reason}" if reason else "")
         self._goal_ended()
         self.publisher.publish(now)
@@ -407,7 +408,7 @@ class NavigationComponent(BaseComponent):
     # -- the tick ------------------------------------------------------------------------------
 
     def _tick(self, now: float) -> None:
-        history, odom = self._history, self.control.odometry.reported_xyt()
+        history, odom = self._history, self.robot.pose_xyt()
         if not history or history[-1][1] != odom:  # a pose held since is the same pose
             history.append((now, odom))
         while len(history) > 1 and history[1][0] <= now - HISTORY_S:
@@ -426,10 +427,10 @@ class NavigationComponent(BaseComponent):
         if navigator.wants_plan(now) and not self._planning:
             self._request_plan(now)
         stale = self.scan_time is None or now - self.scan_time > SCAN_TIMEOUT_S
-        v, w = navigator.decide(now, self._here(), self.control.odometry.linear,
+        v, w = navigator.decide(now, self._here(), self.robot.odometry_speed(),
                                 "no fresh lidar scan" if stale else None, self._held())
         if navigator.active:
-            self.control.arbiter.submit(SOURCE, Twist(v, w), now, PRIORITY)
+            self.robot.propose(SOURCE, Twist(v, w), now, PRIORITY)
         if navigator.state != state:
             self._state_changed(state)
 
@@ -438,17 +439,17 @@ class NavigationComponent(BaseComponent):
         log.info("goal %d: %s -> %s%s", navigator.goals, previous, navigator.state,
                  f" ({navigator.reason})" if navigator.reason else "")
         if not navigator.active:
-            self.control.arbiter.drop(SOURCE)
+            self.robot.withdraw(SOURCE)
             self._goal_ended()
         self.publisher.publish(self.clock())
 
     def _failure(self) -> str | None:
-        control = self.control
-        if control.arbiter.estop_engaged:
+        robot = self.robot
+        if robot.estop_engaged:
             return "e-stop engaged"
-        if control.fault:
-            return f"driver fault: {control.fault}"
-        if control.invalidations - control.stall_invalidations != self._invalidations:
+        if robot.fault:
+            return f"driver fault: {robot.fault}"
+        if robot.invalidations - robot.stall_invalidations != self._invalidations:
             return "e-stop or driver fault in between: send the goal again"
         return None
 
@@ -477,7 +478,7 @@ class NavigationComponent(BaseComponent):
                 "lies inside an obstacle or a closed room")
 
     def _held(self) -> bool:
-        return getattr(self.control.guard, "action", "none") == "stop"
+        return self.robot.safety_action() == "stop"
 
     # -- exploration ---------------------------------------------------------------------------
 

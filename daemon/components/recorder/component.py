@@ -15,7 +15,6 @@ from aiohttp import web
 
 from daemon import __version__
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.components.recorder.channels import Channel, channels_by_bus
 from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
@@ -24,6 +23,7 @@ from daemon.components.recorder.writer import FlightRecorder, WriterOptions
 from daemon.security import hide_paths
 from daemon.telemetry import ROBOT_INFO
 from daemon.topics import TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 
 log = logging.getLogger("arbiterd.recorder")
 

@@ -118,7 +118,7 @@ class Ros2Face(BaseComponent):
                 await asyncio.to_thread(thread.close)
         for task in list(self._tasks):
             task.cancel()
-        await self.ctx.control.drop_source(SOURCE)
+        await self.ctx.robot.drop_source(SOURCE)
         if self.node is not None:
             await asyncio.to_thread(self.node.close)
             self.node = None
@@ -265,7 +265,7 @@ class Ros2Face(BaseComponent):
         self._from_thread(self._brake)
 
     def _brake(self) -> None:
-        self._spawn(self.ctx.control.drop_source(SOURCE))
+        self._spawn(self.ctx.robot.drop_source(SOURCE))
 
     def _on_samples(self, topic: TopicIn, samples: list[bytes], t_recv: float) -> None:
         self._pending -= 1

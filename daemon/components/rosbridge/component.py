@@ -47,7 +47,7 @@ class RosbridgeServer(BaseComponent):
     def __init__(self, ctx: DaemonContext) -> None:
         cfg = ctx.settings(RosbridgeSettings)
         self.ctx = ctx
-        self.control = ctx.control
+        self.robot = ctx.robot
         self.security = ctx.security
         self.host: str = cfg.host
         self.port: int = cfg.port
@@ -165,7 +165,7 @@ class RosbridgeServer(BaseComponent):
         client_id = self.connections
         peer = request.remote or "?"
         client = self.clients[client_id] = ClientSession(
-            ws, client_id, peer, graph=self.graph, control=self.control, authority=authority,
+            ws, client_id, peer, graph=self.graph, control=self.robot, authority=authority,
             limits=self.limits, bad_input=self.bad_input, pacer=self.pacer)
         client.transport = request.transport
         if not authority.proved:
@@ -217,7 +217,7 @@ class RosbridgeServer(BaseComponent):
             if all(client.authority.proved for client in self.clients.values()):
                 self._unproved.clear()
                 await self._unproved.wait()
-            await self.control.sleep_to_tick(min(1.0, self.idle_timeout / 4))
+            await self.robot.sleep_to_tick(min(1.0, self.idle_timeout / 4))
             now = time.monotonic()
             for client in list(self.clients.values()):
                 since = client.idle_since()
@@ -261,7 +261,7 @@ class RosbridgeServer(BaseComponent):
         tick: its encoding and sends then never hold a tick up."""
         self._bulk.append((topic, shared))
         if self._bulk_handle is None:
-            self._bulk_handle = self.control.call_after_tick(self._send_bulk)
+            self._bulk_handle = self.robot.call_after_tick(self._send_bulk)
 
     def _send_bulk(self) -> None:
         self._bulk_handle = None

@@ -46,7 +46,7 @@ from daemon.messages.msgtypes import MessageError, check_message, get_type, has_
 from daemon.topics import Inbound, Refusal, TopicIn, TopicOut
 
 if TYPE_CHECKING:
-    from daemon.components.control.loop import ControlLoop
+    from daemon.robot import RobotBase
 
 log = logging.getLogger("arbiterd.rosbridge")
 
@@ -91,14 +91,14 @@ class ClientSession:
     handed what it works with: the graph, the control loop, a clock and its authority."""
 
     def __init__(self, ws: web.WebSocketResponse, client_id: int, peer: str, *,
-                 graph: BridgeGraph, control: ControlLoop, authority: Authority,
+                 graph: BridgeGraph, control: RobotBase, authority: Authority,
                  limits: Limits, clock: Clock = time.monotonic,
                  bad_input: RateLimitedLog | None = None, pacer: Pacer | None = None) -> None:
         self.ws = ws
         self.id = client_id
         self.peer = peer
         self.graph = graph
-        self.control = control
+        self.robot = control
         self.authority = authority
         self.limits = limits
         self.clock = clock
@@ -292,7 +292,7 @@ class ClientSession:
         self.latching.discard(name)
         self.graph.remove_publisher(self, name)
         if self._moves(name) and not any(self._moves(t) for t in self.advertised):
-            await self.control.drop_source(self.source)
+            await self.robot.drop_source(self.source)
 
     def _moves(self, name: str) -> bool:
         topic = self.graph.topic(name)
@@ -574,7 +574,7 @@ class ClientSession:
 
     async def close(self) -> None:
         """Brake if this client was driving, then forget everything it set up."""
-        await self.control.drop_source(self.source)
+        await self.robot.drop_source(self.source)
         self.outbox.clear()
         self.subscriptions = 0
         self.advertised.clear()

@@ -14,15 +14,15 @@ from typing import Any
 from aiohttp import web
 
 from base.config import Config
+from daemon.commands import CommandError, parse_pose
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
-from daemon.components.control.commands import CommandError, parse_pose
-from daemon.components.control.loop import ControlLoop
-from daemon.components.http.component import ApiError, json_response, read_json_object
 from daemon.messages.convert import odometry_msg
 from daemon.messages.definitions import ODOMETRY
+from daemon.robot import RobotBase
 from daemon.settings import ControlSettings, RobotSettings
 from daemon.telemetry import ODOM_GROUND_TRUTH, OdomSample
 from daemon.topics import Topic, TopicOut
+from daemon.web import ApiError, json_response, read_json_object
 from sim.motor_model import MotorPair
 from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
@@ -57,7 +57,7 @@ class SimRuntime(BaseComponent):
                               wheel_separation=robot.wheel_separation, motors=self.motors)
         self.bus: Any = None
         #: the control loop, once the daemon built it (a reset puts odometry on the new pose)
-        self.control: ControlLoop | None = None
+        self.robot: RobotBase | None = None
         self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
         self.driver_options: dict[str, Any] = {}
@@ -180,8 +180,8 @@ class SimRuntime(BaseComponent):
             truth = self.world.reset(Pose(*values) if values else None)
         except ValueError as exc:  # not finite, or the footprint on an obstacle
             raise ApiError(400, f"cannot place the robot there: {exc}") from None
-        if self.control is not None:
-            self.control.reset_odometry(truth.x, truth.y, truth.theta,
+        if self.robot is not None:
+            self.robot.reset_odometry(truth.x, truth.y, truth.theta,
                                         by=f"HTTP {request.remote or '?'} (sim reset)")
         return json_response({"ground_truth": truth.to_json()})
 
@@ -220,8 +220,10 @@ def create(ctx: DaemonContext) -> SimRuntime | None:
     runtime = ctx.sim
     if runtime is None:
         return None
+    if not isinstance(runtime, SimRuntime):
+        raise TypeError(f"ctx.sim is a {type(runtime).__name__}, not the SimRuntime it built")
     runtime.bus = ctx.bus
-    runtime.control = ctx.control
+    runtime.robot = ctx.robot
     ctx.plugs.add_status("ground_truth", lambda: runtime.world.ground_truth().to_json())
     return runtime
 

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from daemon.bus import Bus
+from daemon.clock import VirtualClock
+from daemon.commands import Twist
 from daemon.component import Plugs
 from daemon.components.autonomy.component import RESUME_AFTER_STALL_S, AutonomyComponent
 from daemon.components.autonomy.component import STATE as AUTONOMY_STATE
 from daemon.components.autonomy.sectors import Sectors
 from daemon.components.autonomy.wander import Perception, Wander, WanderSettings
-from daemon.components.control.clock import VirtualClock
-from daemon.components.control.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.components.control.supervisor import StallSupervisor
 from daemon.config import build_driver, load_config
@@ -164,7 +164,7 @@ async def test_autonomy_api_wander_and_teleop_override(robot: InProcessDaemon) -
     status, body = await request(robot, "GET", "/api/autonomy")
     assert body["state"] in ("CRUISE", "AVOID", "ROTATE") and body["transitions"] >= 1
     assert body["time_in_state_s"] >= 0.0 and "state_times_s" in body
-    control = robot.ctx.control
+    control = robot.control
     await control.submit("http", Twist(0.0, 0.0), t_recv=time.monotonic())  # a teleop says stop
     status, body = await request(robot, "GET", "/api/autonomy")
     assert (body["mode"], body["state"]) == ("off", "IDLE") and "teleop" in body["reason"]
@@ -174,7 +174,7 @@ async def test_autonomy_api_wander_and_teleop_override(robot: InProcessDaemon) -
 async def test_autonomy_api_refuses_bad_requests(robot: InProcessDaemon) -> None:
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "dance"}))[0] == 422
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "off", "x": 1}))[0] == 422
-    await robot.ctx.control.engage_estop("test")
+    await robot.control.engage_estop("test")
     status, body = await request(robot, "POST", "/api/autonomy", {"mode": "wander"})
     assert status == 409 and "e-stop" in body["error"]
 
@@ -182,7 +182,7 @@ async def test_autonomy_api_refuses_bad_requests(robot: InProcessDaemon) -> None
 async def test_estop_stops_wander_and_it_waits_to_be_asked_again(robot: InProcessDaemon) -> None:
     assert (await request(robot, "POST", "/api/autonomy", {"mode": "wander"}))[0] == 200
     await eventually(robot.moving, "the wander behaviour to drive")
-    control = robot.ctx.control
+    control = robot.control
     await control.engage_estop("test")
     await eventually(lambda: robot.component("autonomy").wander.state == "STOPPED",
                      "the behaviour to stop")
@@ -217,8 +217,8 @@ class SteppedWander:
         self.control = ControlLoop(config, self.driver, self.bus, LatencyTracker(),
                                    clock=self.clock)
         self.control.supervisor = StallSupervisor(self.driver, 0.2, clock=self.clock)
-        self.autonomy = AutonomyComponent(config, Plugs(self.control, self.bus), lidar=True,
-                                          seed=1)
+        plugs = Plugs(self.control, self.control, self.bus)
+        self.autonomy = AutonomyComponent(config, plugs, lidar=True, seed=1)
         self.t = 0.0
         self._next_scan = 0.0
 

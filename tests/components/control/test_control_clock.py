@@ -7,13 +7,13 @@ from collections.abc import AsyncIterator
 import pytest
 
 from daemon.bus import Bus
-from daemon.components.control.clock import VirtualClock
-from daemon.components.control.commands import Twist
-from daemon.components.control.guard import Guarded
+from daemon.clock import VirtualClock
+from daemon.commands import Twist
 from daemon.components.control.limiter import AxisLimiter, AxisLimits
 from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
 from daemon.latency import LatencyTracker
+from daemon.motion_guard import Guarded
 from drivers.mock import MockDriver
 
 

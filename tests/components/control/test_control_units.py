@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from daemon.commands import CommandError, Twist, parse_twist
 from daemon.components.control.arbiter import Arbiter
-from daemon.components.control.commands import CommandError, Twist, parse_twist
 from daemon.components.control.kinematics import DiffDrive, scale_to_limit
 from daemon.components.control.limiter import AxisLimiter, AxisLimits
 from daemon.components.control.odometry import Odometry

@@ -31,7 +31,7 @@ async def test_http_latch_needs_no_token_and_release_does(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.WARNING, "arbiterd")
     async with in_process_daemon(tmp_path, WITH_TOKEN) as robot:
-        control = robot.ctx.control
+        control = robot.control
         status, body, _ = await post_estop(robot, True)
         assert (status, body) == (200, {"engaged": True})
         assert control.arbiter.estop_engaged
@@ -52,7 +52,7 @@ async def test_http_latch_from_a_foreign_page_is_refused(tmp_path: Path) -> None
         assert status == 403 and "may not stop this robot" in str(body["error"])
         status, _, _ = await post_estop(robot, True, {"Origin": "http://127.0.0.1:8085"})
         assert status == 200
-        assert robot.ctx.control.arbiter.estop_engaged
+        assert robot.control.arbiter.estop_engaged
 
 
 async def test_repeated_latches_are_limited_but_a_stop_never_is(
@@ -70,14 +70,14 @@ async def test_repeated_latches_are_limited_but_a_stop_never_is(
         # released by the token holder: the same peer, over its limit, still stops the robot
         assert (await post_estop(robot, False, OWNER))[0] == 200
         assert (await post_estop(robot, True))[0] == 200
-        assert robot.ctx.control.arbiter.estop_engaged
+        assert robot.control.arbiter.estop_engaged
 
 
 async def test_rosbridge_latch_needs_no_token_and_release_does(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.WARNING, "arbiterd")
     async with in_process_daemon(tmp_path, WITH_TOKEN) as robot:
-        control = robot.ctx.control
+        control = robot.control
         async with connect(robot.ws_url) as anonymous:
             await anonymous.send(op="advertise", topic="/estop", type="std_msgs/msg/Bool",
                                  id="adv")

@@ -22,7 +22,7 @@ async def call(robot: InProcessDaemon, method: str, path: str, body: Any = None)
 
 async def drive_off(robot: InProcessDaemon) -> dict[str, Any]:
     """Drive a little forward and turning; the status once odometry is away from the start."""
-    control = robot.ctx.control
+    control = robot.control
 
     async def away() -> dict[str, Any] | None:
         assert (await call(robot, "POST", "/api/cmd_vel",
@@ -51,7 +51,7 @@ def test_a_reset_moves_the_reported_frame_only() -> None:
 async def test_odometry_reset_over_http(tmp_path: Path) -> None:
     async with in_process_daemon(tmp_path) as robot:
         await drive_off(robot)
-        control = robot.ctx.control
+        control = robot.control
         status, body = await call(robot, "POST", "/api/odom/reset", {})
         assert status == 200 and body["pose"]["x"] == body["pose"]["y"] == 0.0, body
         inside = control.odometry.pose  # what the collision monitor sees did not jump
@@ -73,7 +73,7 @@ async def test_a_simulator_reset_puts_odometry_on_the_ground_truth(tmp_path: Pat
                                                                     "theta": 1.0})
         assert status == 200, body
         truth = body["ground_truth"]
-        pose = robot.ctx.control.status()["pose"]
+        pose = robot.control.status()["pose"]
         assert (pose["x"], pose["y"], pose["theta"]) == pytest.approx(
             (truth["x"], truth["y"], truth["theta"]), abs=0.02)
         obstacle = robot.ctx.sim.world.world.circles[0]

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from daemon.cli import _toml_value
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.control.supervisor import StallSupervisor
 from drivers import DRIVERS, create_driver, driver_class
 from drivers.mock import MockDriver
@@ -177,7 +177,7 @@ async def test_a_blocked_event_loop_cannot_keep_the_robot_driving(tmp_path: Path
     # and the command is still "live" when the loop comes back
     extra = f"[control]\ncmd_vel_timeout = 10.0\nstall_stop_s = {STALL_STOP_S}\n"
     async with in_process_daemon(tmp_path, extra) as robot:
-        control, driver = robot.ctx.control, robot.driver
+        control, driver = robot.control, robot.driver
         stops_before = control.supervisor.stall_stops  # a loaded machine may stall at start
         emergencies_before = driver.emergency_stops
         applied = await control.submit("teleop", Twist(0.3, 0.0), t_recv=time.monotonic())
@@ -210,7 +210,7 @@ async def test_without_a_supervisor_a_blocked_loop_keeps_driving(tmp_path: Path,
     extra = "[control]\ncmd_vel_timeout = 10.0\nstall_stop_s = 0\n"
     async with in_process_daemon(tmp_path, extra) as robot:
         assert "the stall supervisor is DISABLED" in caplog.text
-        await robot.ctx.control.submit("teleop", Twist(0.3, 0.0), t_recv=time.monotonic())
+        await robot.control.submit("teleop", Twist(0.3, 0.0), t_recv=time.monotonic())
         time.sleep(STALL_STOP_S * 3)  # noqa: ASYNC251 - the blocked loop is the point
         assert robot.moving()
         assert robot.driver.emergency_stops == 0

@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from daemon.bus import Bus
-from daemon.components.control.clock import VirtualClock
-from daemon.components.control.commands import Twist
+from daemon.clock import VirtualClock
+from daemon.commands import Twist
 from daemon.components.control.loop import ControlLoop
 from daemon.components.control.supervisor import StallSupervisor
 from daemon.components.control.wheel_guard import GuardSettings, WheelGuard

@@ -11,7 +11,7 @@ import aiohttp
 import numpy as np
 import pytest
 
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.fetch.component import STATE, FetchComponent
 from daemon.components.fetch.sequence import FetchError
 from daemon.lockstep.fetch import FetchRun

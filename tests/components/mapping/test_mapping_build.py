@@ -43,7 +43,7 @@ async def test_a_map_built_from_the_recording_matches_the_live_one(tmp_path: Pat
         mapping = robot.component("mapping")
         await eventually(lambda: mapping.counters.scans >= 80, "eight seconds of mapping",
                          within_s=60)
-        await robot.ctx.control.engage_estop("test: hold still for the save")
+        await robot.control.engage_estop("test: hold still for the save")
         stopped_at = mapping.counters.scans
         await eventually(lambda: mapping.counters.scans >= stopped_at + 5,
                          "the mapper to catch up")

@@ -8,7 +8,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.navigation.messages import GoalRequest
 from daemon.config import load_config
 from daemon.lockstep.explore import known_share, reachable_area

@@ -9,7 +9,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from daemon.components.control.commands import Twist
+from daemon.commands import Twist
 from daemon.components.navigation.messages import GoalError, GoalRequest, goal_of_pose_stamped
 from daemon.components.navigation.mission import mission_of_json
 from daemon.lockstep.runner import Lockstep

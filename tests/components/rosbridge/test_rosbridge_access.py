@@ -118,7 +118,7 @@ async def test_every_drive_op_is_refused_without_the_token(tmp_path: Path) -> No
 
 def assert_nothing_happened(robot: InProcessDaemon) -> None:
     assert not robot.moving()
-    assert not robot.ctx.control.arbiter.estop_engaged
+    assert not robot.control.arbiter.estop_engaged
     graph = robot.component("rosbridge").graph
     assert not any(topic.publishers for topic in graph.topics.values())
     assert not graph.services and not graph.pending

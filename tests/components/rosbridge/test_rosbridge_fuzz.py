@@ -68,4 +68,4 @@ async def test_fuzz_without_a_token_configured_keeps_the_bridge_answering(
         assert report["replies"].get("status", 0) > 0
         async with connect(robot.ws_url) as client:
             assert (await client.call("/rosapi/get_time"))["result"] is True
-        assert not robot.ctx.control.fault
+        assert not robot.control.fault

@@ -16,7 +16,7 @@ from aiohttp.test_utils import TestServer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon.components.control.commands import (
+from daemon.commands import (
     STAMP_FIELDS,
     CommandError,
     Twist,

@@ -53,7 +53,7 @@ async def test_bad_command_is_a_status_error_and_no_motion(robot: InProcessDaemo
             status = await client.op("status", id=f"bad{i}")
             assert status["level"] == "error" and text in status["msg"], status
         assert not robot.moving()
-        assert robot.ctx.control.decision.source is None
+        assert robot.control.decision.source is None
 
 
 async def test_stamped_command_gets_a_latency_report(robot: InProcessDaemon) -> None:
@@ -79,20 +79,20 @@ async def test_stamped_command_gets_a_latency_report(robot: InProcessDaemon) -> 
 async def test_estop_topic_latches_and_refuses_commands(robot: InProcessDaemon) -> None:
     async with connect(robot.ws_url) as client:
         await client.send(op="publish", topic="/estop", msg={"data": True})
-        await eventually(lambda: robot.ctx.control.arbiter.estop_engaged, "the e-stop")
+        await eventually(lambda: robot.control.arbiter.estop_engaged, "the e-stop")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST, id="refused")
         status = await client.op("status", id="refused")
         assert "e-stop engaged" in status["msg"]
         assert not robot.moving()
         await client.send(op="publish", topic="/estop", msg={"data": False})
-        await eventually(lambda: not robot.ctx.control.arbiter.estop_engaged, "the release")
+        await eventually(lambda: not robot.control.arbiter.estop_engaged, "the release")
         await client.send(op="publish", topic="/cmd_vel", msg=TWIST)
         await eventually(robot.moving, "the wheels to turn after release")
 
 
 async def test_disconnect_while_driving_brakes_within_one_tick(robot: InProcessDaemon) -> None:
     ticks: list[float] = []
-    control = robot.ctx.control
+    control = robot.control
     control.on_tick.add(lambda now, on_time: ticks.append(now))
     drops: list[float] = []  # when the server learned of the disconnect
     drop_source = control.drop_source
@@ -126,7 +126,7 @@ async def test_disconnect_while_driving_brakes_within_one_tick(robot: InProcessD
     # behind a tick that was already running when the disconnect arrived
     assert braking.t_mono <= ticks[ticks_before + 1], "the brake waited for more than a tick"
     await eventually(lambda: driver.commands[-1].left_rad_s == 0.0, "the wheels to stop")
-    assert robot.ctx.control.decision.reason in ("deadman: no valid command", "idle")
+    assert robot.control.decision.reason in ("deadman: no valid command", "idle")
 
 
 # -- telemetry ----------------------------------------------------------------------------------
@@ -164,7 +164,7 @@ async def test_scan_non_finite_ranges_arrive_as_null(robot: InProcessDaemon) -> 
 async def test_a_scan_goes_out_after_the_next_control_tick(robot: InProcessDaemon) -> None:
     """A scan (a bulk topic) is encoded and sent in the wake-up of the control tick after it
     came, never at once: its encoding and ten clients' sends then cannot hold a tick up."""
-    control, server = robot.ctx.control, bridge(robot)
+    control, server = robot.control, bridge(robot)
     ticks: list[float] = []
     fanned_out: list[tuple[str, float]] = []
     fan_out = server.graph.fan_out
