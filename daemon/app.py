@@ -10,16 +10,16 @@ from typing import Any
 from base.config import Config, ConfigError
 from daemon import __version__
 from daemon.bus import Bus
-from daemon.component import Component, DaemonContext, Plugs, worst
+from daemon.component import Component, DaemonContext, Plugs
 from daemon.components.control.loop import ControlLoop
 from daemon.components.http.component import HttpServer
 from daemon.components.http.settings import HttpSettings
 from daemon.components.sim.component import SimRuntime
 from daemon.config import build_driver
+from daemon.health import Health, problem_of, worst
 from daemon.heap import collect_before_start, freeze_startup_heap, thaw
 from daemon.latency import LatencyTracker
 from daemon.listen import EXIT_PORT_IN_USE, PortInUse, taken
-from daemon.messages.convert import problem
 from daemon.notify import SystemdNotifier
 from daemon.registry import COMPONENTS
 from daemon.robot import scan_points
@@ -51,7 +51,7 @@ def health_digest(health: dict[str, Any]) -> tuple[Any, ...]:
     """What counts as a health change: statuses and problem texts, not counters."""
     components = health.get("components", {})
     return (health.get("status"), health.get("state"),
-            *((name, c.get("status"), problem(c)) for name, c in sorted(components.items())))
+            *((name, c.get("status"), problem_of(c)) for name, c in sorted(components.items())))
 
 
 def not_ok(health: dict[str, dict[str, Any]], said: str = "") -> str:
@@ -61,7 +61,7 @@ def not_ok(health: dict[str, dict[str, Any]], said: str = "") -> str:
     for name, component in health.items():
         status = component.get("status", "error")
         if status != "ok":
-            why = problem(component) or component.get("state")
+            why = problem_of(component) or component.get("state")
             why = "" if why and str(why) in said else why
             parts.append(f"{name} {status}" + (f": {why}" if why else ""))
     return "; ".join(parts)
@@ -282,9 +282,9 @@ class Daemon:
             try:
                 health = component.health()
             except Exception as exc:
-                health = {"status": "error", "error": f"health failed: {exc}"}
+                health = Health("error", f"health failed: {exc}")
             if health is not None:
-                out[component.name] = health
+                out[component.name] = health.to_json()
         return out
 
     def overall_status(self, health: dict[str, dict[str, Any]]) -> str:

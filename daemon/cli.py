@@ -25,7 +25,7 @@ from daemon.components.recorder import cli as record_cli
 from daemon.components.recorder.paths import listing_directory
 from daemon.components.recorder.settings import RecordSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
-from daemon.messages.convert import problem as problem_text
+from daemon.health import problem_of as problem_text
 from daemon.settings import LoggingSettings
 from sensors.rplidar import cli as lidar_cli
 from sensors.rplidar.settings import LidarSettings

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 from base.config import Config, SectionSettings
 from daemon.bus import Bus, BusKey
+from daemon.health import Health
 from daemon.hooks import HookMap, Remove
 from daemon.latency import LatencyTracker
 from daemon.listen import Listener
@@ -23,9 +24,6 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 S = TypeVar("S", bound=SectionSettings)
-
-#: Health statuses, from best to worst.
-STATUSES = ("ok", "degraded", "error")
 
 Handler = Callable[["web.Request"], Any]
 
@@ -45,9 +43,9 @@ class Component(Protocol):
     """A part of the daemon with a lifecycle, a health report and what it declares.
 
     ``core`` components must start for the daemon to become ready (``READY=1``); a failing
-    non-core component only degrades health. ``health()`` returns a dict whose ``"status"`` is
-    one of :data:`STATUSES` (the rest is shown in ``/api/health``), or None for a component
-    with nothing to report. ``routes()`` and ``topics()`` are read once, after it is built.
+    non-core component only degrades health. ``health()`` returns a :class:`Health` (status,
+    the one problem, values), or None for a component with nothing to report. ``routes()``
+    and ``topics()`` are read once, after it is built.
     """
 
     name: str
@@ -57,7 +55,7 @@ class Component(Protocol):
 
     async def stop(self) -> None: ...
 
-    def health(self) -> dict[str, Any] | None: ...
+    def health(self) -> Health | None: ...
 
     def routes(self) -> Sequence[Route]: ...
 
@@ -77,19 +75,14 @@ class BaseComponent:
     async def stop(self) -> None:
         return None
 
-    def health(self) -> dict[str, Any] | None:
-        return {"status": "ok"}
+    def health(self) -> Health | None:
+        return Health("ok")
 
     def routes(self) -> Sequence[Route]:
         return ()
 
     def topics(self) -> Sequence[Topic]:
         return ()
-
-
-def worst(statuses: list[str]) -> str:
-    """The worst of several health statuses (``ok`` when empty)."""
-    return max(statuses, key=STATUSES.index, default="ok")
 
 
 class Reports(Protocol):

@@ -269,12 +269,12 @@ def test_status_of_an_address_that_is_none_says_what_to_give(url: str) -> None:
 def test_status_lines_up_rounds_and_says_why_a_component_is_not_ok() -> None:
     health = {"version": "0.1.0", "status": "degraded", "state": "degraded", "mode": "sim",
               "driver": "mock", "uptime_s": 3725.4, "components": {
-                  "control": {"status": "ok", "fault": None},
+                  "control": {"status": "ok", "problem": None, "fault": None},
                   "lidar": {"status": "degraded", "state": "disconnected",
-                            "last_error": "cannot open /dev/rplidar: it does not exist"},
-                  "collision_monitor": {"status": "degraded", "reason": "no scan yet"},
-                  "recorder": {"status": "degraded", "error": "cannot write /x: disk full"},
-                  "http": {"status": "ok"}}}
+                            "problem": "cannot open /dev/rplidar: it does not exist"},
+                  "collision_monitor": {"status": "degraded", "problem": "no scan yet"},
+                  "recorder": {"status": "degraded", "problem": "cannot write /x: disk full"},
+                  "http": {"status": "ok", "problem": None}}}
     latency = {"commands": 12, "receipt_to_exec_ms": {"count": 12, "p50": 0.01234,
                                                       "p99": 16.4199},
                "tick": {"count": 5000, "late": 3, "missed": 0,

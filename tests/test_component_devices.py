@@ -4,7 +4,6 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import aiohttp
 import pytest
@@ -16,6 +15,7 @@ from base.config import Config, ConfigError, SectionSettings
 from base.options import Option, Options
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
 from daemon.config import load_config
+from daemon.health import Health
 from daemon.registry import COMPONENTS
 from daemon.web import json_response
 from drivers.devices import Actuator, create_device
@@ -46,8 +46,8 @@ class Waver(BaseComponent):
     async def stop(self) -> None:
         await self.servo.close()
 
-    def health(self) -> dict[str, Any]:
-        return self.servo.health()
+    def health(self) -> Health:
+        return Health.of(self.servo.health(), "fault")
 
     def routes(self) -> Sequence[Route]:
         return (Route("POST", "/api/waver", self.post, "drive"),)

@@ -16,6 +16,7 @@ from daemon import app
 from daemon.app import Daemon
 from daemon.cli import setup_logging
 from daemon.config import load_config
+from daemon.health import Health
 from sensors.rplidar.device import LidarManager, ManagerConfig
 from tests.support.wait import wait_for
 
@@ -109,8 +110,8 @@ class Part:
     def __init__(self, name: str, **health: Any) -> None:
         self.name, self.core, self.report = name, False, health
 
-    def health(self) -> dict[str, Any]:
-        return self.report
+    def health(self) -> Health:
+        return Health.of(self.report, "last_error", otherwise=str(self.report.get("state", "")))
 
 
 def test_a_component_still_starting_is_no_warning_but_one_that_stays_degraded_is(
@@ -144,4 +145,4 @@ def test_a_component_still_starting_is_no_warning_but_one_that_stays_degraded_is
         assert state_lines() == [
             ("INFO", "state: ready, sim mode, driver mock, simulated robot, mock emulator"),
             ("WARNING", "state: degraded, sim mode, driver mock, simulated robot, mock "
-             "emulator (lidar degraded)")]
+             "emulator (lidar degraded: lidar unplugged)")]

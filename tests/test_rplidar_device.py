@@ -244,6 +244,6 @@ async def test_component_publishes_scans_and_serves_them(tmp_path: Path) -> None
             response = await handler(None)
             assert response.status == 200
             assert ctx.robot_info["lidar"]()["model"] == "A1M8"
-            assert component.health()["status"] == "ok"
+            assert component.health().status == "ok"
         finally:
             await component.stop()

@@ -9,6 +9,7 @@ from typing import Any, Protocol
 import numpy as np
 import orjson
 
+from daemon.health import problem_of
 from daemon.messages.msgtypes import stamp
 from daemon.telemetry import CommandEvent, LatencyReport, OdomSample, Transform
 
@@ -180,17 +181,8 @@ def diagnostics_msg(health: dict[str, Any]) -> dict[str, Any]:
                         f"{health.get('driver')}", {})]
     for name, component in sorted(health.get("components", {}).items()):
         statuses.append(_status(name, component.get("status", "error"),
-                                problem(component), component))
+                                problem_of(component), component))
     return {"header": header(float(health.get("t", 0.0)), ""), "status": statuses}
-
-
-def problem(component: dict[str, Any]) -> str:
-    """The text that explains a component's status (empty when it is ok)."""
-    for key in ("error", "fault", "message", "problem"):
-        value = component.get(key)
-        if value:
-            return str(value)
-    return ""
 
 
 def _status(name: str, status: str, message: str, values: dict[str, Any]) -> dict[str, Any]:

@@ -16,6 +16,7 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Device
 from daemon.components.arm.controller import ArmController, ArmRefused
 from daemon.components.arm.kinematics import forward
 from daemon.components.arm.settings import ArmSettings
+from daemon.health import Health
 from daemon.messages.convert import header
 from daemon.messages.definitions import FLOAT64, JOINT_STATE, STRING
 from daemon.telemetry import COMMAND, CommandEvent
@@ -167,13 +168,15 @@ class ArmComponent(BaseComponent):
         finally:
             await self.servo.close()
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         device = self.servo.health()
         status = "error" if self.arm.fault or device["status"] != "ok" else "ok"
         fault = self.arm.fault or device.get("fault") or self.unreachable
-        return {"status": status, "backend": self.settings.backend,
-                "fault": fault, "writes": self.arm.writes,
-                "frozen_by_estop": self.arm.frozen_by}
+        values = {"backend": self.settings.backend, "fault": fault, "writes": self.arm.writes,
+                  "frozen_by_estop": self.arm.frozen_by}
+        if status == "error":
+            return Health("error", str(fault or f"servo {device['status']}"), values)
+        return Health("ok", str(fault or ""), values)
 
     # -- reports -----------------------------------------------------------------------------
 

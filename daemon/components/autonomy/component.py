@@ -19,6 +19,7 @@ from daemon.components.autonomy.settings import AutonomySettings
 from daemon.components.autonomy.wander import Perception, Wander, WanderSettings
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from daemon.components.navigation.component import NavigationComponent
+from daemon.health import Health
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
 from daemon.robot import scan_points
@@ -312,8 +313,8 @@ class AutonomyComponent(BaseComponent):
         if self.mode != "off":
             self.set_mode("off", "daemon stopping")
 
-    def health(self) -> dict[str, Any]:
-        return {"status": "ok", **self.status()}
+    def health(self) -> Health:
+        return Health("ok", values=self.status())
 
 
 def _footprint_reach(cm: CollisionMonitorSettings) -> float:

@@ -18,6 +18,7 @@ from daemon.components.collision_monitor.footprint import Footprint
 from daemon.components.collision_monitor.monitor import ACTIONS, CollisionMonitor, MonitorSettings
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from daemon.components.collision_monitor.sweep import path_direction
+from daemon.health import Health
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
 from daemon.motion_guard import Guarded
@@ -190,17 +191,18 @@ class SafetyComponent(BaseComponent):
     def topics(self) -> Sequence[Topic]:
         return (state_topic(),)
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         now = self.clock()
         stale = self.monitor.stale(now)
         slow_brakes = self.braking.reason()
-        out = {"status": "degraded" if stale or slow_brakes else "ok", **self.status(),
-               "stale": stale, "scans": self.monitor.scans, "changes": self.changes,
-               "entries": dict(self.entries),
-               "braking": self.braking.health(self.robot.measured_wheel_speeds() is not None)}
-        if slow_brakes and not stale:
-            out["reason"] = slow_brakes
-        return out
+        values = {**self.status(), "stale": stale, "scans": self.monitor.scans,
+                  "changes": self.changes, "entries": dict(self.entries),
+                  "braking": self.braking.health(self.robot.measured_wheel_speeds() is not None)}
+        if stale:
+            return Health("degraded", f"no fresh lidar scan: {self.reason}", values)
+        if slow_brakes:
+            return Health("degraded", slow_brakes, values)
+        return Health("ok", values=values)
 
 
 def disabled_status() -> dict[str, Any]:

@@ -21,6 +21,7 @@ from daemon.commands import (
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.components.control.estop import LATCH, LatchLimit, estop_access
 from daemon.components.control.loop import Applied, ControlLoop
+from daemon.health import Health
 from daemon.messages.convert import command_msg, latency_msg, odometry_msg, tf_msg
 from daemon.messages.definitions import (
     BOOL,
@@ -67,8 +68,17 @@ class ControlComponent(BaseComponent):
     async def stop(self) -> None:
         await self.control.stop()
 
-    def health(self) -> dict[str, Any]:
-        return self.control.health()
+    def health(self) -> Health:
+        report = self.control.health()
+        if report["fault"]:
+            problem = f"driver fault: {report['fault']}"
+        elif report["stalled"]:
+            problem = "stall stop: the control tick ran late, the wheels were zeroed"
+        elif report["wheel_guard"]["tripped"]:
+            problem = f"wheel guard: {report['wheel_guard']['tripped']}"
+        else:
+            problem = ""
+        return Health.of(report, otherwise=problem)
 
     def routes(self) -> Sequence[Route]:
         routes = [Route("GET", "/api/status", self.get_status, "read"),

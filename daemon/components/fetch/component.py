@@ -18,6 +18,7 @@ from daemon.components.fetch.sequence import ArmError, ArmStep, FetchError, Fetc
 from daemon.components.fetch.settings import FetchSettings
 from daemon.components.navigation.component import NavigationComponent
 from daemon.components.navigation.messages import GoalRequest
+from daemon.health import Health
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import STRING
 from daemon.robot import RobotBase
@@ -267,9 +268,10 @@ class FetchComponent(BaseComponent):
         status = self.status()
         return {k: status[k] for k in ("state", "step", "result", "reason") if k in status}
 
-    def health(self) -> dict[str, Any]:
-        extra = {} if self.sequence is not None else {"note": self.refusal()}
-        return {"status": "ok", **extra, **self.brief()}
+    def health(self) -> Health:
+        if self.sequence is None:  # nothing wrong with the robot: fetches are refused, saying why
+            return Health("ok", self.refusal() or "cannot fetch", self.brief())
+        return Health("ok", values=self.brief())
 
     # -- HTTP and topics ---------------------------------------------------------------------
 

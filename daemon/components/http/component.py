@@ -21,6 +21,7 @@ from daemon.components.http.conn import (
     bad_request_log,
 )
 from daemon.components.http.settings import HttpSettings
+from daemon.health import Health
 from daemon.listen import Listener, start_listening
 from daemon.security import Security
 from daemon.topics import ACCESS_LEVELS, Access, Topic
@@ -269,13 +270,15 @@ class HttpServer:
     def topics(self) -> Sequence[Topic]:
         return ()
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         running = self._runner is not None
         server = self._runner.server if self._runner else None
-        return {"status": "ok" if running else "error", "port": self.bound_port,
-                "connections": len(server.connections) if server else 0,
-                "connections_refused": getattr(server, "refused", 0),
-                "accept_errors": self._accept_errors.count if self._accept_errors else 0}
+        values = {"port": self.bound_port,
+                  "connections": len(server.connections) if server else 0,
+                  "connections_refused": getattr(server, "refused", 0),
+                  "accept_errors": self._accept_errors.count if self._accept_errors else 0}
+        return Health("ok", values=values) if running else \
+            Health("error", "not listening", values)
 
 
 def create(ctx: DaemonContext) -> HttpServer | None:

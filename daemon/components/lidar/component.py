@@ -12,6 +12,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
+from daemon.health import Health
 from daemon.messages.convert import scan_msg, tf_msg
 from daemon.messages.definitions import LASER_SCAN, TF_MESSAGE
 from daemon.settings import RobotSettings
@@ -64,8 +65,9 @@ class LidarComponent(BaseComponent):
     async def stop(self) -> None:
         await asyncio.to_thread(self.manager.stop)
 
-    def health(self) -> dict[str, Any]:
-        return self.manager.snapshot()
+    def health(self) -> Health:
+        report = self.manager.snapshot()
+        return Health.of(report, "last_error", otherwise=str(report["state"]))
 
     def routes(self) -> Sequence[Route]:
         return (Route("GET", "/api/scan", self.get_scan, "read"),)

@@ -34,6 +34,7 @@ from daemon.components.mapping.runner import (
     snapshot_of,
 )
 from daemon.components.mapping.settings import MappingSettings, map_name_error
+from daemon.health import Health
 from daemon.messages.definitions import OCCUPANCY_GRID, POSE_WITH_COVARIANCE_STAMPED
 from daemon.paths import state_directory
 from daemon.settings import RobotSettings
@@ -445,15 +446,15 @@ class MappingComponent(BaseComponent):
             out["problem"] = self.problem
         return out
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         status = self.status()
-        level = "ok"
+        problem = status.pop("problem", None)
         if self.problem:
-            level = "error"
-        elif status.get("lost"):
-            level, status["problem"] = "degraded", "localisation lost: set the pose " \
-                "(/initialpose, POST /api/pose) or drive where the map is known"
-        return {"status": level, **status}
+            return Health("error", str(problem or self.problem), status)
+        if status.get("lost"):
+            return Health("degraded", "localisation lost: set the pose (/initialpose, "
+                          "POST /api/pose) or drive where the map is known", status)
+        return Health("ok", values=status)
 
     def _on_tick(self, now: float, on_time: bool) -> None:
         self._record_odometry(now)

@@ -38,6 +38,7 @@ from daemon.components.navigation.planning import (
     fold_and_plan,
 )
 from daemon.components.navigation.settings import NavigationSettings
+from daemon.health import Health
 from daemon.messages.convert import json_string_msg
 from daemon.messages.definitions import PATH, POINT_STAMPED, POSE_STAMPED, STRING
 from daemon.robot import scan_points
@@ -601,10 +602,11 @@ class NavigationComponent(BaseComponent):
             out["exploration"] = {k: explored[k] for k in ("state", "reason", "explored_m2")}
         return out
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         # without a lidar nothing is wrong with the robot: goals are refused, saying why
-        extra = {} if self.lidar else {"note": "no lidar: goals are refused"}
-        return {"status": "ok", **extra, **self.status()}
+        if not self.lidar:
+            return Health("ok", "no lidar: goals are refused; enable [lidar]", self.status())
+        return Health("ok", values=self.status())
 
     # -- HTTP and topics -----------------------------------------------------------------------
 

@@ -20,6 +20,7 @@ from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
 from daemon.components.recorder.settings import RecordSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
+from daemon.health import Health
 from daemon.security import hide_paths
 from daemon.telemetry import ROBOT_INFO
 from daemon.topics import TopicOut
@@ -95,10 +96,9 @@ class RecorderComponent(BaseComponent):
         self._unsubscribe()
         await asyncio.to_thread(self.recorder.stop)
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         state = self.recorder.snapshot()
-        state["status"] = "degraded" if state["error"] else "ok"
-        return state
+        return Health("degraded" if state["error"] else "ok", state["error"] or "", state)
 
     def routes(self) -> Sequence[Route]:
         return (Route("POST", "/api/record", self.post_record, "drive"),
@@ -136,7 +136,7 @@ class RecorderComponent(BaseComponent):
         self.set_recording(enabled)
         log.info("flight recorder %s through the HTTP API", "enabled" if enabled else "disabled")
         await self._settled(enabled)
-        return json_response(self.health())
+        return json_response(self.health().to_json())
 
     async def _settled(self, enabled: bool, within_s: float = 3.0) -> None:
         """Wait (briefly) until the writer thread opened or closed its file, or failed."""

@@ -22,6 +22,7 @@ from daemon.components.ros2.dds import (
 from daemon.components.ros2.inlet import Inlet
 from daemon.components.ros2.outlet import Outlet
 from daemon.components.ros2.settings import Ros2Settings
+from daemon.health import Health
 from daemon.messages import cdr
 from daemon.messages.cdr_read import decode
 from daemon.messages.definitions import LASER_SCAN
@@ -318,10 +319,15 @@ class Ros2Face(BaseComponent):
 
     # -- health ---------------------------------------------------------------------------------
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
+        if self.node is None:
+            return Health("error", "no DDS node: see the log for why it did not start",
+                          self._figures())
+        return Health("ok", values=self._figures())
+
+    def _figures(self) -> dict[str, Any]:
         outlet = self.outlet
         return {
-            "status": "ok" if self.node is not None else "error",
             "node": self.node_label, "domain_id": self.domain,
             "discovery": "localhost" if self.localhost else "subnet",
             "distro": self.settings.distro, "allow_commands": self.settings.allow_commands,

@@ -20,6 +20,7 @@ from daemon.components.rosbridge.maskgate import MaskGate
 from daemon.components.rosbridge.outbox import SharedMessage
 from daemon.components.rosbridge.session import ClientSession
 from daemon.components.rosbridge.settings import RosbridgeSettings
+from daemon.health import Health
 from daemon.listen import Listener, start_listening
 from daemon.topics import TopicOut
 
@@ -126,17 +127,20 @@ class RosbridgeServer(BaseComponent):
             await self._runner.cleanup()
             self._runner = None
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> Health:
         server = self._runner.server if self._runner is not None else None
-        return {"status": "ok" if self._runner is not None else "error",
-                "port": self.bound_port, "clients": len(self.clients),
-                "open_connections": len(server.connections) if server else 0,
-                "connections_closed_at_cap": getattr(server, "refused", 0),
-                "connections": self.connections, "refused": dict(self.refused),
-                "dropped_messages": sum(c.outbox.dropped for c in self.clients.values()),
-                "throttled_requests": sum(c.over_rate for c in self.clients.values()),
-                "protocol_errors": sum(c.errors for c in self.clients.values()),
-                "pending_calls": len(self.graph.pending)}
+        values = {
+            "port": self.bound_port, "clients": len(self.clients),
+            "open_connections": len(server.connections) if server else 0,
+            "connections_closed_at_cap": getattr(server, "refused", 0),
+            "connections": self.connections, "refused": dict(self.refused),
+            "dropped_messages": sum(c.outbox.dropped for c in self.clients.values()),
+            "throttled_requests": sum(c.over_rate for c in self.clients.values()),
+            "protocol_errors": sum(c.errors for c in self.clients.values()),
+            "pending_calls": len(self.graph.pending)}
+        if self._runner is None:
+            return Health("error", "not listening", values)
+        return Health("ok", values=values)
 
     # -- admission ----------------------------------------------------------------------------
 

@@ -16,6 +16,7 @@ from aiohttp import web
 from base.config import Config
 from daemon.commands import CommandError, parse_pose
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
+from daemon.health import Health
 from daemon.messages.convert import odometry_msg
 from daemon.messages.definitions import ODOMETRY
 from daemon.robot import RobotBase
@@ -155,9 +156,9 @@ class SimRuntime(BaseComponent):
                 log.exception("stopping a simulated device failed")
         shutil.rmtree(self.workdir, ignore_errors=True)
 
-    def health(self) -> dict[str, Any]:
-        return {**self.world.health(), "emulator": self.driver_name,
-                "lidar": bool(self.lidar_options)}
+    def health(self) -> Health:
+        return Health.of({**self.world.health(), "emulator": self.driver_name,
+                          "lidar": bool(self.lidar_options)}, "error")
 
     async def _publish_ground_truth(self) -> None:
         period = 1.0 / self.config.get(ControlSettings).publish_rate

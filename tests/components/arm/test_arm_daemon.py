@@ -308,14 +308,14 @@ async def test_a_board_lost_while_moving_freezes_the_arm_until_it_answers_again(
         await eventually(lambda: component.arm.writes > 3, "the arm moving")
         board.answering = False
         health = await eventually(
-            lambda: (h := component.health())["status"] == "error" and h, "the fault")
+            lambda: (h := component.health().to_json())["status"] == "error" and h, "the fault")
         assert "no answer from the PCA9685" in health["fault"]
         state = await get_arm(http, robot.http_url)
         assert not state["moving"] and state["pose"] is None  # frozen part way
         status, _ = await post_arm(http, robot.http_url, {"pose": "home"})
         assert status == 503
         board.answering = True
-        await eventually(lambda: component.health()["status"] == "ok", "the board back")
+        await eventually(lambda: component.health().status == "ok", "the board back")
         await eventually(lambda: component.arm.written is not None, "the held position sent")
         after = (await get_arm(http, robot.http_url))["joints"]
         for name, joint in state["joints"].items():  # it holds where it froze

@@ -90,7 +90,7 @@ async def test_the_recorder_reports_its_file_and_size(tmp_path: Path) -> None:
         status, body = await call(robot, "POST", "/api/record", {"enabled": True})
         assert status == 200 and body["recording"] is True, body
         recorder = robot.component("recorder")
-        health = await eventually(lambda: (h := recorder.health())["file_bytes"] and h,
+        health = await eventually(lambda: (h := recorder.health().to_json())["file_bytes"] and h,
                                   "the file to grow")
         assert health["file"].endswith(".mcap") and health["file_bytes"] > 0
         status, body = await call(robot, "POST", "/api/record", {"enabled": False})

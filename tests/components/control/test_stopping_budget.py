@@ -70,12 +70,12 @@ def stop_from_one_metre_per_second(motor: float, reaction: float) -> dict[str, A
         {"t": 0.0, "cmd_vel": {"linear": {"x": 1.0}}}, {"t": 1.5, "stop": True}]))
     asyncio.run(runner.run(5.0))
     assert runner.safety is not None
-    return runner.safety.health()
+    return runner.safety.health().to_json()
 
 
 def test_health_says_when_the_robot_brakes_slower_than_assumed() -> None:
     slow = stop_from_one_metre_per_second(SLOW, reaction=0.1)
-    assert slow["status"] == "degraded" and "brakes slower" in slow["reason"], slow
+    assert slow["status"] == "degraded" and "brakes slower" in slow["problem"], slow
     braking = slow["braking"]
     assert braking["measured"] and braking["stops"] == braking["slower_than_assumed"] == 1
     assert braking["last"]["lag_s"] > 0.2  # the 0.25 s motor, measured by the encoders

@@ -69,7 +69,7 @@ async def test_the_map_pose_and_transforms_reach_a_rosbridge_client(tmp_path: Pa
                                      what="/tf_static")
         (mount,) = static["msg"]["transforms"]
         assert (mount["header"]["frame_id"], mount["child_frame_id"]) == ("base_link", "laser")
-        health = robot.component("mapping").health()
+        health = robot.component("mapping").health().to_json()
         assert health["status"] == "ok" and health["revolutions"] > 0
 
 
@@ -95,7 +95,7 @@ async def test_a_saved_map_is_listed_downloaded_and_localised_in(tmp_path: Path)
         revolutions = mapping.counters.scans
         await eventually(lambda: mapping.counters.scans > revolutions + 5,
                          "revolutions tracked in the saved map")
-        assert not mapping.health()["lost"]
+        assert not mapping.health().values["lost"]
 
 
 async def test_bad_requests_are_refused_and_the_old_map_stays(tmp_path: Path) -> None:

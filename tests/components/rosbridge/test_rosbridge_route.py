@@ -192,7 +192,7 @@ class FakeTransport:
 def _session(robot: InProcessDaemon, client_id: int, authority: Authority) -> ClientSession:
     server = bridge(robot)
     session = ClientSession(FakeWS(), client_id, "127.0.0.1", graph=server.graph,  # type: ignore[arg-type]
-                            control=server.control, authority=authority, limits=server.limits)
+                            control=server.robot, authority=authority, limits=server.limits)
     session.transport = FakeTransport()
     session.writer._idle = True  # the writer task sleeps (not started here)
     return session

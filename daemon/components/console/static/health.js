@@ -33,13 +33,7 @@ export function uptime(seconds) {
 
 // The one line that says what a component is doing, or what is wrong with it.
 export function componentMessage(c, name = "") {
-  for (const key of ["error", "last_error", "fault"]) {
-    if (c[key]) return `${key.replace("_", " ")}: ${c[key]}`;
-  }
-  if (c.driver && typeof c.driver === "object" && c.driver.fault) {
-    return `driver fault: ${c.driver.fault}`;
-  }
-  return componentDetail(name, c);
+  return c.problem || componentDetail(name, c);
 }
 
 export function componentDetail(name, c) {
