@@ -15,6 +15,7 @@ from slam.grid import OccupancyGrid
 from slam.matcher import Match, SearchWindow, match, polish
 from slam.pose import Pose2, between, compose, inverse, transform_points
 from slam.smooth import learn_noise, smooth
+from slam.submaps import SubmapAtlas
 
 IDENTITY: Pose2 = (0.0, 0.0, 0.0)
 
@@ -63,6 +64,8 @@ class MapperConfig:
         the odometry's motion since then, when that prediction differs from the usual one by
         more than ``stall_gap`` (m, rad); the better score wins. (The usual prediction adds
         the jump on top of the motion the matcher already followed during the stall.)
+    keys_per_submap: map mode, the map is rendered from rigid submaps of this many
+        consecutive key scans, composed by pose (``slam.submaps``).
     """
 
     resolution: float = 0.05
@@ -109,6 +112,7 @@ class MapperConfig:
     weak_gate: float = 3.0
     stall_gap: tuple[float, float] = (0.1, math.radians(3))
     stall_follow: int = 3
+    keys_per_submap: int = 20
 
 
 @dataclass(frozen=True)
@@ -158,9 +162,9 @@ def windows(linear: float, angular: float, resolution: float) -> tuple[SearchWin
 class Mapper:
     """Online 2D SLAM (map mode) or localisation in a fixed grid (localize mode).
 
-    Not thread-safe: one caller at a time (add_scan, set_pose, optimize, grid). The grid is
-    re-rendered from the key scans on first access after a graph optimisation (about 1 ms a
-    key scan); call ``grid`` off the control path."""
+    Not thread-safe: one caller at a time (add_scan, set_pose, optimize, grid). In map mode
+    the grid is composed from submaps (``slam.submaps``) on access: only the submaps that a
+    graph optimisation moved are re-placed, so its cost does not grow with the run."""
 
     def __init__(self, config: MapperConfig, grid: OccupancyGrid | None = None,
                  initial_pose: Pose2 = IDENTITY) -> None:
@@ -171,7 +175,9 @@ class Mapper:
         self.config = config
         self._grid = grid if grid is not None else OccupancyGrid(config.resolution,
                                                                 config.max_cells)
+        #: the graph moved since the submaps were last composed
         self._grid_stale = False
+        self._atlas = SubmapAtlas(config.resolution, config.max_cells, config.keys_per_submap)
         self._pose = initial_pose
         self._last_odom: Pose2 | None = None
         self._graph = PoseGraph()
@@ -203,10 +209,16 @@ class Mapper:
 
     @property
     def grid(self) -> OccupancyGrid:
-        """The current map, re-rendered from the key scans after a graph optimisation."""
-        if self._grid_stale:
-            self._render_grid()
+        """The current map: the fixed one (localize mode), else the submaps composed at their
+        current graph poses."""
+        if self.config.mode == "map" and self._keys:
+            self._atlas.compose(self._graph.poses, self._key_points, moved=self._grid_stale)
+            self._grid_stale = False
+            self._grid = self._atlas.grid()
         return self._grid
+
+    def _key_points(self, key: int) -> np.ndarray:
+        return self._keys[key].points
 
     @property
     def trajectory(self) -> list[tuple[float, Pose2]]:
@@ -354,6 +366,9 @@ class Mapper:
             "grid_cells": self._grid.width * self._grid.height,
             "grid_bytes": self._grid.nbytes,
             "dropped_points": self._grid.dropped_points,
+            "submaps": len(self._atlas.submaps),
+            "submaps_bytes": self._atlas.nbytes,
+            "submaps_last_placed": self._atlas.last_placed,
         }
 
     # ------------------------------------------------------------------ shared steps
@@ -547,8 +562,9 @@ class Mapper:
             sigmas = self.config.match_sigmas if found is not None else self.config.odometry_sigmas
             self._graph.add_edge(index - 1, index, between(self._graph.pose(index - 1), pose),
                                  sigmas)
-        if not self._grid_stale:
-            self._grid.integrate(pose, points)
+        anchor = self._atlas.anchor_key()
+        self._atlas.add_key(index, pose, None if anchor is None else self._graph.pose(anchor),
+                            points)
         self._submap_age += 1
         if self._submap_age >= self.config.submap_every:
             self._submap = None
@@ -634,11 +650,3 @@ class Mapper:
         gaps = np.hypot(*(positions - self._graph.poses[index, :2]).T)
         best = int(np.argmin(gaps))
         return old[best] if gaps[best] <= cfg.loop_search_radius else None
-
-    def _render_grid(self) -> None:
-        grid = OccupancyGrid(self.config.resolution, self.config.max_cells)
-        for k, key in enumerate(self._keys):
-            grid.integrate(self._graph.pose(k), key.points)
-        grid.version = self._grid.version + 1
-        self._grid = grid
-        self._grid_stale = False
