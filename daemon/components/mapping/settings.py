@@ -33,6 +33,9 @@ MAPPING_OPTIONS: Options = {
     "initial_pose": Option(list, [0.0, 0.0, 0.0], "localize: the pose to start from, "
                            "[x m, y m, heading degrees] in the map; /initialpose and POST "
                            "/api/pose set it later", item=float, length=3),
+    "find_pose": Option(bool, True, "localize: find the pose on the whole map by itself at "
+                        "start and after POST /api/map/load without a pose (initial_pose is "
+                        "then not used); false: start from initial_pose"),
     "resolution": Option(float, 0.05, "cell size of the map, m", minval=0.01, maxval=0.5),
     "max_range_m": Option(float, 12.0, "returns farther than this are not put in the map, m",
                           minval=1.0, maxval=40.0),
@@ -58,6 +61,7 @@ class MappingSettings(SectionSettings, section="mapping", options=MAPPING_OPTION
     mode: str
     map: str
     initial_pose: list[float]
+    find_pose: bool
     resolution: float
     max_range_m: float
     max_size_m: float
