@@ -116,6 +116,12 @@ def test_simulate_localise_prints_the_summary_last() -> None:
     assert last["trials"] == 2 and last["found"] + last["ambiguous"] + last["wrong"] + \
         last["not_found"] == 2
     assert last["wrong"] == 0 and last["median_s"] is not None
+    kidnap = subprocess.run([sys.executable, "-m", "daemon.cli", "simulate", "--localise", "2",
+                             "--kidnap", "--world", "apartment", "--json"], cwd=REPO,
+                            capture_output=True, text=True, timeout=300)
+    assert kidnap.returncode == 0, kidnap.stderr
+    summary = json.loads(kidnap.stdout.strip().splitlines()[-1])
+    assert summary["trials"] == 2 and summary["noticed"] == 2 and summary["wrong"] == 0
     bad = subprocess.run([sys.executable, "-m", "daemon.cli", "simulate", "--localise", "0"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--localise" in bad.stderr

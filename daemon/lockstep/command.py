@@ -62,6 +62,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    "while the place is ambiguous; judged by the true pose (found within "
                    "0.10 m and 5 deg, ambiguous, confidently wrong; median time to a sure "
                    "pose)")
+    p.add_argument("--kidnap", action="store_true", help="with --localise: once the first "
+                   "pose is sure, each start is an untold teleport (a carry); also reports "
+                   "how many were noticed and the median time to notice")
     p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
                    "change to stderr")
     return p
@@ -157,7 +160,7 @@ def run_localise(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     for world in [args.world] if args.world else list(WORLDS):
         try:
-            trials = localise_world(world, args.localise, args.seed or 1)
+            trials = localise_world(world, args.localise, args.seed or 1, args.kidnap)
         except (ConfigError, SimConfigError, WorldError, OSError, ValueError) as exc:
             print(f"arbiterd simulate: {exc}", file=sys.stderr)
             return EXIT_CONFIG
@@ -168,7 +171,7 @@ def run_localise(args: argparse.Namespace) -> int:
             else:
                 print(f"  {r['world']:<10} {r['outcome']:<9} truth ({r['truth'][0]:6.2f}, "
                       f"{r['truth'][1]:6.2f}, {math.degrees(r['truth'][2]):6.1f} deg) "
-                      f"{r['seconds']:6.2f} s, {r['revolutions']} revolutions, error "
+                      f"{r['seconds']:6.2f} s, {r.get('revolutions', '-')} revolutions, error "
                       f"{r.get('error_m', math.nan):.3f} m / {r.get('error_deg', math.nan):.2f}"
                       " deg", flush=True)
     print(json.dumps(summarise(rows)))

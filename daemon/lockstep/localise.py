@@ -69,8 +69,10 @@ def scan_points(sim: SimWorld, angles: np.ndarray) -> np.ndarray:
     return np.column_stack([ranges[ok] * np.cos(angles[ok]), ranges[ok] * np.sin(angles[ok])])
 
 
-def localise_world(world: str, count: int, seed: int) -> list[dict[str, Any]]:
-    """``count`` trials on one world: teleport, forget the pose, let the mapper find it."""
+def localise_world(world: str, count: int, seed: int,
+                   kidnap: bool = False) -> list[dict[str, Any]]:
+    """``count`` trials on one world: teleport, forget the pose, let the mapper find it
+    (``kidnap``: teleport without telling the mapper, once it is sure of the first pose)."""
     config = load_config(None, sim=True, env={})
     config.update("sim", {"seed": seed, "world_file": world})
     sim_config = SimConfig.from_settings(config.get(SimSettings))
@@ -79,24 +81,62 @@ def localise_world(world: str, count: int, seed: int) -> list[dict[str, Any]]:
     angles = ray_angles(sim_config.lidar_rays)
     period = 1.0 / sim_config.lidar_rate
     rows = []
-    for n, start in enumerate(random_starts(sim, count, seed)):
-        sim.reset(Pose(*start))
+    starts = random_starts(sim, count + 1 if kidnap else count, seed)
+    odometry: list[Pose2] = [(0.0, 0.0, 0.0)]  # the wheels' pose: a teleport does not move it
+    if kidnap:
+        sim.reset(Pose(*starts[0]))
         mapper.find_pose()
-        rows.append(_trial(world, n, start, mapper, sim, angles, period))
+        _trial(world, -1, starts.pop(0), mapper, sim, angles, period, odometry)
+    for n, start in enumerate(starts):
+        sim.reset(Pose(*start))
+        if kidnap:
+            rows.append(_kidnapped(world, n, start, mapper, sim, angles, period, odometry))
+        else:
+            mapper.find_pose()
+            rows.append(_trial(world, n, start, mapper, sim, angles, period, odometry))
     return rows
 
 
+def _kidnapped(world: str, n: int, truth: Pose2, mapper: Mapper, sim: SimWorld,
+               angles: np.ndarray, period: float, odometry: list[Pose2]) -> dict[str, Any]:
+    """Revolutions after an untold teleport: when the mapper noticed (its status left
+    tracking) and when it was sure again, and where."""
+    start, odom0 = truth, odometry[0]
+    row: dict[str, Any] = {"world": world, "trial": n, "truth": [round(v, 3) for v in truth],
+                           "kidnap": True}
+    noticed: int | None = None
+    for revolution in range(1, REVOLUTIONS + 1):
+        if revolution > 1:
+            truth = _drive_on(sim, truth)
+        odometry[0] = compose(odom0, between(start, truth))
+        result = mapper.add_scan(odometry[0], scan_points(sim, angles), revolution * period)
+        if result.status != "tracking" and noticed is None:
+            noticed = revolution
+            row["noticed_s"] = round(revolution * period, 2)
+        if result.status == "tracking" and (noticed is not None or revolution >= 50):
+            error = math.hypot(result.pose[0] - truth[0], result.pose[1] - truth[1])
+            turn = abs(math.remainder(result.pose[2] - truth[2], math.tau))
+            good = error <= FOUND_M and turn <= FOUND_RAD
+            row.update(seconds=round(revolution * period, 2), error_m=round(error, 3),
+                       outcome="found" if good else "wrong")
+            return row
+    row.update(seconds=round(REVOLUTIONS * period, 2), outcome="ambiguous"
+               if mapper.health()["lost"] else "wrong")
+    return row
+
+
 def _trial(world: str, n: int, truth: Pose2, mapper: Mapper, sim: SimWorld,
-           angles: np.ndarray, period: float) -> dict[str, Any]:
+           angles: np.ndarray, period: float, odometry: list[Pose2]) -> dict[str, Any]:
     compute = 0.0
-    start = truth
+    start, odom0 = truth, odometry[0]
     row: dict[str, Any] = {"world": world, "trial": n, "truth": [round(v, 3) for v in truth]}
     for revolution in range(1, REVOLUTIONS + 1):
         if revolution > 1:
             truth = _drive_on(sim, truth)
         points = scan_points(sim, angles)
         began = time.perf_counter()
-        result = mapper.add_scan(between(start, truth), points, revolution * period)
+        odometry[0] = compose(odom0, between(start, truth))
+        result = mapper.add_scan(odometry[0], points, revolution * period)
         compute += time.perf_counter() - began
         row.update(revolutions=revolution, compute_s=round(compute, 3),
                    seconds=round(compute + revolution * period, 3), status=result.status,
@@ -135,4 +175,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"{key}_share"] = round(out[key] / trials, 4) if trials else 0.0
     out["median_s"] = round(statistics.median(sure), 3) if sure else None
     out["max_s"] = round(max(sure), 3) if sure else None
+    noticed = [r["noticed_s"] for r in rows if "noticed_s" in r]
+    if any(r.get("kidnap") for r in rows):
+        out["noticed"] = len(noticed)
+        out["median_notice_s"] = round(statistics.median(noticed), 3) if noticed else None
     return out
