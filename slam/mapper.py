@@ -74,6 +74,9 @@ class MapperConfig:
         ``global_lead`` before it is taken. While tracking, a match scoring below
         ``suspect_share`` x the median of the last good ones counts as refused (the robot
         was carried or slipped): ``lost_after`` of them in a row start the global search.
+        Every ``global_check_every`` tracked scans (0: never) the whole map is searched
+        too: if its best place is elsewhere (a carry to a place that looks alike nearby),
+        its best three and the tracked pose are followed until one leads.
     """
 
     resolution: float = 0.05
@@ -124,6 +127,7 @@ class MapperConfig:
     global_search: bool = True
     global_lead: float = 0.7
     suspect_share: float = 0.6
+    global_check_every: int = 100
     global_config: GlobalConfig = field(default_factory=GlobalConfig)
 
 
@@ -231,6 +235,7 @@ class Mapper:
         #: ones (``suspect_share``) sent the mapper to search the whole map again
         self._recent_scores: list[float] = []
         self.kidnaps = 0
+        self._since_check = 0
 
     # ------------------------------------------------------------------ public API
 
@@ -491,6 +496,10 @@ class Mapper:
                 return ScanResult(result.pose, result.map_to_odom, False, found.score,
                                   result.covariance, True, "lost")
             return self._result(found.pose, self._last_odom or IDENTITY, found)
+        if found is not None and found.score >= threshold and self._check_due():
+            elsewhere = self._elsewhere(points, found)
+            if elsewhere is not None:
+                return elsewhere
         if found is not None and found.score >= threshold:
             self._recent_scores.append(found.score)
             if len(self._recent_scores) > 30:
@@ -508,6 +517,32 @@ class Mapper:
         return ScanResult(result.pose, result.map_to_odom, False,
                           found.score if found is not None else 0.0, result.covariance,
                           self._lost, "lost" if self._lost else "tracking")
+
+    def _check_due(self) -> bool:
+        every = self.config.global_check_every
+        self._since_check += 1
+        if not self.config.global_search or every <= 0 or self._since_check < every:
+            return False
+        self._since_check = 0
+        return True
+
+    def _elsewhere(self, points: np.ndarray, tracked: Match) -> ScanResult | None:
+        """The periodic whole-map check: a sure pose far from the tracked one starts
+        following both (None: it agrees, or it is not sure)."""
+        if self._global is None:
+            assert self._fixed is not None
+            self._global = GlobalLocalizer(self._grid, self._fixed, self.config.global_config)
+        self.global_searches += 1
+        found = self._global.search(points)
+        best = found.candidates[0][0] if found.candidates else tracked.pose
+        if found.status == NOT_FOUND or \
+                math.hypot(best[0] - tracked.pose[0], best[1] - tracked.pose[1]) < 0.5:
+            return None  # the tracked pose is the best place (or nothing fits)
+        self.kidnaps += 1
+        self._searching = self._lost = True
+        candidates = (*found.candidates[:3], (tracked.pose, tracked.score))
+        self._hypotheses = [(pose, math.log(max(score, 1e-3))) for pose, score in candidates]
+        return self._unsure(tracked.pose, "ambiguous", found.score, candidates)
 
     def _suspect(self, score: float) -> bool:
         recent = self._recent_scores

@@ -125,3 +125,17 @@ def test_simulate_localise_prints_the_summary_last() -> None:
     bad = subprocess.run([sys.executable, "-m", "daemon.cli", "simulate", "--localise", "0"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--localise" in bad.stderr
+
+
+def test_a_carry_to_a_look_alike_place_is_caught_by_the_periodic_whole_map_check() -> None:
+    walls = np.vstack([BOX, [[7.0, 0.0, 7.0, 0.8]]])
+    mapper = Mapper(MapperConfig(mode="localize", global_check_every=5), grid=_map(walls))
+    here: Pose2 = (2.0, 2.0, 0.0)
+    mapper.set_pose(here, (0.0, 0.0, 0.0))
+    for i in range(3):
+        assert mapper.add_scan((0.0, 0.0, 0.0), cast(here, walls=walls), 0.1 * i).matched
+    twin: Pose2 = (6.0, 2.0, math.pi)  # half a turn about the centre: only the stub differs
+    results = [mapper.add_scan((0.0, 0.0, 0.0), cast(twin, walls=walls), 1.0 + 0.1 * i)
+               for i in range(40)]
+    assert mapper.kidnaps == 1, [r.status for r in results]
+    assert results[-1].status == "tracking" and _error(results[-1].pose, twin)[0] < 0.1

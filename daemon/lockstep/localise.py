@@ -113,15 +113,20 @@ def _kidnapped(world: str, n: int, truth: Pose2, mapper: Mapper, sim: SimWorld,
         if result.status != "tracking" and noticed is None:
             noticed = revolution
             row["noticed_s"] = round(revolution * period, 2)
-        if result.status == "tracking" and (noticed is not None or revolution >= 50):
+        if result.status == "tracking" and noticed is not None:
             error = math.hypot(result.pose[0] - truth[0], result.pose[1] - truth[1])
             turn = abs(math.remainder(result.pose[2] - truth[2], math.tau))
             good = error <= FOUND_M and turn <= FOUND_RAD
             row.update(seconds=round(revolution * period, 2), error_m=round(error, 3),
                        outcome="found" if good else "wrong")
             return row
-    row.update(seconds=round(REVOLUTIONS * period, 2), outcome="ambiguous"
-               if mapper.health()["lost"] else "wrong")
+    pose = mapper.trajectory[-1][1]
+    error = math.hypot(pose[0] - truth[0], pose[1] - truth[1])
+    turn = abs(math.remainder(pose[2] - truth[2], math.tau))
+    lost = mapper.health()["lost"]
+    row.update(seconds=round(REVOLUTIONS * period, 2), error_m=round(error, 3),
+               outcome="ambiguous" if lost else
+               "found" if error <= FOUND_M and turn <= FOUND_RAD else "wrong")
     return row
 
 
