@@ -237,10 +237,23 @@ cmd_dev() {
     report_status "ready: ${DEV_VENV}/bin/arbiterd run --sim, then open http://localhost:8085/  |  ./install.sh test"
 }
 
+# http_port_of ARGS...: the --http-port that `arbiterd run` is given, else 8085.
+http_port_of() {
+    local port=8085
+    while (( $# )); do
+        case "$1" in
+            --http-port) port="${2:-${port}}"; shift ;;
+            --http-port=*) port="${1#--http-port=}" ;;
+        esac
+        shift
+    done
+    printf '%s\n' "${port}"
+}
+
 cmd_sim() {
     setup_dev run
     warn_if_service_runs
-    report_status "starting the daemon on the simulated robot: open http://localhost:8085/ (Ctrl-C stops it)"
+    report_status "starting the daemon on the simulated robot: open http://localhost:$(http_port_of "$@")/ (Ctrl-C stops it)"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/arbiterd" run --sim "$@"; return 0; }
     exec "${DEV_VENV}/bin/arbiterd" run --sim "$@"
 }

@@ -797,3 +797,12 @@ def test_dev_setup_installs_the_compiler_and_headers_a_minimal_debian_lacks(
     assert " gcc" in apt and " python3-dev" in apt, apt
     result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": sys.executable})
     assert "python3-dev" not in result.stdout and " gcc" not in result.stdout, result.stdout
+
+
+@pytest.mark.parametrize(("args", "port"), [((), "8085"), (("--http-port", "18085"), "18085"),
+                                            (("--http-port=18086",), "18086")])
+def test_sim_names_the_address_it_will_really_serve(args: tuple[str, ...], port: str) -> None:
+    """Issue 40 item 6: `install.sh sim --http-port P` said to open :8085."""
+    result = install_sh("sim", *args, env={"ARBITERD_DRY_RUN": "1"})
+    assert result.returncode == 0, result.stderr
+    assert f"open http://localhost:{port}/" in result.stdout + result.stderr
