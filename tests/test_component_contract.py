@@ -1,8 +1,7 @@
 # One contract over every registered component: its section, routes and topics are documented,
-# its settings match its option table, and what it plugs into the daemon goes when it stops.
+# and what it plugs into the daemon goes when it stops (its settings: test_settings_declaration.py).
 from __future__ import annotations
 
-import dataclasses
 import re
 from pathlib import Path
 from typing import Any
@@ -10,7 +9,6 @@ from typing import Any
 import aiohttp
 import pytest
 
-from base.config import SectionSettings, field_name
 from daemon.config import SETTINGS, all_sections
 from daemon.registry import COMPONENTS
 from daemon.topics import TopicIn, TopicOut
@@ -104,19 +102,6 @@ def test_one_owner_per_topic_and_an_accepting_type_for_each_incoming_one(
         for topic in d["topics"]:
             if isinstance(topic, TopicIn):
                 assert topic.type in topic.accepted_types()
-
-
-@pytest.mark.parametrize("section", list(SETTINGS))
-def test_each_sections_settings_match_its_option_table(section: str) -> None:
-    settings: type[SectionSettings] = SETTINGS[section]
-    fields = {f.name: f.type for f in dataclasses.fields(settings)}
-    keys = {field_name(key): option for key, option in settings.OPTIONS.items()}
-    assert set(fields) == set(keys), section
-    for name, option in keys.items():
-        kind = str(fields[name])
-        assert kind.startswith(option.kind.__name__), (section, name, kind, option.kind)
-    assert section == settings.SECTION
-    assert dataclasses.is_dataclass(settings) and settings.__dataclass_params__.frozen  # type: ignore[attr-defined]
 
 
 def test_every_section_but_the_drivers_has_typed_settings() -> None:
