@@ -45,7 +45,8 @@ class SectionSettings:
     the section's keys (dots as underscores), each declared once with
     :func:`base.options.option`; read once by :meth:`Config.get`.
 
-    A subclass names its section::
+    A subclass names its section (and any old names it still loads under, with a deprecation
+    warning)::
 
         @dataclass(frozen=True)
         class HttpSettings(SectionSettings, section="http"):
@@ -57,12 +58,16 @@ class SectionSettings:
     """
 
     SECTION: ClassVar[str]
+    #: old section names still read, with a deprecation warning: ``aliases=("record",)``
+    ALIASES: ClassVar[tuple[str, ...]] = ()
     OPTIONS: ClassVar[OptionTable] = OptionTable()
 
-    def __init_subclass__(cls, *, section: str = "", **kwargs: Any) -> None:
+    def __init_subclass__(cls, *, section: str = "", aliases: tuple[str, ...] = (),
+                          **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if section:
             cls.SECTION = section
+            cls.ALIASES = aliases
 
     @classmethod
     def from_values(cls: type[S], values: dict[str, Any]) -> S:

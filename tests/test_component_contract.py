@@ -28,7 +28,7 @@ def everything(directory: Path) -> str:
         if settings is None or settings.SECTION in ("http", "rosbridge"):
             continue  # the test robot sets their addresses; they are on by default
         extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
-                 "record": [f'directory = "{directory}"']}.get(settings.SECTION, [])
+                 "recorder": [f'directory = "{directory}"']}.get(settings.SECTION, [])
         enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
         if enabled or extra:
             lines += [f"[{settings.SECTION}]", *enabled, *extra]
@@ -140,7 +140,7 @@ async def test_the_bridge_and_the_recorder_listen_to_the_bus_only_while_someone_
     and the recorder to the recorded topics while recording is on."""
     from daemon.telemetry import COMMAND, ODOM
 
-    async with in_process_daemon(tmp_path, '[record]\nenabled = false\ndirectory = "'
+    async with in_process_daemon(tmp_path, '[recorder]\nenabled = false\ndirectory = "'
                                  f'{tmp_path / "rec"}"\n') as robot:
         bus = robot.ctx.bus
         quiet = bus.subscribers(ODOM), bus.subscribers(COMMAND)

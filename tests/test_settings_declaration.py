@@ -11,6 +11,7 @@ import pytest
 from base.config import SectionSettings
 from base.options import DECLARATION, Option, defaults, kind_of, option, options_of
 from daemon.config import SETTINGS
+from daemon.registry import COMPONENTS
 from drivers import DRIVERS, driver_class
 from drivers.device_registry import DEVICES
 
@@ -32,6 +33,22 @@ TABLES: dict[str, Any] = {
     **{f"[driver.{name}]": driver_class(name) for name in DRIVERS},
     **{f"device {name}": _device_class(name) for name in DEVICES},
 }
+
+
+@pytest.mark.parametrize("spec", [s for s in COMPONENTS if s.settings is not None],
+                         ids=lambda s: s.name)
+def test_a_components_section_is_named_after_it(spec: Any) -> None:
+    """Folder = component name = config section (components without settings are exempt)."""
+    assert spec.create.__module__ == f"daemon.components.{spec.name}.component"
+    assert spec.name == spec.settings.SECTION
+    assert spec.name not in spec.settings.ALIASES
+
+
+def test_an_old_section_name_is_no_section_of_its_own() -> None:
+    from daemon.config import ALIASES
+
+    assert ALIASES == {"record": "recorder"}
+    assert not set(ALIASES) & set(SETTINGS)
 
 
 @pytest.mark.parametrize("where", list(DECLARED))

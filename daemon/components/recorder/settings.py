@@ -1,4 +1,4 @@
-# [record]: where the flight recorder writes, how big files get, how often it flushes.
+# [recorder]: where the flight recorder writes, how big files get, how often it flushes.
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,8 +10,9 @@ RECORD_COMPRESSIONS = ("zstd", "lz4", "none")
 
 
 @dataclass(frozen=True)
-class RecordSettings(SectionSettings, section="record"):
-    """The [record] section, read once (keys with dots as underscores)."""
+class RecorderSettings(SectionSettings, section="recorder", aliases=("record",)):
+    """The [recorder] section, read once ([record] before the section took the component's
+    name: still read, with a deprecation warning)."""
 
     enabled: bool = option(False, "record /odom, /tf, /scan, commands, latency reports, log lines "
                            "and health changes to MCAP files (the flight recorder)")
