@@ -75,7 +75,7 @@ class SimWorld:
                  wheel_separation: float = 0.30, motors: MotorPair | None = None,
                  world: World | None = None, wheel_sign: int = 1,
                  internal_scans: bool = False) -> None:
-        self.config = config or SimConfig()
+        self.config = config or SimConfig.from_section()
         if motors is not None and getattr(motors, "_clock", None) is not None:
             raise ValueError("the world steps the motors: pass a MotorPair made with clock=None")
         self.world = world or build_world(self.config)

@@ -56,10 +56,10 @@ async def status_of(robot: InProcessDaemon, method: str, path: str,
 def test_access_levels_are_checked_at_registration() -> None:
     from base.options import defaults
     from daemon.components.http.component import HttpServer
-    from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
+    from daemon.components.http.settings import HttpSettings
     from daemon.security import Security
 
-    http = HttpServer(HttpSettings.from_values(defaults(HTTP_OPTIONS) | {
+    http = HttpServer(HttpSettings.from_values(defaults(HttpSettings.OPTIONS) | {
         "host": "127.0.0.1", "port": 0, "max_body_bytes": 1024, "body_timeout_s": 1.0,
         "idle_timeout_s": 1.0, "max_connections": 8}), Security(""))
 

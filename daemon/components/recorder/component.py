@@ -18,7 +18,7 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.components.recorder.channels import Channel, channels_by_bus
 from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
-from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.settings import RecorderSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
 from daemon.health import Health
 from daemon.security import hide_paths
@@ -41,7 +41,7 @@ class RecorderComponent(BaseComponent):
     name = "recorder"
     core = False
 
-    def __init__(self, ctx: DaemonContext, options: RecordSettings) -> None:
+    def __init__(self, ctx: DaemonContext, options: RecorderSettings) -> None:
         self.ctx = ctx
         self.bus = ctx.bus
         self.options = options
@@ -186,8 +186,8 @@ class RecorderComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> RecorderComponent:
-    """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
-    return RecorderComponent(ctx, ctx.settings(RecordSettings))
+    """Build the recorder from ``[recorder]`` (always present: POST /api/record can start it)."""
+    return RecorderComponent(ctx, ctx.settings(RecorderSettings))
 
 
-COMPONENT = ComponentSpec("recorder", create, RecordSettings)
+COMPONENT = ComponentSpec("recorder", create, RecorderSettings)
