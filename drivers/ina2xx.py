@@ -106,14 +106,6 @@ class InaMonitor(Sensor):
     async def _open(self) -> None:
         await self._run(self._start_chip, drop=True)
 
-    async def probe(self) -> dict[str, float]:
-        """Open, read once and close (``arbiterd check``): DeviceError says what is wrong."""
-        try:
-            await self.open()
-            return await self.read()
-        finally:
-            await self.close()
-
     async def _run(self, work: Any, *, drop: bool = False) -> Any:
         try:
             return await asyncio.to_thread(work)

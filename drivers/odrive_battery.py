@@ -74,13 +74,6 @@ class ODriveBattery(Sensor):
             await self._close()
             raise
 
-    async def probe(self) -> dict[str, float]:
-        try:
-            await self.open()
-            return await self.read()
-        finally:
-            await self.close()
-
     async def _close(self) -> None:
         bus, self._bus = self._bus, None
         if bus is not None:

@@ -74,6 +74,13 @@ SIM_OPTIONS: Options = {
                            above=0.0, maxval=1000.0),
     "lidar": Option(bool, True, "emulate an RPLIDAR A1 (on a pty) whose ranges come from the "
                     "world, and read it through the real lidar manager"),
+    "battery_capacity_ah": Option(float, 2.6, "the simulated pack's capacity (3 Li-ion cells "
+                                  "in series), Ah", above=0.0, maxval=1000.0),
+    "battery_charge": Option(float, 1.0, "the simulated pack's charge at the start, 0..1",
+                             minval=0.0, maxval=1.0),
+    "battery_drain": Option(float, 1.0, "multiplies every load on the simulated pack (100: "
+                            "drain it a hundred times faster to watch the robot go home)",
+                            minval=0.0, maxval=100000.0),
     "miswire": Option(list, [], "wiring faults the emulated motors and encoders play "
                       f"(bring-up tests): {', '.join(MISWIRES)}", item=str, choices=MISWIRES),
 }
@@ -110,6 +117,9 @@ class SimConfig:
     metrics_csv: str = ""
     metrics_rate: float = 10.0
     lidar: bool = True
+    battery_capacity_ah: float = 2.6
+    battery_charge: float = 1.0
+    battery_drain: float = 1.0
     miswire: tuple[str, ...] = ()
 
     @classmethod
@@ -202,4 +212,7 @@ class SimSettings(SectionSettings, section="sim", options=SIM_OPTIONS):
     metrics_csv: str
     metrics_rate: float
     lidar: bool
+    battery_capacity_ah: float
+    battery_charge: float
+    battery_drain: float
     miswire: list[str]
