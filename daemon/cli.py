@@ -180,6 +180,8 @@ def _probed(config: Config) -> str:
         what += f", lidar on {config['lidar']['port']}"
     if config["arm"]["enabled"]:
         what += f", arm servos ({config['arm']['backend']})"
+    if config["battery"]["enabled"] and config["battery"]["device"] != "sim":
+        what += f", battery monitor ({config['battery']['device']})"
     return what
 
 

@@ -157,6 +157,14 @@ class Sensor(Device):
             raise DeviceError(f"[{self.section}] device is not open")
         return await self._read()
 
+    async def probe(self) -> dict[str, float]:
+        """Open, read once, close (``arbiterd check``); a DeviceError says what is wrong."""
+        try:
+            await self.open()
+            return await self.read()
+        finally:
+            await self.close()
+
     @abstractmethod
     async def _read(self) -> dict[str, float]: ...
 

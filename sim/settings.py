@@ -70,6 +70,13 @@ class SimSettings(SectionSettings, section="sim"):
                                  maxval=1000.0)
     lidar: bool = option(True, "emulate an RPLIDAR A1 (on a pty) whose ranges come from the "
                          "world, and read it through the real lidar manager")
+    battery_capacity_ah: float = option(2.6, "the simulated pack's capacity (3 Li-ion cells "
+                                        "in series), Ah", above=0.0, maxval=1000.0)
+    battery_charge: float = option(1.0, "the simulated pack's charge at the start, 0..1",
+                                   minval=0.0, maxval=1.0)
+    battery_drain: float = option(1.0, "multiplies every load on the simulated pack (100: "
+                                  "drain it a hundred times faster to watch the robot go home)",
+                                  minval=0.0, maxval=100000.0)
     miswire: list[str] = option([], "wiring faults the emulated motors and encoders play "
                                 f"(bring-up tests): {', '.join(MISWIRES)}", choices=MISWIRES)
 
@@ -109,6 +116,9 @@ class SimConfig:
     metrics_csv: str
     metrics_rate: float
     lidar: bool
+    battery_capacity_ah: float
+    battery_charge: float
+    battery_drain: float
     miswire: tuple[str, ...]
 
     @classmethod

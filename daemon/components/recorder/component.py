@@ -22,7 +22,7 @@ from daemon.components.recorder.settings import RecorderSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
 from daemon.health import Health
 from daemon.security import hide_paths
-from daemon.telemetry import ROBOT_INFO
+from daemon.telemetry import POWER, ROBOT_INFO, PowerEvent
 from daemon.topics import TopicOut
 from daemon.web import ApiError, json_response, read_json_object
 
@@ -76,6 +76,13 @@ class RecorderComponent(BaseComponent):
                 self._latched.append((topic, group))
         self.set_recording(bool(self.options.enabled))
         self.recorder.start()
+        self.ctx.plugs.subscribe(POWER, self._on_power)
+
+    def _on_power(self, event: PowerEvent) -> None:
+        """Critical charge: close the file with its summary before the power goes."""
+        if event.level == "critical" and self.recorder.wanted:
+            log.warning("recorder: closing the recording: %s", event.reason)
+            self.set_recording(False)
 
     def set_recording(self, enabled: bool) -> None:
         """Switch recording on or off; the bus is listened to only while it is on, so a

@@ -111,6 +111,9 @@ class SimRuntime(BaseComponent):
         workdir.mkdir(exist_ok=True)
         emulated = starter(workdir, self.config[use.section])
         self._stops.append(emulated.stop)
+        use_battery = getattr(emulated.emulator, "use_battery", None)
+        if use_battery is not None:  # a battery monitor measures the world's pack
+            use_battery(self.world.battery)
         self.device_options[use.section] = emulated.options
         self.device_emulators[use.section] = emulated.emulator
         log.info("simulated device: %s for [%s] on %s", use.device, use.section,
