@@ -23,13 +23,13 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
 def locked_toml(tmp_path: Path) -> str:
     """LOCKED with every optional component on (its maps in the test's own folder)."""
     return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n' \
-        '[arm]\nenabled = true\n'
+        '[arm]\nenabled = true\n[battery]\nenabled = true\ndevice = "sim"\n'
 
 
 @pytest.fixture
 async def locked(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
     """Token configured, reads need it too, every optional route registered (sim, lidar,
-    fault injection, mapping, the arm)."""
+    fault injection, mapping, the arm, the battery)."""
     async with in_process_daemon(tmp_path, locked_toml(tmp_path)) as robot:
         yield robot
 
