@@ -9,6 +9,7 @@ from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
 from daemon.components.fetch import component as fetch
+from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
 from daemon.components.lidar import component as lidar
 from daemon.components.mapping import component as mapping
@@ -33,6 +34,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     arm.COMPONENT,
     fetch.COMPONENT,
     rosbridge.COMPONENT,
+    foxglove.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
     console.COMPONENT,

@@ -15,6 +15,7 @@ from daemon.config import SETTINGS, all_sections
 from daemon.registry import COMPONENTS
 from daemon.topics import TopicIn, TopicOut
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.net import free_port
 from tests.support.wait import eventually
 
 REPO = Path(__file__).resolve().parent.parent
@@ -30,7 +31,9 @@ def everything(directory: Path) -> str:
         if settings is None or settings.SECTION in ("http", "rosbridge"):
             continue  # the test robot sets their addresses; they are on by default
         extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
-                 "record": [f'directory = "{directory}"']}.get(settings.SECTION, [])
+                 "record": [f'directory = "{directory}"'],
+                 "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 }.get(settings.SECTION, [])
         enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
         if enabled or extra:
             lines += [f"[{settings.SECTION}]", *enabled, *extra]
