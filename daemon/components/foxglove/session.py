@@ -96,7 +96,7 @@ class FoxgloveSession:
         self.advertised: dict[int, ClientChannel] = {}
         self._queues: dict[int, deque[Outgoing]] = {}
         self._ready: dict[int, None] = {}  # subscriptions with a message waiting, in order
-        self._texts: deque[str] = deque(maxlen=TEXT_QUEUE)
+        self._texts: deque[str | bytes] = deque(maxlen=TEXT_QUEUE)  # (and the first time)
         self._wake = asyncio.Event()
         self._bucket = TokenBucket(budget.frames_per_second, budget.frames_burst, clock)
         self._said: dict[str, float] = {}
@@ -109,9 +109,12 @@ class FoxgloveSession:
     # -- reading ------------------------------------------------------------------------------
 
     async def serve(self, hello: list[str]) -> None:
-        """Greets (``serverInfo``, then ``advertise``), then reads until the socket closes."""
-        for text in hello:
-            self._texts.append(text)
+        """Greets (``serverInfo``, the time, then ``advertise``: a player that takes the
+        server's time has one before it sees any topic), then reads until the socket closes."""
+        info, *rest = hello
+        self._last_time_ns = time.time_ns()
+        first: list[str | bytes] = [info, protocol.time_frame(self._last_time_ns), *rest]
+        self._texts.extend(first)
         self._wake.set()
         writer = asyncio.create_task(self._write_forever(), name=f"foxglove-writer-{self.id}")
         try:
@@ -351,7 +354,11 @@ class FoxgloveSession:
             self._wake.clear()
             while self._texts or self._ready:
                 if self._texts:
-                    await self.ws.send_str(self._texts.popleft())
+                    frame = self._texts.popleft()
+                    if isinstance(frame, bytes):
+                        await self.ws.send_bytes(frame)
+                    else:
+                        await self.ws.send_str(frame)
                     continue
                 await self._send_next()
 

@@ -179,3 +179,15 @@ async def test_parameters_are_the_configuration_read_only(fox: InProcessDaemon) 
             {"name": "robot.wheel_radius", "value": 1.0}])
         refused = await client.op("status")
         assert "read-only" in refused["message"]
+
+
+async def test_unadvertising_the_driving_channel_brakes(fox: InProcessDaemon) -> None:
+    async with connect(url(fox), headers=OWNER) as client:
+        await client.send(op="advertise", channels=[{
+            "id": 1, "topic": "/cmd_vel", "encoding": "json",
+            "schemaName": "geometry_msgs/msg/Twist"}])
+        await client.ws.send_bytes(publish_frame(1, json.dumps(TWIST).encode()))
+        await eventually(fox.moving, "the wheels to turn")
+        await client.send(op="unadvertise", channelIds=[1])
+        await eventually(lambda: not fox.moving(), "the robot to brake")
+        assert [o for o in client.ops if o["op"] == "status"] == []
