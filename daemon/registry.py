@@ -10,6 +10,7 @@ from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
 from daemon.components.fetch import component as fetch
+from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
 from daemon.components.lidar import component as lidar
 from daemon.components.mapping import component as mapping
@@ -35,6 +36,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     fetch.COMPONENT,
     battery.COMPONENT,
     rosbridge.COMPONENT,
+    foxglove.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
     console.COMPONENT,

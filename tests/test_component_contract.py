@@ -13,6 +13,7 @@ from daemon.config import SETTINGS, all_sections
 from daemon.registry import COMPONENTS
 from daemon.topics import TopicIn, TopicOut
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.net import free_port
 from tests.support.wait import eventually
 
 REPO = Path(__file__).resolve().parent.parent
@@ -28,7 +29,9 @@ def everything(directory: Path) -> str:
         if settings is None or settings.SECTION in ("http", "rosbridge"):
             continue  # the test robot sets their addresses; they are on by default
         extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
-                 "recorder": [f'directory = "{directory}"']}.get(settings.SECTION, [])
+                 "recorder": [f'directory = "{directory}"'],
+                 "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 }.get(settings.SECTION, [])
         enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
         if enabled or extra:
             lines += [f"[{settings.SECTION}]", *enabled, *extra]
