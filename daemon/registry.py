@@ -4,6 +4,7 @@ from __future__ import annotations
 from daemon.component import ComponentSpec
 from daemon.components.arm import component as arm
 from daemon.components.autonomy import component as autonomy
+from daemon.components.camera import component as camera
 from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
@@ -32,6 +33,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     navigation.COMPONENT,
     arm.COMPONENT,
     fetch.COMPONENT,
+    camera.COMPONENT,
     rosbridge.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
