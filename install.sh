@@ -66,6 +66,14 @@ missing_run_packages() {
 }
 
 # The Debian packages the tests add (./install.sh dev and test), each with its check.
+# python_headers_present: Python.h of the Python the venv is made from (a C extension's build
+# needs it; Debian ships it in python3-dev, not in python3).
+python_headers_present() {
+    local include
+    include="$("${PYTHON}" -c 'import sysconfig; print(sysconfig.get_path("include"))' 2>/dev/null)"
+    [[ -n "${include}" && -e "${include}/Python.h" ]]
+}
+
 missing_test_packages() {
     local missing=()
     command -v node >/dev/null 2>&1 || missing+=(nodejs)
@@ -75,8 +83,11 @@ missing_test_packages() {
         || missing+=(openssh-client)
     command -v rsync >/dev/null 2>&1 || missing+=(rsync)
     command -v systemd-analyze >/dev/null 2>&1 || missing+=(systemd)
-    # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md)
+    # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md):
+    # with a C compiler and the Python headers, which a minimal Debian (the Pi's OS) lacks
     [[ -e /usr/include/dds/dds.h ]] || missing+=(cyclonedds-dev)
+    command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
+    python_headers_present || missing+=(python3-dev)
     if [[ "${WITH_BROWSER}" == 1 ]]; then
         [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
     fi
