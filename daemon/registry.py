@@ -5,6 +5,7 @@ from daemon.component import ComponentSpec
 from daemon.components.arm import component as arm
 from daemon.components.autonomy import component as autonomy
 from daemon.components.battery import component as battery
+from daemon.components.camera import component as camera
 from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
@@ -35,6 +36,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     arm.COMPONENT,
     fetch.COMPONENT,
     battery.COMPONENT,
+    camera.COMPONENT,
     rosbridge.COMPONENT,
     foxglove.COMPONENT,
     recorder.COMPONENT,

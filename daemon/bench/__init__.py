@@ -153,6 +153,8 @@ SUITES: dict[str, Suite] = {
                              "planned and followed beside navigation idle, in turns"),
     "localize": Suite("daemon.bench.localize", "localisation in a saved map from 1 m / 30° "
                       "off, 20 trials in `arbiterd simulate`: converged within 0.05 m in 5 s"),
+    "camera": Suite("daemon.bench.camera", "sim render + JPEG encode per frame; tick "
+                    "lateness and CPU with an MJPEG viewer beside nobody watching"),
     "mapping-cost": Suite("daemon.bench.mapping_cost", "mapper ms per 360-ray revolution "
                           "beside the lidar decode; tick lateness, mapping on vs off"),
 }
