@@ -80,6 +80,8 @@ class FleetMember(BaseComponent):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._connector: asyncio.Task[None] | None = None
         self._commands: dict[str, TopicIn] = {}
+        #: set once the session is open and publishing
+        self.joined = asyncio.Event()
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -160,6 +162,7 @@ class FleetMember(BaseComponent):
         await asyncio.to_thread(self._declare, self.session)
         self.connected_once, self.last_error = True, ""
         self.outbox.send = self._sender(self.session)
+        self.joined.set()
         log.info("fleet: robot %s joined through %s (%d channels%s)", self.robot_id,
                  self.settings.router or "peers", len(self.outbox.channels),
                  f", commands: e-stop{' and driving' if self.settings.allow_commands else ''}"

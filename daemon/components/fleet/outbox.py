@@ -12,7 +12,7 @@ from typing import Any
 log = logging.getLogger("arbiterd.fleet")
 
 #: how often the sender thread looks at the slots, s (the fastest rate it can keep)
-WAKE_S = 0.05
+WAKE_S = 0.1
 _NOTHING = object()
 
 
