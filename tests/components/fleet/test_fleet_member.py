@@ -41,6 +41,13 @@ def _get(session: Any, key: str, payload: bytes | None = None) -> list[tuple[boo
     return out
 
 
+async def _joined(session: Any, robot_id: str = "r1") -> None:
+    """Until the robot's queryables answer through the router (declarations travel after the
+    session opened)."""
+    key = f"arbiterd/{robot_id}/srv/status"
+    await eventually(lambda: asyncio.to_thread(_get, session, key), f"{robot_id} to answer")
+
+
 async def test_robot_joins_publishes_and_answers(tmp_path: Path) -> None:
     with zenoh_router(tmp_path) as router:
         samples: dict[str, Any] = {}
@@ -57,6 +64,7 @@ async def test_robot_joins_publishes_and_answers(tmp_path: Path) -> None:
             await eventually(lambda: "arbiterd/r1/info" in samples, "the robot's info")
             info = json.loads(samples["arbiterd/r1/info"].payload.to_bytes())
             assert info["robot_id"] == "r1" and info["commands"] is True
+            await _joined(router.session)
             replies = await asyncio.to_thread(_get, router.session, "arbiterd/r1/srv/status")
             assert replies and replies[0][0]
             status = json.loads(replies[0][1])
@@ -70,8 +78,7 @@ async def test_operator_stop_latches_and_robot_user_cannot(tmp_path: Path) -> No
     with zenoh_router(tmp_path) as router:
         async with in_process_daemon(tmp_path, fleet_toml(router.endpoint)) as d:
             robot = d.ctx.robot
-            await eventually(lambda: d.daemon.component_health()["fleet"]
-                             ["connected"], "the robot to join")
+            await _joined(router.session)
             # another robot's credentials: the router's access control drops the query
             other = await asyncio.to_thread(client, router.endpoint, ROBOT, ROBOT_PASSWORD)
             try:
@@ -123,8 +130,7 @@ async def test_driving_from_the_fleet_goes_through_the_arbiter(tmp_path: Path) -
     with zenoh_router(tmp_path) as router:
         toml = fleet_toml(router.endpoint, allow_commands=True)
         async with in_process_daemon(tmp_path, toml) as d:
-            await eventually(lambda: d.daemon.component_health()["fleet"]
-                             ["connected"], "the robot to join")
+            await _joined(router.session)
             twist = cdr.encode(TWIST, {"linear": {"x": 0.1, "y": 0.0, "z": 0.0},
                                     "angular": {"x": 0.0, "y": 0.0, "z": 0.0}})
             replies = await asyncio.to_thread(_get, router.session, "arbiterd/r1/cmd/cmd_vel",
