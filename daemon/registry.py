@@ -11,6 +11,7 @@ from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
 from daemon.components.fetch import component as fetch
+from daemon.components.fleet import component as fleet
 from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
 from daemon.components.lidar import component as lidar
@@ -41,6 +42,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     foxglove.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
+    fleet.COMPONENT,
     console.COMPONENT,
     core.COMPONENT,
     http.COMPONENT,

@@ -141,6 +141,8 @@ SUITES: dict[str, Suite] = {
                   "it, /scan latency to an rclpy node"),
     "foxglove": Suite("daemon.bench.foxglove", "scan frames (JSON, cbor, cbor-raw); tick "
                       "lateness with the flight recorder off and on"),
+    "fleet": Suite("daemon.bench.fleet", "the fleet component: tick lateness publishing ÷ "
+                   "paused, its CPU beside the daemon without it, bandwidth per robot"),
     "slam": Suite("daemon.bench.slam", "the mapper over the Freiburg logs: relation errors "
                   "beside Cartographer and odometry, speed vs real time"),
     "mapping-sim": Suite("daemon.bench.mapping_sim", "the mapper in `arbiterd simulate`: pose "
