@@ -23,7 +23,7 @@ from daemon.bench import SUITES, suites_help
 from daemon.components.http.settings import HttpSettings
 from daemon.components.recorder import cli as record_cli
 from daemon.components.recorder.paths import listing_directory
-from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.settings import RecorderSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.health import problem_of as problem_text
 from daemon.settings import LoggingSettings
@@ -180,6 +180,8 @@ def _probed(config: Config) -> str:
         what += f", lidar on {config['lidar']['port']}"
     if config["arm"]["enabled"]:
         what += f", arm servos ({config['arm']['backend']})"
+    if config["battery"]["enabled"] and config["battery"]["device"] != "sim":
+        what += f", battery monitor ({config['battery']['device']})"
     return what
 
 
@@ -415,6 +417,39 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return command.run(args)
 
 
+def cmd_fleet(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from daemon.components.fleet.component import available
+    from daemon.components.fleet.operator import serve
+
+    setup_logging(args.log_level)
+    missing = available()
+    if missing is not None:
+        print(f"arbiterd fleet: {missing}", file=sys.stderr)
+        return 2
+    try:
+        config = load_config(args.config, sim=True)
+    except ConfigError as exc:
+        return _report_config_error(exc, args)
+    return asyncio.run(serve(config, args.listen, args.http_port))
+
+
+def _add_fleet(sub: Any) -> None:
+    fleet = sub.add_parser("fleet", help="the operator's side: a Zenoh router and the fleet "
+                           "page (docs/fleet.md)")
+    fleet.add_argument("--listen", metavar="tcp/HOST:PORT",
+                       help="the router's endpoint (default [fleet] operator.listen, "
+                       "tcp/0.0.0.0:7447)")
+    fleet.add_argument("--http-port", type=tcp_port, metavar="PORT",
+                       help="the fleet page's port (default 8086)")
+    fleet.add_argument("--config", type=Path, metavar="PATH",
+                       help="a config file: its [fleet] operator.* keys and [security]")
+    fleet.add_argument("--log-level", default="info",
+                       choices=["debug", "info", "warning", "error"])
+    fleet.set_defaults(func=cmd_fleet)
+
+
 def cmd_lidar(args: argparse.Namespace) -> int:
     result: int = lidar_cli.run(args)
     return result
@@ -427,7 +462,7 @@ def cmd_record(args: argparse.Namespace) -> int:
             config = _load(args)
         except ConfigError as exc:
             return _report_config_error(exc, args)
-        directory = listing_directory({"directory": config.get(RecordSettings).directory})
+        directory = listing_directory({"directory": config.get(RecorderSettings).directory})
     return record_cli.run(args, directory or Path("."))
 
 
@@ -522,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     record_cli.add_parser(sub).set_defaults(func=cmd_record)
     _add_map(sub)
     _add_mission(sub)
+    _add_fleet(sub)
     return parser
 
 

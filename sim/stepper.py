@@ -5,12 +5,13 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from sim.battery import BatteryModel, BatterySpec
 from sim.metrics import RunMetrics
 from sim.motor_model import MotorPair
 from sim.noise import Noise
@@ -75,7 +76,7 @@ class SimWorld:
                  wheel_separation: float = 0.30, motors: MotorPair | None = None,
                  world: World | None = None, wheel_sign: int = 1,
                  internal_scans: bool = False) -> None:
-        self.config = config or SimConfig()
+        self.config = config or SimConfig.from_section()
         if motors is not None and getattr(motors, "_clock", None) is not None:
             raise ValueError("the world steps the motors: pass a MotorPair made with clock=None")
         self.world = world or build_world(self.config)
@@ -95,6 +96,12 @@ class SimWorld:
         self.internal_scans = internal_scans
         self.latest_scan: np.ndarray | None = None
         self.latest_scan_time = 0.0
+        #: the pack the motors and the computer draw from, charged while :attr:`on_charger`
+        self.battery = BatteryModel(BatterySpec(capacity_ah=self.config.battery_capacity_ah,
+                                                drain=self.config.battery_drain),
+                                    soc=self.config.battery_charge)
+        #: whether the robot's contacts touch a charging dock now (set by whoever models docks)
+        self.on_charger: Callable[[], bool] = lambda: False
         #: graspable objects (sim/objects.py), moved by :attr:`arm_tool` when an arm is on
         self.objects = Objects()
         #: where the arm's tool point is (set by whoever runs the arm), else None
@@ -135,6 +142,7 @@ class SimWorld:
                 self.objects.update(state.x, state.y, state.theta,
                                     self.arm_tool() if self.arm_tool else None,
                                     self.geometry.footprint_radius)
+            self.battery.step(self._dt, self.motors.speeds(), self.on_charger())
             self.metrics.record(self._dt, state.x, state.y, state.theta, state.v, state.w,
                                 state.travelled, state.collisions)
             if self.internal_scans and self.time + 1e-9 >= self._next_scan:
@@ -261,18 +269,25 @@ class SimWorld:
             s = self.physics.state
             return s.x, s.y, s.theta
 
-    def place_object(self, x: float, y: float) -> None:
+    def place_object(self, x: float, y: float, color: str = "red") -> None:
         """A graspable object standing at (x, y); ValueError when it would stand inside a
-        wall or an obstacle, or under the robot."""
+        wall or an obstacle, or under the robot, or has an unknown colour."""
         with self._cond:
-            radius = self.objects.place(x, y).radius  # checks it is finite
+            radius = self.objects.place(x, y, color=color).radius  # checks it is finite
             self.objects.items.pop()
             if self.world.clearance(x, y) < radius:
                 raise ValueError(f"({x}, {y}) is inside a wall or an obstacle")
             state = self.physics.state
             if math.hypot(x - state.x, y - state.y) < self.geometry.footprint_radius + radius:
                 raise ValueError(f"({x}, {y}) is under the robot")
-            self.objects.place(x, y)
+            self.objects.place(x, y, color=color)
+
+    def camera_view(self) -> tuple[tuple[float, float, float], list[tuple[float, float, float,
+                                                                             str]]]:
+        """The true pose and the standing objects at one instant, for the simulated camera."""
+        with self._cond:
+            s = self.physics.state
+            return (s.x, s.y, s.theta), self.objects.standing()
 
     def clear_objects(self) -> None:
         with self._cond:

@@ -18,11 +18,11 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.components.recorder.channels import Channel, channels_by_bus
 from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
-from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.settings import RecorderSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
 from daemon.health import Health
 from daemon.security import hide_paths
-from daemon.telemetry import ROBOT_INFO
+from daemon.telemetry import POWER, ROBOT_INFO, PowerEvent
 from daemon.topics import TopicOut
 from daemon.web import ApiError, json_response, read_json_object
 
@@ -41,7 +41,7 @@ class RecorderComponent(BaseComponent):
     name = "recorder"
     core = False
 
-    def __init__(self, ctx: DaemonContext, options: RecordSettings) -> None:
+    def __init__(self, ctx: DaemonContext, options: RecorderSettings) -> None:
         self.ctx = ctx
         self.bus = ctx.bus
         self.options = options
@@ -76,12 +76,20 @@ class RecorderComponent(BaseComponent):
                 self._latched.append((topic, group))
         self.set_recording(bool(self.options.enabled))
         self.recorder.start()
+        self.ctx.plugs.subscribe(POWER, self._on_power)
+
+    def _on_power(self, event: PowerEvent) -> None:
+        """Critical charge: close the file with its summary before the power goes."""
+        if event.level == "critical" and self.recorder.wanted:
+            log.warning("recorder: closing the recording: %s", event.reason)
+            self.set_recording(False)
 
     def set_recording(self, enabled: bool) -> None:
         """Switch recording on or off; the bus is listened to only while it is on, so a
         recorder that is off costs the publishers (the control tick, every command) nothing."""
         if enabled and not self._unsubscribers:
-            self._unsubscribers = [self.bus.subscribe(topic.bus, self._enqueuer(group))
+            self._unsubscribers = [self.bus.subscribe(topic.bus,
+                                                      self._enqueuer(group, topic.record_rate))
                                    for topic, group in self._groups]
         elif not enabled:
             self._unsubscribe()
@@ -107,9 +115,23 @@ class RecorderComponent(BaseComponent):
 
     # -- feeding the writer (hot path: enqueue only) ----------------------------------------------
 
-    def _enqueuer(self, channels: tuple[Channel, ...]) -> Callable[[Any], None]:
+    def _enqueuer(self, channels: tuple[Channel, ...],
+                  rate: float = 0.0) -> Callable[[Any], None]:
+        """What the bus calls per message: into the writer's queue (at most ``rate`` a
+        second when it is > 0: the camera's frames)."""
         enqueue = self.recorder.enqueue
-        return lambda message: enqueue(channels, message)
+        if rate <= 0:
+            return lambda message: enqueue(channels, message)
+        period, due = 1.0 / rate, [0.0]
+
+        def throttled(message: Any) -> None:
+            now = time.monotonic()
+            if now >= due[0]:
+                # keep the cadence; after a pause, start it afresh
+                due[0] = due[0] + period if now - due[0] < period else now + period
+                enqueue(channels, message)
+
+        return throttled
 
     def _on_open(self) -> list[tuple[tuple[Channel, ...], Any]]:
         """Each new file starts with the latest message of every latched topic (health)."""
@@ -186,8 +208,8 @@ class RecorderComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> RecorderComponent:
-    """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
-    return RecorderComponent(ctx, ctx.settings(RecordSettings))
+    """Build the recorder from ``[recorder]`` (always present: POST /api/record can start it)."""
+    return RecorderComponent(ctx, ctx.settings(RecorderSettings))
 
 
-COMPONENT = ComponentSpec("recorder", create, RecordSettings)
+COMPONENT = ComponentSpec("recorder", create, RecorderSettings)

@@ -29,6 +29,7 @@ from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
 from sim.wiring import DEVICE_EMULATORS, EMULATORS
 from sim.world import Pose
+from slam.pose import Pose2, between, compose, inverse
 
 log = logging.getLogger("arbiterd.sim")
 
@@ -61,6 +62,8 @@ class SimRuntime(BaseComponent):
         self.robot: RobotBase | None = None
         self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
+        #: the world pose odometry started from (its integrated frame's origin)
+        self._anchor: Pose2 = (0.0, 0.0, 0.0)
         self.driver_options: dict[str, Any] = {}
         self.lidar_options: dict[str, Any] = {}
 
@@ -108,6 +111,9 @@ class SimRuntime(BaseComponent):
         workdir.mkdir(exist_ok=True)
         emulated = starter(workdir, self.config[use.section])
         self._stops.append(emulated.stop)
+        use_battery = getattr(emulated.emulator, "use_battery", None)
+        if use_battery is not None:  # a battery monitor measures the world's pack
+            use_battery(self.world.battery)
         self.device_options[use.section] = emulated.options
         self.device_emulators[use.section] = emulated.emulator
         log.info("simulated device: %s for [%s] on %s", use.device, use.section,
@@ -144,6 +150,8 @@ class SimRuntime(BaseComponent):
                          "20 Hz"),)
 
     async def start(self) -> None:
+        truth = self.world.ground_truth()
+        self._anchor = (truth.x, truth.y, truth.theta)  # odometry starts here, at zero
         self._publisher = asyncio.create_task(self._publish_ground_truth(), name="sim-truth")
 
     async def stop(self) -> None:
@@ -165,10 +173,23 @@ class SimRuntime(BaseComponent):
         robot = self.config.get(RobotSettings)
         while True:
             truth = self.world.ground_truth()
+            x, y, theta = self.truth_in_odom((truth.x, truth.y, truth.theta))
             self.bus.publish(ODOM_GROUND_TRUTH, OdomSample(
-                time.time(), robot.odom_frame_id, robot.base_frame_id, truth.x, truth.y,
-                truth.theta, truth.v, truth.w))
+                time.time(), robot.odom_frame_id, robot.base_frame_id, x, y, theta, truth.v,
+                truth.w))
             await asyncio.sleep(period)
+
+    def truth_in_odom(self, truth: Pose2) -> Pose2:
+        """The world pose ``truth`` in the odometry frame ``/odom`` reports in: the world seen
+        from where odometry started (``_anchor``), moved as odometry resets moved the reported
+        frame (reported ∘ integrated⁻¹). Drawn beside ``/odom``, the gap is the drift."""
+        start_frame = between(self._anchor, truth)
+        if self.robot is None:
+            return start_frame
+        reported, integrated = self.robot.pose(), self.robot.integrated_pose()
+        moved = compose((reported.x, reported.y, reported.theta),
+                        inverse((integrated.x, integrated.y, integrated.theta)))
+        return compose(moved, start_frame)
 
     async def _post_reset(self, request: web.Request) -> web.Response:
         """Teleport, and let odometry report the new pose, so the two start together again."""
@@ -181,7 +202,10 @@ class SimRuntime(BaseComponent):
             truth = self.world.reset(Pose(*values) if values else None)
         except ValueError as exc:  # not finite, or the footprint on an obstacle
             raise ApiError(400, f"cannot place the robot there: {exc}") from None
-        if self.robot is not None:
+        if self.robot is not None:  # a teleport: odometry's start moves with the robot
+            integrated = self.robot.integrated_pose()
+            self._anchor = compose((truth.x, truth.y, truth.theta),
+                                   inverse((integrated.x, integrated.y, integrated.theta)))
             self.robot.reset_odometry(truth.x, truth.y, truth.theta,
                                         by=f"HTTP {request.remote or '?'} (sim reset)")
         return json_response({"ground_truth": truth.to_json()})

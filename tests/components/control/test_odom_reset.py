@@ -85,7 +85,7 @@ async def test_a_simulator_reset_puts_odometry_on_the_ground_truth(tmp_path: Pat
 
 
 async def test_the_recorder_reports_its_file_and_size(tmp_path: Path) -> None:
-    config = f'[record]\ndirectory = "{tmp_path / "rec"}"\nflush_interval_s = 0.1\n'
+    config = f'[recorder]\ndirectory = "{tmp_path / "rec"}"\nflush_interval_s = 0.1\n'
     async with in_process_daemon(tmp_path, config) as robot:
         status, body = await call(robot, "POST", "/api/record", {"enabled": True})
         assert status == 200 and body["recording"] is True, body
