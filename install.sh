@@ -86,8 +86,10 @@ missing_test_packages() {
     # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md):
     # with a C compiler and the Python headers, which a minimal Debian (the Pi's OS) lacks
     [[ -e /usr/include/dds/dds.h ]] || missing+=(cyclonedds-dev)
-    command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
-    python_headers_present || missing+=(python3-dev)
+    if ! dev_venv_current "${DEV_EXTRAS}"; then  # the venv gets (re)built: the binding compiles
+        command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
+        python_headers_present || missing+=(python3-dev)
+    fi
     if [[ "${WITH_BROWSER}" == 1 ]]; then
         [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
     fi
@@ -142,16 +144,21 @@ dev_step_system_packages() {
 # Step 2: the developer virtual environment with the package editable plus EXTRAS. The stamp
 # holds the pyproject hash, the Python version and the extras installed; a venv with more
 # extras than asked for is up to date.
-dev_step_venv() {
-    local extras="$1" stamp="${DEV_VENV}/.arbiterd-dev-stamp" want have extra
+# dev_venv_current EXTRAS: the developer venv exists, was made from this pyproject.toml and
+# this Python, and holds EXTRAS (its stamp says so).
+dev_venv_current() {
+    local stamp="${DEV_VENV}/.arbiterd-dev-stamp" want
+    [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" ]] || return 1
     want="$(sha256_of "${SRCDIR}/pyproject.toml") $("${PYTHON}" -V 2>&1)"
-    if [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" ]]; then
-        have="$(sed -n 1p "${stamp}")"
-        if [[ "${have}" == "${want}" ]] && venv_has_extras "$(sed -n 2p "${stamp}")" "${extras}"
-        then
-            report_status "virtual environment ${DEV_VENV}: up to date"
-            return 0
-        fi
+    [[ "$(sed -n 1p "${stamp}")" == "${want}" ]] && venv_has_extras "$(sed -n 2p "${stamp}")" "$1"
+}
+
+dev_step_venv() {
+    local extras="$1" stamp="${DEV_VENV}/.arbiterd-dev-stamp" want
+    want="$(sha256_of "${SRCDIR}/pyproject.toml") $("${PYTHON}" -V 2>&1)"
+    if dev_venv_current "${extras}"; then
+        report_status "virtual environment ${DEV_VENV}: up to date"
+        return 0
     fi
     if [[ ! -x "${DEV_VENV}/bin/python" ]]; then
         report_status "creating virtual environment ${DEV_VENV}"
