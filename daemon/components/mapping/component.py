@@ -34,13 +34,15 @@ from daemon.components.mapping.runner import (
     snapshot_of,
 )
 from daemon.components.mapping.settings import MappingSettings, map_name_error
+from daemon.files import FileRefused, sees_paths, serve_file, shown
 from daemon.health import Health
 from daemon.messages.definitions import OCCUPANCY_GRID, POSE_WITH_COVARIANCE_STAMPED
 from daemon.paths import state_directory
+from daemon.security import Security
 from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
-from daemon.web import ApiError, json_response, read_json_object
+from daemon.web import ApiError, HttpPort, json_response, read_json_object
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 from slam.mapper import MapperConfig, ScanResult
@@ -86,8 +88,10 @@ class MappingComponent(BaseComponent):
     def __init__(self, settings: MappingSettings, plugs: Plugs, points: ScanPoints, *,
                  maps_dir: Path, base_frame_id: str = "base_link",
                  odom_frame_id: str = "odom", inline: bool = False,
-                 wall_clock: Callable[[], float] = time.time) -> None:
+                 wall_clock: Callable[[], float] = time.time,
+                 http: HttpPort | None = None, security: Security | None = None) -> None:
         self.settings = settings
+        self.http, self.security = http, security or Security("")
         self.bus = plugs.bus
         self.robot = plugs.robot
         self.clock = self.robot.clock
@@ -116,9 +120,8 @@ class MappingComponent(BaseComponent):
 
     def mapper_config(self) -> MapperConfig:
         s = self.settings
-        cells = int((s.max_size_m / s.resolution) ** 2)
         return MapperConfig(resolution=s.resolution, max_range=s.max_range_m, mode=s.mode,
-                            loop_closure=s.loop_closure, max_cells=cells)
+                            loop_closure=s.loop_closure, max_cells=s.max_cells)
 
     async def start(self) -> None:
         grid = None
@@ -161,7 +164,7 @@ class MappingComponent(BaseComponent):
 
     def load(self, name: str) -> MapData:
         """A saved map, checked against [mapping] resolution."""
-        grid = load_map(self.maps_dir / f"{name}.yaml")
+        grid = load_map(self.maps_dir / f"{name}.yaml", self.settings.max_cells)
         if not math.isclose(grid.resolution, self.settings.resolution, rel_tol=1e-6):
             raise MapFileError(f"map {name!r} has {grid.resolution:g} m cells, [mapping] "
                                f"resolution is {self.settings.resolution:g}: set it to "
@@ -355,7 +358,11 @@ class MappingComponent(BaseComponent):
         if grid is None:
             raise ApiError(409, "no map to save yet: drive until the lidar has seen some walls")
         try:
-            pgm, yml = await asyncio.to_thread(save_map, self.maps_dir, name, grid)
+            pgm, yml = await asyncio.to_thread(save_map, self.maps_dir, name, grid,
+                                               int(self.settings.max_saved_mb * 1e6))
+        except FileRefused as exc:
+            raise ApiError(507, f"map not saved: {exc.strerror}", "delete saved maps or raise "
+                           "[mapping] max_saved_mb") from None
         except OSError as exc:
             raise ApiError(500, f"cannot save the map in {self.maps_dir}: {exc.strerror}; "
                            "set [mapping] directory to a writable folder") from None
@@ -364,19 +371,20 @@ class MappingComponent(BaseComponent):
                 "height": grid.height, "resolution": grid.resolution}
 
     async def get_maps(self, request: web.Request) -> web.Response:
-        return json_response({"maps": await asyncio.to_thread(saved_maps, self.maps_dir)})
+        maps = await asyncio.to_thread(saved_maps, self.maps_dir)
+        return json_response({"maps": shown(sees_paths(self.security, request), maps)})
 
     async def get_map_file(self, request: web.Request) -> web.StreamResponse:
         filename = request.match_info["file"]
         stem, _, extension = filename.rpartition(".")
+        missing = f"no map file {filename[:80]!r} (GET /api/maps lists them)"
         if extension not in ("yaml", "pgm") or map_name_error(stem):
-            raise ApiError(404, f"no map file {filename!r}: ask for NAME.yaml or NAME.pgm "
-                           "(GET /api/maps lists them)")
-        path = self.maps_dir / filename
-        if not path.is_file():
-            raise ApiError(404, f"no map file {filename!r} (GET /api/maps lists them)")
-        return web.FileResponse(path, headers={"Content-Disposition":
-                                               f'attachment; filename="{filename}"'})
+            raise ApiError(404, f"{missing}: ask for NAME.yaml or NAME.pgm")
+        content_type = "application/x-yaml" if extension == "yaml" else \
+            "image/x-portable-graymap"
+        assert self.http is not None, "routes are served only with ctx.http"
+        return await serve_file(self.http, request, self.maps_dir, filename, content_type,
+                                missing)
 
     async def post_pose(self, request: web.Request) -> web.Response:
         body = await read_json_object(request, 4096)
@@ -490,7 +498,8 @@ def create(ctx: DaemonContext) -> MappingComponent | None:
     return MappingComponent(settings, ctx.plugs, ctx.scan_points,
                             maps_dir=maps_directory(settings),
                             base_frame_id=robot.base_frame_id,
-                            odom_frame_id=robot.odom_frame_id)
+                            odom_frame_id=robot.odom_frame_id, http=ctx.http,
+                            security=ctx.security)
 
 
 COMPONENT = ComponentSpec("mapping", create, MappingSettings)

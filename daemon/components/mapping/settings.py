@@ -46,6 +46,9 @@ MAPPING_OPTIONS: Options = {
     "directory": Option(str, "", "where saved maps go; '' = maps/ in the service's state "
                         "directory ($STATE_DIRECTORY, /var/lib/arbiterd under systemd), else "
                         "~/.local/state/arbiterd/maps"),
+    "max_saved_mb": Option(float, 200.0, "saved maps (POST /api/map/save) may fill the maps "
+                           "directory up to this many MB; a save beyond is refused (507)",
+                           minval=1.0, maxval=100000.0),
     "map_frame_id": Option(str, "map", "frame of the map, /pose and the map -> odom transform"),
 }
 
@@ -64,4 +67,11 @@ class MappingSettings(SectionSettings, section="mapping", options=MAPPING_OPTION
     loop_closure: bool
     publish_period_s: float
     directory: str
+    max_saved_mb: float
     map_frame_id: str
+
+    @property
+    def max_cells(self) -> int:
+        """The most cells a map may have: built (it grows up to ``max_size_m`` square) or
+        loaded (a bigger one is refused from its header, before any work)."""
+        return int((self.max_size_m / self.resolution) ** 2)
