@@ -34,6 +34,7 @@ from daemon.components.mapping.runner import (
     snapshot_of,
 )
 from daemon.components.mapping.settings import MappingSettings, map_name_error
+from daemon.coords import CoordinateError, Extent
 from daemon.files import FileRefused, sees_paths, serve_file, shown
 from daemon.health import Health
 from daemon.messages.definitions import OCCUPANCY_GRID, POSE_WITH_COVARIANCE_STAMPED
@@ -309,6 +310,15 @@ class MappingComponent(BaseComponent):
 
     async def set_pose(self, pose: Pose2) -> None:
         """Localise from ``pose`` (map frame) at the current odometry."""
+        grid = self.latest_map
+        if grid is not None:
+            extent = Extent(grid.origin_x, grid.origin_y,
+                            grid.origin_x + grid.width * grid.resolution,
+                            grid.origin_y + grid.height * grid.resolution)
+            try:
+                extent.check(pose[0], pose[1], "x, y")
+            except CoordinateError as exc:
+                raise ApiError(422, f"invalid pose: {exc}") from None
         if self.runner is None:
             raise ApiError(409, f"mapping is not running: {self.problem or 'no mapper'}")
         odom = self.robot.pose()
@@ -433,7 +443,7 @@ class MappingComponent(BaseComponent):
                 TopicOut("/pose", POSE_WITH_COVARIANCE_STAMPED, MAP_POSE, messages.pose_msg,
                          "per revolution"),
                 TopicIn("/initialpose", POSE_WITH_COVARIANCE_STAMPED, self.on_initial_pose,
-                        "drive"))
+                        "drive", required=("pose.pose.position.x", "pose.pose.position.y")))
 
     def status(self) -> dict[str, Any]:
         last, c = self.last, self.counters

@@ -658,8 +658,9 @@ class NavigationComponent(BaseComponent):
                 Route("POST", "/api/mission", self.post_mission, "drive"))
 
     def topics(self) -> Sequence[Topic]:
-        return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive"),
-                TopicIn("/clicked_point", POINT_STAMPED, self.on_clicked_point, "drive"),
+        return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive",
+                        required=("pose.position.x", "pose.position.y")),
+                TopicIn("/clicked_point", POINT_STAMPED, self.on_clicked_point, "drive"),  # unused
                 TopicOut("/plan", PATH, PLAN, path_msg, "on every new plan", latched=True),
                 TopicOut("/navigation/state", STRING, STATE, json_string_msg,
                          "on change + 1 Hz"))
