@@ -44,6 +44,7 @@ from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from daemon.web import ApiError, HttpPort, json_response, read_json_object
+from daemon.workers import WorkerDown
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 from slam.mapper import MapperConfig, ScanResult
@@ -137,6 +138,8 @@ class MappingComponent(BaseComponent):
     async def _warm_up(self, runner: MapperRunner) -> None:
         try:
             await runner.health()
+        except WorkerDown as exc:
+            self._lost(exc)
         except Exception as exc:
             self._fail(exc)
 
@@ -238,7 +241,10 @@ class MappingComponent(BaseComponent):
                 odom, points, stamp, _ = job
                 try:
                     result = await self.runner.add_scan(odom, points, stamp)
-                except Exception as exc:  # the worker died or the mapper failed
+                except WorkerDown as exc:  # restarted by its supervisor: skip, go on
+                    self._lost(exc)
+                    return
+                except Exception as exc:  # the mapper failed
                     self._fail(exc)
                     return
                 self._apply(result, stamp)
@@ -254,6 +260,12 @@ class MappingComponent(BaseComponent):
             self.counters.skipped_busy += 1
         return None
 
+    def _lost(self, exc: WorkerDown) -> None:
+        """A revolution or a map lost because the worker is down: counted, not fatal."""
+        self.counters.failed += 1
+        self._pending.clear()
+        log.debug("mapping: %s", exc)
+
     def _fail(self, exc: BaseException) -> None:
         self.counters.failed += 1
         self.problem = f"the mapper failed: {type(exc).__name__}: {exc}"
@@ -263,6 +275,8 @@ class MappingComponent(BaseComponent):
     def _apply(self, result: ScanResult, stamp: float) -> None:
         self.counters.scans += 1
         self.last = result
+        if isinstance(self.runner, ProcessRunner):
+            self.runner.moved_to(result.pose)
         map_frame, odom_frame, _base_frame = self.frames
         self.bus.publish(TRANSFORMS, (Transform(stamp, map_frame, odom_frame,
                                                 *result.map_to_odom),))
@@ -290,6 +304,9 @@ class MappingComponent(BaseComponent):
             return
         try:
             snapshot = await self.runner.snapshot(self.map_version)
+        except WorkerDown as exc:
+            self._lost(exc)
+            return
         except Exception as exc:
             self._fail(exc)
             return
@@ -469,6 +486,13 @@ class MappingComponent(BaseComponent):
         problem = status.pop("problem", None)
         if self.problem:
             return Health("error", str(problem or self.problem), status)
+        worker = self.runner.worker if isinstance(self.runner, ProcessRunner) else None
+        down = worker.problem() if worker is not None else None
+        if worker is not None:
+            status["worker"] = worker.values()
+        if down is not None:
+            return Health(down[0], f"{down[1]} (the map since the last save starts anew)"
+                          if self.settings.mode == "map" else down[1], status)
         if status.get("lost"):
             return Health("degraded", "localisation lost: set the pose (/initialpose, "
                           "POST /api/pose) or drive where the map is known", status)
