@@ -8,6 +8,9 @@ from typing import Any
 
 VECTOR_FIELDS = ("x", "y", "z")
 TWIST_FIELDS = ("linear", "angular")
+#: the largest speed a command may ask for (m/s, rad/s): far beyond any robot this drives, so
+#: a real command is clamped by the limiter, while 1e308 is a bad request, not full speed
+MAX_COMMAND = 100.0
 _EMPTY: dict[str, float] = {}
 
 
@@ -78,6 +81,10 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
                                                 ("angular.x", ax), ("angular.y", ay)) if v)
         raise CommandError(f"{prefix}{field}: a differential-drive base cannot move "
                            f"along this axis; must be 0, got {value}")
+    if not (-MAX_COMMAND <= lx <= MAX_COMMAND and -MAX_COMMAND <= az <= MAX_COMMAND):
+        field, value = ("linear.x", lx) if abs(lx) > MAX_COMMAND else ("angular.z", az)
+        raise CommandError(f"{prefix}{field}: {value:g} is beyond ±{MAX_COMMAND:g} (the "
+                           "largest command taken; the limiter clamps to the robot's own)")
     return Twist(lx, az)
 
 

@@ -74,6 +74,18 @@ async def test_every_route_and_topic_survives_the_hostile_corpus(robot: InProces
     findings = Findings()
     canary = LoopCanary(findings)
     rss, commands = peak_rss_mb(), len(robot.driver.commands)
+    findings.broken = set(_health_errors(robot))
+    first_motion: list[str] = []
+
+    async def watch_motion() -> None:
+        seen = commands
+        while not first_motion:
+            await asyncio.sleep(0.005)
+            if moved(wheel_commands(robot)[seen:]):
+                first_motion.append(findings.current)
+            seen = len(robot.driver.commands)
+
+    watcher = asyncio.get_running_loop().create_task(watch_motion())
     async with MachineCanary() as machine:  # the in-run baseline: the machine's own load
         canary.start()
         try:
@@ -82,13 +94,14 @@ async def test_every_route_and_topic_survives_the_hostile_corpus(robot: InProces
             await _topics(robot, findings)
         finally:
             canary.stop()
+            watcher.cancel()
     limit_s = STALL_LIMIT_S + machine.longest_gap_ms / 1000
     print(f"hostile corpus: {len(findings.routes)} routes, {len(findings.topics)} topics, "
           f"{findings.requests} requests; worst loop stall {1000 * canary.worst:.0f} ms "
           f"({canary.during}; an idle process meanwhile: {machine.longest_gap_ms:.0f} ms); "
           f"peak memory +{peak_rss_mb() - rss:.0f} MB")
     assert not findings.problems, "\n".join(findings.problems)
-    assert not moved(wheel_commands(robot)[commands:]), "the robot moved"
+    assert not moved(wheel_commands(robot)[commands:]), f"the robot moved: {first_motion}"
     assert canary.worst < limit_s, f"the loop stalled {canary.worst:.2f} s during {canary.during}"
     assert peak_rss_mb() - rss < MEMORY_LIMIT_MB
     table = robot.ctx.http.access_table()
@@ -102,13 +115,23 @@ async def _routes(robot: InProcessDaemon, findings: Findings) -> None:
             if method == "HEAD" or (method, path) == ("POST", "/api/debug/stall"):
                 continue  # HEAD: its GET's; the stall is fault injection, stalling on purpose
             await hammer_route(session, robot.http_url, method, path, TOKEN, findings)
-            await _release(robot)
+            await _release(robot, findings)
     findings.routes.add("POST /api/debug/stall")
 
 
-async def _release(robot: InProcessDaemon) -> None:
-    """What a hostile body may legitimately have done (latched the e-stop) is undone, so
-    that the next route is tried on a robot that could move."""
+def _health_errors(robot: InProcessDaemon) -> dict[str, str]:
+    return {c.name: str(h.problem) for c in robot.daemon.components
+            if (h := c.health()) is not None and h.status == "error"}
+
+
+async def _release(robot: InProcessDaemon, findings: Findings) -> None:
+    """A component the corpus broke (health error) is a finding; what a hostile body may
+    legitimately have done (latched the e-stop) is undone, so that the next route is tried
+    on a robot that could move."""
+    for name, problem in _health_errors(robot).items():
+        if name not in findings.broken:
+            findings.broken.add(name)
+            findings.add(name, findings.current, f"health error: {problem}")
     control = robot.control
     if control.estop_engaged:
         async with aiohttp.ClientSession() as session, session.post(
@@ -157,7 +180,7 @@ async def _topics(robot: InProcessDaemon, findings: Findings) -> None:
                 findings.current = f"{topic.name} [{case}, {who}]"
                 await _publish(robot.ws_url + query, topic.name, topic.type, msg,
                                f"{case}, {who}", findings)
-            await _release(robot)
+            await _release(robot, findings)
 
 
 async def _publish(url: str, topic: str, type_name: str, msg: Any, case: str,

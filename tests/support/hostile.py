@@ -28,6 +28,17 @@ _HUGE_FIELDS = {"x": HUGE, "y": -HUGE, "theta": HUGE, "yaw": HUGE, "size": HUGE,
                 "steps": [{"x": HUGE, "y": HUGE}], "waypoints": [[HUGE, -HUGE]],
                 "object": [HUGE, 0], "drop": [0, HUGE], "pose": {"x": HUGE, "y": HUGE},
                 "joints": {"shoulder": HUGE}, "objects": [{"x": HUGE, "y": HUGE}]}
+#: bodies whose every field would be valid but one (so the refusal comes from deep inside)
+_ONE_HOSTILE: list[dict[str, Any]] = [
+    {"x": 0.5, "y": HUGE}, {"x": -HUGE, "y": 0.5}, {"x": 0.5, "y": 0.5, "theta": HUGE},
+    {"x": 0.5, "y": 0.5, "heading_deg": HUGE}, {"x": 9000.0, "y": 0.0},
+    {"waypoints": [[0.5, 0.5], [HUGE, 0.0]]}, {"path": "figure_eight", "size": HUGE},
+    {"steps": [{"x": 0.5, "y": 0.5}, {"x": HUGE, "y": 0.0}]},
+    {"object": [0.5, 0.5], "drop": [HUGE, 0.0]}, {"object": [HUGE, 0.5], "drop": [0.0, 0.0]},
+    {"linear": {"x": HUGE, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
+    {"linear": {"x": 0.0, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": -HUGE}},
+    {"name": "lab", "pose": {"x": HUGE, "y": 0.0, "theta": 0.0}},
+    {"objects": [{"x": HUGE, "y": 0.0, "radius": 0.1}]}]
 _WRONG_TYPES: dict[str, Any] = {key: ("1" if not isinstance(value, str) else 1)
                 for key, value in _HUGE_FIELDS.items()}
 _WRONG_TYPES.update({"linear": "fast", "steps": "many", "waypoints": {"a": 1}})
@@ -38,6 +49,10 @@ BODIES: dict[str, bytes] = {
     "string": b'"text"',
     "unknown field": b'{"unknown": 1}',
     "1e308 everywhere": json.dumps(_HUGE_FIELDS).encode(),
+    **{f"1e308 alone in {key}": json.dumps({key: value}).encode()
+       for key, value in _HUGE_FIELDS.items()},
+    **{f"one field 1e308 of {i}": json.dumps(body).encode()
+       for i, body in enumerate(_ONE_HOSTILE)},
     "NaN": b'{"x": NaN, "y": 0}',
     "+inf": b'{"x": Infinity, "linear": {"x": Infinity}}',
     "-inf": b'{"x": -Infinity, "angular": {"z": -Infinity}}',
@@ -60,6 +75,8 @@ class Findings:
     topics: set[str] = field(default_factory=set)
     #: what is being tried now (the loop canary names it with a stall)
     current: str = ""
+    #: components whose health was "error" before the run (not the corpus's doing)
+    broken: set[str] = field(default_factory=set)
 
     def add(self, where: str, case: str, what: str) -> None:
         if len(self.problems) < 200:
@@ -104,6 +121,8 @@ async def _one(session: aiohttp.ClientSession, base_url: str, method: str, path:
             text = (await answer.content.read(65536)).decode("utf-8", "replace")
             if answer.status >= 500:
                 findings.add(where, case, f"{answer.status}: {text[:200]}")
+            if case.endswith("right token") and answer.status in (401, 429):
+                findings.add(where, case, f"the right token refused: {answer.status}")
             if "Traceback" in text:
                 findings.add(where, case, "a traceback in the answer")
     except TimeoutError:
