@@ -129,6 +129,8 @@ def plain_stamped(body: Any) -> Stamped | None:
                         or (number and axis != wanted):
                     return None
                 if axis == wanted:
+                    if not -MAX_COMMAND <= number <= MAX_COMMAND:
+                        return None  # the general parse refuses it, naming the field
                     speed = number
             if key == "linear":
                 lx = speed
