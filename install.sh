@@ -66,6 +66,14 @@ missing_run_packages() {
 }
 
 # The Debian packages the tests add (./install.sh dev and test), each with its check.
+# python_headers_present: Python.h of the Python the venv is made from (a C extension's build
+# needs it; Debian ships it in python3-dev, not in python3).
+python_headers_present() {
+    local include
+    include="$("${PYTHON}" -c 'import sysconfig; print(sysconfig.get_path("include"))' 2>/dev/null)"
+    [[ -n "${include}" && -e "${include}/Python.h" ]]
+}
+
 missing_test_packages() {
     local missing=()
     command -v node >/dev/null 2>&1 || missing+=(nodejs)
@@ -75,8 +83,11 @@ missing_test_packages() {
         || missing+=(openssh-client)
     command -v rsync >/dev/null 2>&1 || missing+=(rsync)
     command -v systemd-analyze >/dev/null 2>&1 || missing+=(systemd)
-    # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md)
+    # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md):
+    # with a C compiler and the Python headers, which a minimal Debian (the Pi's OS) lacks
     [[ -e /usr/include/dds/dds.h ]] || missing+=(cyclonedds-dev)
+    command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
+    python_headers_present || missing+=(python3-dev)
     if [[ "${WITH_BROWSER}" == 1 ]]; then
         [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
     fi
@@ -226,10 +237,23 @@ cmd_dev() {
     report_status "ready: ${DEV_VENV}/bin/arbiterd run --sim, then open http://localhost:8085/  |  ./install.sh test"
 }
 
+# http_port_of ARGS...: the --http-port that `arbiterd run` is given, else 8085.
+http_port_of() {
+    local port=8085
+    while (( $# )); do
+        case "$1" in
+            --http-port) port="${2:-${port}}"; shift ;;
+            --http-port=*) port="${1#--http-port=}" ;;
+        esac
+        shift
+    done
+    printf '%s\n' "${port}"
+}
+
 cmd_sim() {
     setup_dev run
     warn_if_service_runs
-    report_status "starting the daemon on the simulated robot: open http://localhost:8085/ (Ctrl-C stops it)"
+    report_status "starting the daemon on the simulated robot: open http://localhost:$(http_port_of "$@")/ (Ctrl-C stops it)"
     [[ "${DRY_RUN}" == 1 ]] && { run "${DEV_VENV}/bin/arbiterd" run --sim "$@"; return 0; }
     exec "${DEV_VENV}/bin/arbiterd" run --sim "$@"
 }

@@ -5,7 +5,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, TypeVar
 
-from base.options import Options
+from base.options import Options, options_of
 
 BUILTIN = "<built-in defaults>"
 
@@ -25,29 +25,49 @@ def field_name(key: str) -> str:
     return key.replace(".", "_")
 
 
+class OptionTable:
+    """``SettingsClass.OPTIONS``: the option table generated from the class's fields
+    (:func:`base.options.options_of`) on first use, then kept."""
+
+    def __get__(self, instance: object, owner: type) -> Options:
+        if "__dataclass_fields__" not in owner.__dict__:
+            return {}  # @dataclass looking at the class it is making
+        table: Options | None = owner.__dict__.get("_option_table")
+        if table is None:
+            table = options_of(owner)
+            setattr(owner, "_option_table", table)  # noqa: B010 (a frozen dataclass's class)
+        return table
+
+
 @dataclass(frozen=True)
 class SectionSettings:
     """Base of the typed settings of one config section: a frozen dataclass whose fields are
-    the section's keys (dots as underscores), read once by :meth:`Config.get`.
+    the section's keys (dots as underscores), each declared once with
+    :func:`base.options.option`; read once by :meth:`Config.get`.
 
-    A subclass names its section and option table::
+    A subclass names its section (and any old names it still loads under, with a deprecation
+    warning)::
 
         @dataclass(frozen=True)
-        class HttpSettings(SectionSettings, section="http", options=HTTP_OPTIONS):
-            port: int
+        class HttpSettings(SectionSettings, section="http"):
+            port: int = option(8085, "listen port", minval=1, maxval=65535)
             ...
+
+    ``OPTIONS`` (key => :class:`~base.options.Option`, for the loader, ``arbiterd check``, the
+    example config and the docs) is generated from the fields.
     """
 
     SECTION: ClassVar[str]
-    OPTIONS: ClassVar[Options]
+    #: old section names still read, with a deprecation warning: ``aliases=("record",)``
+    ALIASES: ClassVar[tuple[str, ...]] = ()
+    OPTIONS: ClassVar[OptionTable] = OptionTable()
 
-    def __init_subclass__(cls, *, section: str = "", options: Options | None = None,
+    def __init_subclass__(cls, *, section: str = "", aliases: tuple[str, ...] = (),
                           **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if section:
             cls.SECTION = section
-        if options is not None:
-            cls.OPTIONS = options
+            cls.ALIASES = aliases
 
     @classmethod
     def from_values(cls: type[S], values: dict[str, Any]) -> S:

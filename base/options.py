@@ -1,7 +1,9 @@
 # Typed, range-checked option declarations that every config section is built from.
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -104,3 +106,82 @@ Options = Mapping[str, Option]
 def defaults(options: Options) -> dict[str, Any]:
     """The default values of a set of options."""
     return {key: opt.default for key, opt in options.items()}
+
+
+#: the metadata key under which a settings field carries its declaration (see :func:`option`)
+DECLARATION = "arbiterd.option"
+
+
+def option(default: Any, doc: str, *, key: str | None = None, minval: float | None = None,
+           maxval: float | None = None, above: float | None = None, below: float | None = None,
+           choices: Sequence[str] | None = None, item: type | None = None,
+           length: int | None = None, check: Callable[[Any], str | None] | None = None) -> Any:
+    """Declare one config key as a field of a settings dataclass: its default, doc and bounds
+    (the :class:`Option` arguments). The kind (and a list's item type) comes from the field's
+    annotation, the key from its name unless ``key`` says otherwise (``key="linear.x.max_velocity"``
+    for the field ``linear_x_max_velocity``). :func:`options_of` makes the option table::
+
+        @dataclass(frozen=True)
+        class HttpSettings(SectionSettings, section="http"):
+            port: int = option(8085, "listen port", minval=1, maxval=65535)
+    """
+    declared = {"default": default, "doc": doc, "key": key, "minval": minval, "maxval": maxval,
+                "above": above, "below": below, "choices": choices, "item": item,
+                "length": length, "check": check}
+    metadata = {DECLARATION: declared}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=metadata)
+    return field(default=default, metadata=metadata)
+
+
+def shared_option(default: Any, doc: str, **kwargs: Any) -> dict[str, Any]:
+    """The :func:`option` arguments of a key several settings classes have (the keys two
+    drivers share), written once: each class declares ``min_duty: float = option(**MIN_DUTY)``."""
+    return {"default": default, "doc": doc, **kwargs}
+
+
+def options_of(settings: type) -> dict[str, Option]:
+    """The option table of a settings dataclass: one :class:`Option` per field, in field
+    order, each declared by :func:`option`. A field declared otherwise, a key that does not
+    match its field's name (dots as underscores) or a default of the wrong kind or out of its
+    own bounds is a ``TypeError`` naming the class and field."""
+    table: dict[str, Option] = {}
+    for f in dataclasses.fields(settings):
+        where = f"{settings.__qualname__}.{f.name}"
+        declared = f.metadata.get(DECLARATION)
+        if declared is None:
+            raise TypeError(f"{where}: declare the field with option(default, doc, ...)")
+        declared = dict(declared)
+        key = declared.pop("key") or f.name
+        if key.replace(".", "_") != f.name:
+            raise TypeError(f"{where}: key {key!r} does not match the field's name")
+        kind, item = kind_of(f.type, where)
+        declared["item"] = declared["item"] or item
+        table[key] = Option(kind, **declared)
+        # the kind and bounds (a check may refuse what only the default may be, e.g. [])
+        error = dataclasses.replace(table[key], check=None).validate(table[key].default)[1]
+        if error:
+            raise TypeError(f"{where}: default {table[key].default!r}: {error}")
+    return table
+
+
+_KINDS: dict[str, type] = {"bool": bool, "int": int, "float": float, "str": str, "list": list}
+
+
+def kind_of(annotation: Any, where: str = "") -> tuple[type, type | None]:
+    """(kind, list item type) of a field annotation: ``float`` => (float, None),
+    ``list[int]`` => (list, int), ``list[list[Any]]`` => (list, list). Annotations are text
+    under ``from __future__ import annotations``; a type works too."""
+    text = annotation if isinstance(annotation, str) else _annotation_text(annotation)
+    text = text.replace(" ", "")
+    if text in _KINDS:
+        return _KINDS[text], None
+    inner = re.fullmatch(r"list\[(.+)\]", text)
+    if inner:
+        return list, _KINDS.get(inner.group(1).split("[", 1)[0])
+    raise TypeError(f"{where}: a config key is bool, int, float, str or list[...], "
+                    f"not {text}")
+
+
+def _annotation_text(annotation: Any) -> str:
+    return annotation.__name__ if isinstance(annotation, type) else str(annotation)

@@ -23,7 +23,7 @@ from daemon.bench import SUITES, suites_help
 from daemon.components.http.settings import HttpSettings
 from daemon.components.recorder import cli as record_cli
 from daemon.components.recorder.paths import listing_directory
-from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.settings import RecorderSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.health import problem_of as problem_text
 from daemon.logthrottle import RepeatFilter
@@ -182,6 +182,8 @@ def _probed(config: Config) -> str:
         what += f", lidar on {config['lidar']['port']}"
     if config["arm"]["enabled"]:
         what += f", arm servos ({config['arm']['backend']})"
+    if config["battery"]["enabled"] and config["battery"]["device"] != "sim":
+        what += f", battery monitor ({config['battery']['device']})"
     return what
 
 
@@ -429,7 +431,7 @@ def cmd_record(args: argparse.Namespace) -> int:
             config = _load(args)
         except ConfigError as exc:
             return _report_config_error(exc, args)
-        directory = listing_directory({"directory": config.get(RecordSettings).directory})
+        directory = listing_directory({"directory": config.get(RecorderSettings).directory})
     return record_cli.run(args, directory or Path("."))
 
 

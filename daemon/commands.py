@@ -6,6 +6,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from daemon import coords
+
 VECTOR_FIELDS = ("x", "y", "z")
 TWIST_FIELDS = ("linear", "angular")
 #: the largest speed a command may ask for (m/s, rad/s): far beyond any robot this drives, so
@@ -93,14 +95,19 @@ POSE_FIELDS = ("x", "y", "theta")
 
 def parse_pose(body: Mapping[str, Any]) -> tuple[float, float, float] | None:
     """``{"x", "y", "theta"}`` (m, m, rad; each 0 when absent) or None for ``{}``; a field of
-    another name or that is not a finite number is :class:`CommandError` naming it."""
+    another name, or not a coordinate :mod:`daemon.coords` takes, is :class:`CommandError`
+    naming it."""
     unknown = sorted(set(body) - set(POSE_FIELDS))
     if unknown:
         raise CommandError(f"{unknown[0]}: unknown field")
     if not body:
         return None
-    x, y, theta = (finite_number(body.get(key, 0.0), key) for key in POSE_FIELDS)
-    return x, y, theta
+    try:
+        return (coords.coordinate(body.get("x", 0.0), "x"),
+                coords.coordinate(body.get("y", 0.0), "y"), coords.angle(body.get("theta", 0.0),
+                                                                          "theta"))
+    except coords.CoordinateError as exc:
+        raise CommandError(str(exc)) from None
 
 
 STAMP_FIELDS = ("id", "t_sent")

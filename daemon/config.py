@@ -39,6 +39,22 @@ SETTINGS: dict[str, type[SectionSettings]] = _section_settings()
 SECTIONS: dict[str, Options] = {name: settings.OPTIONS for name, settings in SETTINGS.items()}
 
 
+def _section_aliases() -> dict[str, str]:
+    """Old section name => the section it was renamed to (each settings class's ``aliases``)."""
+    aliases: dict[str, str] = {}
+    for section, settings in SETTINGS.items():
+        for old in settings.ALIASES:
+            if old in SETTINGS or old in aliases:
+                raise ValueError(f"[{old}] is both a section and an old name of [{section}]")
+            aliases[old] = section
+    return aliases
+
+
+#: old section name => its new name: a file or an environment variable using the old name still
+#: loads, with a deprecation warning
+ALIASES: dict[str, str] = _section_aliases()
+
+
 class ConfigUnreadable(ConfigError):
     """The config file exists but this user may not read it (the installed service's config is
     root:arbiterd 0640 in a 0750 directory)."""
@@ -123,9 +139,10 @@ def load_config(path: Path | None = None, *, sim: bool = False,
     notes: list[str] = []
     raw, source, builtin = _read_source(path, sim, notes)
     problems: list[str] = []
+    raw = _renamed_sections(raw, source, problems, notes)
     flat = _flatten_file(raw, source, problems)
     tables = _section_tables(problems, set(flat), source)
-    from_env = _apply_env(flat, env, tables, problems)
+    from_env = _apply_env(flat, env, tables, problems, notes)
     sections = _validate(flat, tables, source, problems, from_env)
     token = _read_token(sections.get("security", {}), source, problems)
     if problems:
@@ -178,6 +195,23 @@ def _read_source(path: Path | None, sim: bool,
         raise ConfigError([f"{path}: not valid TOML: {exc}"]) from None
 
 
+def _renamed_sections(raw: dict[str, Any], source: str, problems: list[str],
+                      notes: list[str]) -> dict[str, Any]:
+    """The file's sections with each old section name (:data:`ALIASES`) read as its new one,
+    in place, and one deprecation warning for it; both names in one file are a problem."""
+    for old, new in ALIASES.items():
+        if old not in raw:
+            continue
+        if new in raw:
+            problems.append(f"{source}: [{old}] and [{new}] are the same section ([{old}] is "
+                            f"its old name): keep [{new}] only")
+            raw = {name: table for name, table in raw.items() if name != old}
+            continue
+        notes.append(f"{source}: [{old}] is now [{new}]; rename the section in {source}")
+        raw = {(new if name == old else name): table for name, table in raw.items()}
+    return raw
+
+
 def _flatten_file(raw: dict[str, Any], source: str,
                   problems: list[str]) -> dict[str, dict[str, Any]]:
     """Section -> {dotted key: value}; ``[driver.<name>]`` tables become their own sections."""
@@ -214,23 +248,40 @@ def env_name(section: str, key: str) -> str:
 
 
 def _apply_env(flat: dict[str, dict[str, Any]], env: Mapping[str, str],
-               tables: dict[str, Options], problems: list[str]) -> dict[tuple[str, str], str]:
+               tables: dict[str, Options], problems: list[str],
+               notes: list[str]) -> dict[tuple[str, str], str]:
     """Put the ``ARBITERD_<SECTION>_<KEY>`` overrides into ``flat``; returns which
-    (section, key) each variable set, so a bad value is blamed on the variable."""
+    (section, key) each variable set, so a bad value is blamed on the variable. A variable
+    under a section's old name (:data:`ALIASES`) still works, with a deprecation warning."""
     names = {env_name(section, key): (section, key)
              for section, options in tables.items() for key in options}
-    prefixes = tuple(env_name(section, "") for section in SECTIONS)
+    old_names = {env_name(old, key): (old, new, key)
+                 for old, new in ALIASES.items() for key in tables.get(new, {})}
+    prefixes = tuple(env_name(section, "") for section in [*SECTIONS, *ALIASES])
     from_env: dict[tuple[str, str], str] = {}
     for var, text in env.items():
         if var in names:
             section, key = names[var]
-            flat.setdefault(section, {})[key] = _parse_env_value(text)
-            from_env[(section, key)] = f"{var}={text}"
-        elif var.startswith(prefixes):
-            close = difflib.get_close_matches(var, list(names), n=1, cutoff=0.8)
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            problems.append(f"environment variable {var}: no such config key{hint}; the "
-                            "overrides are ARBITERD_<SECTION>_<KEY>, e.g. ARBITERD_HTTP_PORT")
+        elif var in old_names:
+            old, section, key = old_names[var]
+            new_var = env_name(section, key)
+            if new_var in env:
+                problems.append(f"environment variables {var} and {new_var} both set "
+                                f"[{section}] {key} ({var} is its old name): keep {new_var} "
+                                "only")
+                continue
+            notes.append(f"environment variable {var}: [{old}] is now [{section}]; use "
+                         f"{new_var}")
+        else:
+            if var.startswith(prefixes):
+                close = difflib.get_close_matches(var, list(names), n=1, cutoff=0.8)
+                hint = f" (did you mean {close[0]}?)" if close else ""
+                problems.append(f"environment variable {var}: no such config key{hint}; the "
+                                "overrides are ARBITERD_<SECTION>_<KEY>, e.g. "
+                                "ARBITERD_HTTP_PORT")
+            continue
+        flat.setdefault(section, {})[key] = _parse_env_value(text)
+        from_env[(section, key)] = f"{var}={text}"
     return from_env
 
 

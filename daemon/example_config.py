@@ -21,7 +21,7 @@ HEADER = """\
 PI_VALUES: dict[str, dict[str, Any]] = {
     "driver": {"type": "serial"},
     "lidar": {"enabled": True},
-    "record": {"enabled": True},  # the service records; `run --sim` from a checkout does not
+    "recorder": {"enabled": True},  # the service records; `run --sim` from a checkout does not
 }
 
 

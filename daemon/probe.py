@@ -22,7 +22,26 @@ async def probe_hardware(config: Config) -> list[str]:
         await driver.close()
     problems += [f"[lidar] {p}" for p in await probe_lidar(config)]
     problems += await probe_arm(config)
+    problems += await probe_battery(config)
     return problems
+
+
+async def probe_battery(config: Config) -> list[str]:
+    """Open the battery monitor (``[battery]`` on), read it once, close it: a missing chip, a
+    wrong address, a loose bus wire or a shunt out of range is named."""
+    from daemon.components.battery.component import build_monitor
+    from daemon.components.battery.settings import BatterySettings
+
+    settings = config.get(BatterySettings)
+    if not settings.enabled or settings.device == "sim":
+        return []
+    try:
+        reading = await build_monitor(config).probe()
+    except DriverError as exc:
+        return [str(exc)]
+    print(f"battery: {reading['voltage']:.2f} V, {reading['current']:.3f} A "
+          f"({settings.device})", file=sys.stderr)
+    return []
 
 
 async def probe_arm(config: Config) -> list[str]:

@@ -4,11 +4,13 @@ from __future__ import annotations
 from daemon.component import ComponentSpec
 from daemon.components.arm import component as arm
 from daemon.components.autonomy import component as autonomy
+from daemon.components.battery import component as battery
 from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
 from daemon.components.fetch import component as fetch
+from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
 from daemon.components.lidar import component as lidar
 from daemon.components.mapping import component as mapping
@@ -32,7 +34,9 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     navigation.COMPONENT,
     arm.COMPONENT,
     fetch.COMPONENT,
+    battery.COMPONENT,
     rosbridge.COMPONENT,
+    foxglove.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
     console.COMPONENT,

@@ -64,6 +64,11 @@ class RobotBase(Protocol):
         """:meth:`pose` as ``(x, y, theta)`` (no object made)."""
         ...
 
+    def integrated_pose(self) -> Pose2D:
+        """The pose odometry integrated from where it started, never reset (the frame a
+        reset moves is the reported one: :meth:`pose`)."""
+        ...
+
     def heading(self) -> float:
         """The integrated heading, rad (no reset ever)."""
         ...

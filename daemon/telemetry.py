@@ -84,6 +84,17 @@ class Transform:
                    sample.theta)
 
 
+@dataclass(frozen=True, slots=True)
+class PowerEvent:
+    """The battery's charge level changed: ``level`` is ok, low, very_low or critical;
+    ``percentage`` 0..1; ``reason`` says why, for logs and refusals."""
+
+    stamp: float
+    level: str
+    percentage: float
+    reason: str
+
+
 # -- the keys every part of the daemon shares (a component's own state keys live with it) ------
 
 #: odometry from the control tick, at ``[control] publish_rate``
@@ -106,6 +117,8 @@ HEALTH_CHANGE: BusKey[dict[str, Any]] = BusKey("health_change")
 ROBOT_INFO: BusKey[dict[str, Any]] = BusKey("robot_info")
 #: the simulated robot's true pose (sim mode only)
 ODOM_GROUND_TRUTH: BusKey[OdomSample] = BusKey("odom_ground_truth")
+#: the battery's charge level, on every change (critical: stop, close files, power off)
+POWER: BusKey[PowerEvent] = BusKey("power")
 #: the daemon's log lines (INFO and up), on the event loop's thread
 LOG_RECORD: BusKey[logging.LogRecord] = BusKey("log")
 

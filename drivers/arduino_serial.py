@@ -11,17 +11,17 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
-from base.options import Options
+from base.options import option
 from base.ports import open_error
 from drivers.base import (
     DriverFault,
     EncoderReading,
     MotorDriver,
-    inversion_options,
+    encoder_inverted,
     inversion_signs,
-    option,
+    motor_inverted,
 )
 from drivers.rosarduino import (
     AUTO_STOP_S,
@@ -221,30 +221,41 @@ class BridgeLink:
 
 @dataclass(frozen=True)
 class SerialSettings:
-    """The ``[driver.serial]`` section, read once (see ``SerialBridgeDriver.OPTIONS``)."""
+    """The ``[driver.serial]`` section: its keys, each declared once (``OPTIONS`` is made from
+    them)."""
 
-    port: str
-    baudrate: int
-    mode: str
-    pid_rate: float
-    counts_per_rev: int
-    pid_p: int
-    pid_d: int
-    pid_i: int
-    pid_o: int
-    max_pwm: int
-    full_pwm_speed: float
-    encoders: bool
-    poll_rate: float
-    timeout_s: float
-    reset_wait_s: float
-    boot_timeout_s: float
-    keepalive_s: float
-    auto_stop_s: float
-    left_motor_inverted: bool
-    right_motor_inverted: bool
-    left_encoder_inverted: bool
-    right_encoder_inverted: bool
+    port: str = option("/dev/ttyACM0", "serial device of the board (a udev symlink is best)")
+    baudrate: int = option(BAUDRATE, "serial speed, the firmware's BAUDRATE", minval=300)
+    mode: str = option("closed_loop", "closed_loop: 'm' ticks per PID frame; open_loop: 'o' raw "
+                       "PWM", choices=("closed_loop", "open_loop"))
+    pid_rate: float = option(PID_RATE_HZ, "the firmware's PID_RATE in Hz ('m' is ticks per frame)",
+                             above=0)
+    counts_per_rev: int = option(1440, "encoder counts per wheel revolution", minval=1)
+    pid_p: int = option(DEFAULT_GAINS[0], "Kp sent with 'u' on open; 0 keeps the firmware's gains",
+                        minval=0)
+    pid_d: int = option(DEFAULT_GAINS[1], "Kd sent with 'u' on open", minval=0)
+    pid_i: int = option(DEFAULT_GAINS[2], "Ki sent with 'u' on open", minval=0)
+    pid_o: int = option(DEFAULT_GAINS[3], "Ko (output divisor) sent with 'u' on open", minval=1)
+    max_pwm: int = option(MAX_PWM, "PWM value at full speed (open_loop)", minval=1, maxval=MAX_PWM)
+    full_pwm_speed: float = option(0.0, "wheel speed in rad/s at max_pwm (open_loop); 0 = the "
+                                   "robot's max wheel speed", minval=0)
+    encoders: bool = option(True, "poll 'e' for wheel positions (closed-loop odometry)")
+    poll_rate: float = option(0.0, "encoder polls per second; 0 = pid_rate", minval=0)
+    timeout_s: float = option(0.25, "seconds to wait for a reply before faulting", above=0)
+    reset_wait_s: float = option(2.0, "seconds to wait after opening the port while the board "
+                                 "resets, before the first byte", minval=0)
+    boot_timeout_s: float = option(3.0, "then keep asking 'e' for this long until the board "
+                                   "answers (a bootloader still running), s", minval=0)
+    keepalive_s: float = option(0.5, "re-send a held non-zero speed after this many seconds (at "
+                                "most a quarter of auto_stop_s)", above=0)
+    auto_stop_s: float = option(AUTO_STOP_S, "the firmware's AUTO_STOP_INTERVAL: it stops the "
+                                "motors this long after the last motor command, s (2 s in "
+                                "ROSArduinoBridge as shipped; the simulated board uses this)",
+                                above=0.0, maxval=60.0)
+    left_motor_inverted: bool = motor_inverted("left")
+    right_motor_inverted: bool = motor_inverted("right")
+    left_encoder_inverted: bool = encoder_inverted("left")
+    right_encoder_inverted: bool = encoder_inverted("right")
 
 
 @contextlib.contextmanager
@@ -287,39 +298,6 @@ class SerialBridgeDriver(MotorDriver):
     ``reset_wait_s``). Wheel positions stay continuous across reconnects.
     """
 
-    OPTIONS: ClassVar[Options] = {
-        "port": option(str, "/dev/ttyACM0", "serial device of the board (a udev symlink is best)"),
-        "baudrate": option(int, BAUDRATE, "serial speed, the firmware's BAUDRATE", minval=300),
-        "mode": option(str, "closed_loop", "closed_loop: 'm' ticks per PID frame; "
-                       "open_loop: 'o' raw PWM", choices=("closed_loop", "open_loop")),
-        "pid_rate": option(float, PID_RATE_HZ, "the firmware's PID_RATE in Hz ('m' is ticks "
-                           "per frame)", above=0),
-        "counts_per_rev": option(int, 1440, "encoder counts per wheel revolution", minval=1),
-        "pid_p": option(int, DEFAULT_GAINS[0], "Kp sent with 'u' on open; 0 keeps the "
-                        "firmware's gains", minval=0),
-        "pid_d": option(int, DEFAULT_GAINS[1], "Kd sent with 'u' on open", minval=0),
-        "pid_i": option(int, DEFAULT_GAINS[2], "Ki sent with 'u' on open", minval=0),
-        "pid_o": option(int, DEFAULT_GAINS[3], "Ko (output divisor) sent with 'u' on open",
-                        minval=1),
-        "max_pwm": option(int, MAX_PWM, "PWM value at full speed (open_loop)", minval=1,
-                          maxval=MAX_PWM),
-        "full_pwm_speed": option(float, 0.0, "wheel speed in rad/s at max_pwm (open_loop); "
-                                 "0 = the robot's max wheel speed", minval=0),
-        "encoders": option(bool, True, "poll 'e' for wheel positions (closed-loop odometry)"),
-        "poll_rate": option(float, 0.0, "encoder polls per second; 0 = pid_rate", minval=0),
-        "timeout_s": option(float, 0.25, "seconds to wait for a reply before faulting", above=0),
-        "reset_wait_s": option(float, 2.0, "seconds to wait after opening the port while the "
-                               "board resets, before the first byte", minval=0),
-        "boot_timeout_s": option(float, 3.0, "then keep asking 'e' for this long until the "
-                                 "board answers (a bootloader still running), s", minval=0),
-        "keepalive_s": option(float, 0.5, "re-send a held non-zero speed after this many "
-                              "seconds (at most a quarter of auto_stop_s)", above=0),
-        "auto_stop_s": option(float, AUTO_STOP_S, "the firmware's AUTO_STOP_INTERVAL: it stops "
-                              "the motors this long after the last motor command, s (2 s in "
-                              "ROSArduinoBridge as shipped; the simulated board uses this)",
-                              above=0.0, maxval=60.0),
-        **inversion_options(),
-    }
     SETTINGS = SerialSettings
     settings: SerialSettings
 

@@ -10,7 +10,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
-from base.options import Option, Options, defaults
+from base.options import Options, defaults, option, options_of
 from drivers.registry import registered_name
 
 S = TypeVar("S")
@@ -55,14 +55,21 @@ class MotorDriver(ABC):
     reconnects with back-off (``close()`` then ``open()`` on the same object).
 
     The ``[driver.<name>]`` options are read once, at construction, into ``self.settings``: an
-    instance of ``SETTINGS``, a frozen dataclass with one typed field per key of ``OPTIONS``.
+    instance of ``SETTINGS``, a frozen dataclass whose fields declare the keys (``OPTIONS`` is
+    generated from it).
     """
 
-    #: Options of this driver's ``[driver.<name>]`` config section.
+    #: Options of this driver's ``[driver.<name>]`` config section, generated from ``SETTINGS``.
     OPTIONS: ClassVar[Options] = {}
-    #: The typed settings those options are read into (one field per key).
+    #: The typed settings the options are read into: a frozen dataclass declaring one key per
+    #: field with :func:`base.options.option`.
     SETTINGS: ClassVar[type[Any]]
     settings: Any
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "SETTINGS" in cls.__dict__:
+            cls.OPTIONS = options_of(cls.SETTINGS)
 
     def __init__(self, options: Mapping[str, Any], *, max_wheel_speed: float) -> None:
         self.settings = read_settings(self.SETTINGS, self.OPTIONS, options, self.name())
@@ -274,28 +281,20 @@ class MotorDriver(ABC):
         return {}
 
 
-def option(kind: type, default: Any, doc: str, **kw: Any) -> Option:
-    """Shorthand for driver modules declaring their ``OPTIONS``."""
-    return Option(kind, default, doc, **kw)
-
-
 SIDES = ("left", "right")
 
 
-def inversion_options(motor: tuple[bool, bool] = (False, False),
-                      encoder: tuple[bool, bool] = (False, False)) -> dict[str, Option]:
-    """The four direction keys every hardware driver spells the same way: a side's motor
-    command and its encoder reading are flipped independently (a mirrored mount: both)."""
-    options: dict[str, Option] = {}
-    for index, side in enumerate(SIDES):
-        options[f"{side}_motor_inverted"] = option(
-            bool, motor[index], f"flip the {side} motor's command (it turns the wheel backward "
-            "for a forward command)")
-    for index, side in enumerate(SIDES):
-        options[f"{side}_encoder_inverted"] = option(
-            bool, encoder[index], f"flip the {side} encoder's reading (it counts down when the "
-            "wheel turns forward)")
-    return options
+# The four direction keys every hardware driver spells the same way: a side's motor command
+# and its encoder reading are flipped independently (a mirrored mount: both). A driver's
+# settings declare ``left_motor_inverted: bool = motor_inverted("left")`` and so on.
+def motor_inverted(side: str, default: bool = False) -> Any:
+    return option(default, f"flip the {side} motor's command (it turns the wheel backward for "
+                  "a forward command)")
+
+
+def encoder_inverted(side: str, default: bool = False) -> Any:
+    return option(default, f"flip the {side} encoder's reading (it counts down when the wheel "
+                  "turns forward)")
 
 
 def inversion_signs(settings: Any, side: str) -> tuple[float, float]:

@@ -14,6 +14,7 @@ CMD_GET_ENCODER_ESTIMATES = 0x09
 CMD_SET_CONTROLLER_MODE = 0x0B
 CMD_SET_INPUT_VEL = 0x0D
 CMD_REBOOT = 0x16
+CMD_GET_BUS_VOLTAGE_CURRENT = 0x17
 CMD_CLEAR_ERRORS = 0x18
 
 AXIS_STATE_IDLE = 1
@@ -166,3 +167,13 @@ def _unpack(layout: struct.Struct, data: bytes, what: str) -> tuple[float | int,
     if len(data) < layout.size:
         raise FrameError(f"{what} needs {layout.size} data bytes, got {len(data)}")
     return layout.unpack_from(data)
+
+
+def encode_bus_voltage_current(volts: float, amps: float) -> bytes:
+    """Get_Bus_Voltage_Current's answer: the DC bus voltage (V) and current (A, positive drawn)."""
+    return _TWO_FLOATS.pack(volts, amps)
+
+
+def decode_bus_voltage_current(data: bytes) -> tuple[float, float]:
+    volts, amps = _unpack(_TWO_FLOATS, data, "Get_Bus_Voltage_Current")
+    return float(volts), float(amps)

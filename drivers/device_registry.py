@@ -7,4 +7,7 @@ DEVICES: dict[str, tuple[str, str]] = {
     "pigpio_servo": ("drivers.pigpio_servo", "PigpioServos"),
     "pca9685_servo": ("drivers.pca9685_servo", "Pca9685Servos"),
     "mock_servo": ("drivers.mock_servo", "MockServos"),
+    "ina219": ("drivers.ina2xx", "Ina219Monitor"),
+    "ina226": ("drivers.ina2xx", "Ina226Monitor"),
+    "odrive_battery": ("drivers.odrive_battery", "ODriveBattery"),
 }

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from base.options import Options
+from base.options import Options, options_of
 from drivers.base import DriverError, read_settings, registered_class
 from drivers.device_registry import DEVICES
 
@@ -34,14 +34,20 @@ class Device(ABC):
     :class:`Sensor`). Template methods: the public ``open``/``close``/``health`` live here and
     keep the common state; a subclass implements ``_open``, ``_close`` and optionally
     ``_health``. Options are read once, at construction, into ``self.settings`` (``SETTINGS``,
-    a frozen dataclass with one field per key of ``OPTIONS``); a bad one is a ``ValueError``
-    naming ``[section] key``.
+    a frozen dataclass declaring one key per field with ``option()``; ``OPTIONS`` is made from
+    it); a bad one is a ``ValueError`` naming ``[section] key``.
     """
 
     KIND: ClassVar[str]
+    #: the device's keys, generated from ``SETTINGS`` (each field declared with ``option()``)
     OPTIONS: ClassVar[Options] = {}
     SETTINGS: ClassVar[type[Any]]
     settings: Any
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "SETTINGS" in cls.__dict__:
+            cls.OPTIONS = options_of(cls.SETTINGS)
 
     def __init__(self, options: Mapping[str, Any], *, section: str) -> None:
         self.section = section
@@ -150,6 +156,14 @@ class Sensor(Device):
         if not self.is_open:
             raise DeviceError(f"[{self.section}] device is not open")
         return await self._read()
+
+    async def probe(self) -> dict[str, float]:
+        """Open, read once, close (``arbiterd check``); a DeviceError says what is wrong."""
+        try:
+            await self.open()
+            return await self.read()
+        finally:
+            await self.close()
 
     @abstractmethod
     async def _read(self) -> dict[str, float]: ...

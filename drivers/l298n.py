@@ -9,20 +9,37 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
-from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, inversion_options, option
+from base.options import option
+from drivers.base import (
+    DriverFault,
+    EncoderReading,
+    MotorDriver,
+    encoder_inverted,
+    motor_inverted,
+)
 from drivers.pigpio_protocol import PI4B_REVISION
 from drivers.pigpio_pwm import (
-    DUTY_MAP_OPTIONS,
-    ENCODER_PIN_OPTIONS,
+    DEADBAND,
+    LEFT_ENCODER_A,
+    LEFT_ENCODER_B,
+    MAX_WHEEL_SPEED,
+    MIN_DUTY,
+    RIGHT_ENCODER_A,
+    RIGHT_ENCODER_B,
     BridgeSettings,
     SerialExecutor,
     check_pins,
 )
 from drivers.pigpiod_client import drop_pigpio, probe_tcp
-from drivers.pigpiod_watch import PIGPIOD_LINK_OPTIONS, Call, PigpiodWatch, describe_io_error
+from drivers.pigpiod_watch import (
+    LINK_TIMEOUT,
+    LINK_WATCH_INTERVAL,
+    Call,
+    PigpiodWatch,
+    describe_io_error,
+)
 
 T = TypeVar("T")
 PIN_FACTORIES = ("lgpio", "rpigpio", "pigpio", "native", "mock")
@@ -44,7 +61,7 @@ def mock_pin_factory() -> Any:
 
 
 def _pin(default: int, doc: str, *, optional: bool = False) -> Any:
-    return option(int, default, doc, minval=-1 if optional else 0, maxval=27)
+    return option(default, doc, minval=-1 if optional else 0, maxval=27)
 
 
 def build_pin_factory(settings: L298NSettings) -> Any:
@@ -88,18 +105,38 @@ def _pigpio_factory(settings: L298NSettings) -> Any:
 
 @dataclass(frozen=True)
 class L298NSettings(BridgeSettings):
-    """The ``[driver.l298n]`` section, read once (see ``L298NDriver.OPTIONS``)."""
+    """The ``[driver.l298n]`` section: its keys, each declared once (``OPTIONS`` is made from
+    them)."""
 
-    pin_factory: str
-    pigpio_host: str
-    pigpio_port: int
-    left_forward: int
-    left_backward: int
-    left_enable: int
-    right_forward: int
-    right_backward: int
-    right_enable: int
-    encoder_bounce: float
+    pin_factory: str = option("lgpio", "gpiozero pin factory", choices=PIN_FACTORIES)
+    pigpio_host: str = option("localhost", "pigpiod host (pin_factory = 'pigpio')")
+    pigpio_port: int = option(8888, "pigpiod port (pin_factory = 'pigpio')", minval=1,
+                              maxval=65535)
+    left_forward: int = _pin(17, "left IN1 GPIO (PWM, forward)")
+    left_backward: int = _pin(18, "left IN2 GPIO (PWM, backward)")
+    left_enable: int = _pin(-1, "left ENA GPIO held high (-1 = jumpered)", optional=True)
+    right_forward: int = _pin(22, "right IN3 GPIO (PWM, forward)")
+    right_backward: int = _pin(23, "right IN4 GPIO (PWM, backward)")
+    right_enable: int = _pin(-1, "right ENB GPIO held high (-1 = jumpered)", optional=True)
+    left_motor_inverted: bool = motor_inverted("left")
+    right_motor_inverted: bool = motor_inverted("right")
+    left_encoder_inverted: bool = encoder_inverted("left")
+    right_encoder_inverted: bool = encoder_inverted("right")
+    pwm_frequency: int = option(500, "PWM frequency, Hz", minval=10, maxval=20000)
+    max_wheel_speed: float = option(**MAX_WHEEL_SPEED)
+    min_duty: float = option(**MIN_DUTY)
+    deadband: float = option(**DEADBAND)
+    encoders: bool = option(False, "read quadrature encoders with gpiozero RotaryEncoder")
+    left_encoder_a: int = option(**LEFT_ENCODER_A)
+    left_encoder_b: int = option(**LEFT_ENCODER_B)
+    right_encoder_a: int = option(**RIGHT_ENCODER_A)
+    right_encoder_b: int = option(**RIGHT_ENCODER_B)
+    encoder_counts_per_rev: int = option(360, "full quadrature cycles (RotaryEncoder steps) per "
+                                         "wheel revolution", minval=1)
+    encoder_bounce: float = option(0.0, "encoder debounce time, s (0 = off)", minval=0.0,
+                                   maxval=0.3)
+    timeout: float = option(**LINK_TIMEOUT)
+    watch_interval: float = option(**LINK_WATCH_INTERVAL)
 
 
 class L298NDriver(MotorDriver):
@@ -111,28 +148,6 @@ class L298NDriver(MotorDriver):
     worker thread and a lost pigpiod is a fault.
     """
 
-    OPTIONS: ClassVar[Options] = {
-        "pin_factory": option(str, "lgpio", "gpiozero pin factory", choices=PIN_FACTORIES),
-        "pigpio_host": option(str, "localhost", "pigpiod host (pin_factory = 'pigpio')"),
-        "pigpio_port": option(int, 8888, "pigpiod port (pin_factory = 'pigpio')",
-                              minval=1, maxval=65535),
-        "left_forward": _pin(17, "left IN1 GPIO (PWM, forward)"),
-        "left_backward": _pin(18, "left IN2 GPIO (PWM, backward)"),
-        "left_enable": _pin(-1, "left ENA GPIO held high (-1 = jumpered)", optional=True),
-        "right_forward": _pin(22, "right IN3 GPIO (PWM, forward)"),
-        "right_backward": _pin(23, "right IN4 GPIO (PWM, backward)"),
-        "right_enable": _pin(-1, "right ENB GPIO held high (-1 = jumpered)", optional=True),
-        **inversion_options(),
-        "pwm_frequency": option(int, 500, "PWM frequency, Hz", minval=10, maxval=20000),
-        **DUTY_MAP_OPTIONS,
-        "encoders": option(bool, False, "read quadrature encoders with gpiozero RotaryEncoder"),
-        **ENCODER_PIN_OPTIONS,
-        "encoder_counts_per_rev": option(int, 360, "full quadrature cycles (RotaryEncoder steps)"
-                                         " per wheel revolution", minval=1),
-        "encoder_bounce": option(float, 0.0, "encoder debounce time, s (0 = off)",
-                                 minval=0.0, maxval=0.3),
-        **PIGPIOD_LINK_OPTIONS,
-    }
     SETTINGS = L298NSettings
     settings: L298NSettings
 

@@ -6,10 +6,10 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, NamedTuple
 
-from base.options import Options
-from drivers.base import EncoderReading, MotorDriver, option
+from base.options import option
+from drivers.base import EncoderReading, MotorDriver
 
 
 class RecordedCommand(NamedTuple):
@@ -22,11 +22,12 @@ class RecordedCommand(NamedTuple):
 
 @dataclass(frozen=True)
 class MockSettings:
-    """The ``[driver.mock]`` section, read once (see ``MockDriver.OPTIONS``)."""
+    """The ``[driver.mock]`` section: its keys, each declared once (``OPTIONS`` is made from
+    them)."""
 
-    encoders: bool
-    history: int
-    log_file: str
+    encoders: bool = option(True, "report ideal encoder positions (closed-loop odometry)")
+    history: int = option(100000, "how many commands to keep in memory", minval=1)
+    log_file: str = option("", "append every command to this file ('' = off)")
 
 
 class MockDriver(MotorDriver):
@@ -38,11 +39,6 @@ class MockDriver(MotorDriver):
     can watch a daemon subprocess's wheels.
     """
 
-    OPTIONS: ClassVar[Options] = {
-        "encoders": option(bool, True, "report ideal encoder positions (closed-loop odometry)"),
-        "history": option(int, 100000, "how many commands to keep in memory", minval=1),
-        "log_file": option(str, "", "append every command to this file ('' = off)"),
-    }
     SETTINGS = MockSettings
     settings: MockSettings
 

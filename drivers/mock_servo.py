@@ -4,30 +4,25 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
-from base.options import Option, Options
-from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
-
-MOCK_SERVO_OPTIONS: Options = {
-    "channels": Option(list, [0], "each joint's output number, in joint order", item=int,
-                       minval=0, maxval=63),
-    **CALIBRATION_OPTIONS,
-    "history": Option(int, 10000, "how many writes to keep", minval=1, maxval=1_000_000),
-}
+from base.options import option
+from drivers.servo_array import CalibrationSettings, ServoArray
 
 
 @dataclass(frozen=True)
 class MockServoSettings(CalibrationSettings):
-    channels: list[int]
-    history: int
+    """A mock_servo device's keys: each joint's output number and how much to keep."""
+
+    channels: list[int] = option([0], "each joint's output number, in joint order", minval=0,
+                                 maxval=63)
+    history: int = option(10000, "how many writes to keep", minval=1, maxval=1_000_000)
 
 
 class MockServos(ServoArray):
     """Records each write: ``pulses`` (output => µs now, 0 = off) and ``history``
     ((monotonic time, {output: µs}) per write)."""
 
-    OPTIONS: ClassVar[Options] = MOCK_SERVO_OPTIONS
     SETTINGS = MockServoSettings
     OUTPUTS_KEY = "channels"
     OUTPUT_NOUN = "a channel"

@@ -7,18 +7,18 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import can
 
-from base.options import Options
+from base.options import option
 from drivers.base import (
     DriverFault,
     EncoderReading,
     MotorDriver,
-    inversion_options,
+    encoder_inverted,
     inversion_signs,
-    option,
+    motor_inverted,
 )
 from drivers.cansimple import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
@@ -58,28 +58,47 @@ def _check_interface(name: str) -> str | None:
 
 @dataclass(frozen=True)
 class ODriveSettings:
-    """The ``[driver.odrive_can]`` section, read once (see ``ODriveCanDriver.OPTIONS``)."""
+    """The ``[driver.odrive_can]`` section: its keys, each declared once (``OPTIONS`` is made from
+    them)."""
 
-    interface: str
-    channel: str
-    bitrate: int
-    multicast_port: int
-    left_node_id: int
-    right_node_id: int
-    left_motor_inverted: bool
-    right_motor_inverted: bool
-    left_encoder_inverted: bool
-    right_encoder_inverted: bool
-    gear_ratio: float
-    input_mode: str
-    heartbeat_period_s: float
-    heartbeat_misses: int
-    encoder_timeout_s: float
-    request_encoders: bool
-    startup_timeout_s: float
-    clear_errors_on_open: bool
-    keepalive_period_s: float
-    watchdog_timeout_s: float
+    interface: str = option("socketcan", "python-can interface (socketcan on a Pi CAN HAT; "
+                            "virtual or udp_multicast for the emulator)", check=_check_interface)
+    channel: str = option("can0", "python-can channel (can0, a virtual bus name, or a multicast "
+                          "group for udp_multicast)")
+    bitrate: int = option(0, "bit rate handed to python-can (0 = the interface's own setting; "
+                          "socketcan takes it from `ip link`)", minval=0)
+    multicast_port: int = option(43113, "UDP port of the udp_multicast interface", minval=1,
+                                 maxval=65535)
+    left_node_id: int = option(0, "CAN node id of the left wheel's axis", minval=0,
+                               maxval=MAX_NODE_ID)
+    right_node_id: int = option(1, "CAN node id of the right wheel's axis", minval=0,
+                                maxval=MAX_NODE_ID)
+    # the right motor is usually mounted mirrored: its command and estimate both flip
+    left_motor_inverted: bool = motor_inverted("left")
+    right_motor_inverted: bool = motor_inverted("right", True)
+    left_encoder_inverted: bool = encoder_inverted("left")
+    right_encoder_inverted: bool = encoder_inverted("right", True)
+    gear_ratio: float = option(1.0, "motor turns per wheel turn (1 for hub motors)", above=0.0)
+    input_mode: str = option("passthrough", "ODrive input mode in velocity control",
+                             choices=tuple(INPUT_MODES))
+    heartbeat_period_s: float = option(0.1, "the ODrives' heartbeat period (heartbeat_rate_ms / "
+                                       "1000)", above=0.0)
+    heartbeat_misses: int = option(3, "missed heartbeat periods that make a fault", minval=1)
+    encoder_timeout_s: float = option(0.5, "fault when encoder estimates stop for this long (0 = "
+                                      "never)", minval=0.0)
+    request_encoders: bool = option(False, "ask for encoder estimates with RTR frames (when the "
+                                    "cyclic encoder message is off)")
+    startup_timeout_s: float = option(2.0, "how long open() waits for heartbeats, closed loop and "
+                                      "the first encoder estimates", above=0.0)
+    clear_errors_on_open: bool = option(True, "send Clear_Errors before requesting closed-loop "
+                                        "control")
+    keepalive_period_s: float = option(0.1, "resend the last Set_Input_Vel this often to feed the "
+                                       "ODrive watchdog (0 = off)", minval=0.0)
+    watchdog_timeout_s: float = option(0.5, "the axis watchdog set on the ODrive "
+                                       "(axis.config.watchdog_timeout, enable_watchdog = True; "
+                                       "the simulated ODrive has it): the axes go idle when no "
+                                       "Set_Input_Vel came for this long, s; 0 = not enabled",
+                                       minval=0.0, maxval=10.0)
 
 
 @dataclass
@@ -140,46 +159,6 @@ class ODriveCanDriver(MotorDriver):
     the velocity inputs at once). ``close()`` zeroes the inputs and puts both axes in IDLE.
     """
 
-    OPTIONS: ClassVar[Options] = {
-        "interface": option(str, "socketcan", "python-can interface (socketcan on a Pi CAN "
-                            "HAT; virtual or udp_multicast for the emulator)",
-                            check=_check_interface),
-        "channel": option(str, "can0", "python-can channel (can0, a virtual bus name, or a "
-                          "multicast group for udp_multicast)"),
-        "bitrate": option(int, 0, "bit rate handed to python-can (0 = the interface's own "
-                          "setting; socketcan takes it from `ip link`)", minval=0),
-        "multicast_port": option(int, 43113, "UDP port of the udp_multicast interface",
-                                 minval=1, maxval=65535),
-        "left_node_id": option(int, 0, "CAN node id of the left wheel's axis",
-                               minval=0, maxval=MAX_NODE_ID),
-        "right_node_id": option(int, 1, "CAN node id of the right wheel's axis",
-                                minval=0, maxval=MAX_NODE_ID),
-        # the right motor is usually mounted mirrored: its command and estimate both flip
-        **inversion_options(motor=(False, True), encoder=(False, True)),
-        "gear_ratio": option(float, 1.0, "motor turns per wheel turn (1 for hub motors)",
-                             above=0.0),
-        "input_mode": option(str, "passthrough", "ODrive input mode in velocity control",
-                             choices=tuple(INPUT_MODES)),
-        "heartbeat_period_s": option(float, 0.1, "the ODrives' heartbeat period "
-                                     "(heartbeat_rate_ms / 1000)", above=0.0),
-        "heartbeat_misses": option(int, 3, "missed heartbeat periods that make a fault",
-                                   minval=1),
-        "encoder_timeout_s": option(float, 0.5, "fault when encoder estimates stop for this "
-                                    "long (0 = never)", minval=0.0),
-        "request_encoders": option(bool, False, "ask for encoder estimates with RTR frames "
-                                   "(when the cyclic encoder message is off)"),
-        "startup_timeout_s": option(float, 2.0, "how long open() waits for heartbeats, closed "
-                                    "loop and the first encoder estimates", above=0.0),
-        "clear_errors_on_open": option(bool, True, "send Clear_Errors before requesting "
-                                       "closed-loop control"),
-        "keepalive_period_s": option(float, 0.1, "resend the last Set_Input_Vel this often to "
-                                     "feed the ODrive watchdog (0 = off)", minval=0.0),
-        "watchdog_timeout_s": option(float, 0.5, "the axis watchdog set on the ODrive "
-                                     "(axis.config.watchdog_timeout, enable_watchdog = True; "
-                                     "the simulated ODrive has it): the axes go idle when no "
-                                     "Set_Input_Vel came for this long, s; 0 = not enabled",
-                                     minval=0.0, maxval=10.0),
-    }
     SETTINGS = ODriveSettings
     settings: ODriveSettings
 

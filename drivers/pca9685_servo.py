@@ -6,40 +6,32 @@ import errno
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
-from base.options import Option, Options
+from base.options import option
 from drivers import pca9685_protocol as chip
 from drivers.devices import DeviceError
 from drivers.i2c_link import I2cBus, check_bus, open_i2c
-from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
+from drivers.servo_array import CalibrationSettings, ServoArray
 from drivers.servo_pulses import SERVO_HZ
 
 #: the oscillator needs 500 µs after SLEEP is cleared before RESTART (datasheet §7.3.1.1)
 WAKE_S = 0.0005
 
-PCA9685_OPTIONS: Options = {
-    "bus": Option(str, "/dev/i2c-1", "the I2C bus: /dev/i2c-N (or N); the simulator writes "
-                  "emulated:HOST:PORT", check=check_bus),
-    "address": Option(int, chip.DEFAULT_ADDRESS, "the board's I2C address (0x40 with A0..A5 "
-                      "open)", minval=0x03, maxval=0x77),
-    "channels": Option(list, [0], "each joint's PCA9685 channel (0..15), in joint order",
-                       item=int, minval=0, maxval=chip.CHANNELS - 1),
-    **CALIBRATION_OPTIONS,
-    "frequency_hz": Option(float, SERVO_HZ, "PWM frequency, Hz (hobby servos: 50)",
-                           minval=24.0, maxval=1526.0),
-    "timeout_s": Option(float, 1.0, "each transfer on an emulated bus, s", above=0.0,
-                        maxval=30.0),
-}
-
-
 @dataclass(frozen=True)
 class Pca9685Settings(CalibrationSettings):
-    bus: str
-    address: int
-    channels: list[int]
-    frequency_hz: float
-    timeout_s: float
+    """A pca9685_servo device's keys: the board's bus and address, each joint's channel."""
+
+    bus: str = option("/dev/i2c-1", "the I2C bus: /dev/i2c-N (or N); the simulator writes "
+                      "emulated:HOST:PORT", check=check_bus)
+    address: int = option(chip.DEFAULT_ADDRESS, "the board's I2C address (0x40 with A0..A5 "
+                          "open)", minval=0x03, maxval=0x77)
+    channels: list[int] = option([0], "each joint's PCA9685 channel (0..15), in joint order",
+                                 minval=0, maxval=chip.CHANNELS - 1)
+    frequency_hz: float = option(SERVO_HZ, "PWM frequency, Hz (hobby servos: 50)", minval=24.0,
+                                 maxval=1526.0)
+    timeout_s: float = option(1.0, "each transfer on an emulated bus, s", above=0.0,
+                              maxval=30.0)
 
 
 class Pca9685Servos(ServoArray):
@@ -48,7 +40,6 @@ class Pca9685Servos(ServoArray):
     restarts the PWM; each pulse is one LEDn block write (ON = 0, OFF = the pulse's counts);
     ``relax`` sets each channel's full-off bit."""
 
-    OPTIONS: ClassVar[Options] = PCA9685_OPTIONS
     SETTINGS = Pca9685Settings
     OUTPUTS_KEY = "channels"
     OUTPUT_NOUN = "a channel"

@@ -9,10 +9,16 @@ import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
-from base.options import Options
-from drivers.base import DriverFault, EncoderReading, MotorDriver, inversion_options, option
+from base.options import option, shared_option
+from drivers.base import (
+    DriverFault,
+    EncoderReading,
+    MotorDriver,
+    encoder_inverted,
+    motor_inverted,
+)
 from drivers.pigpio_deadman import Deadman
 from drivers.pigpio_protocol import (
     EITHER_EDGE,
@@ -24,33 +30,34 @@ from drivers.pigpio_protocol import (
     PUD_UP,
 )
 from drivers.pigpiod_client import connect_pigpio, drop_pigpio
-from drivers.pigpiod_watch import PIGPIOD_LINK_OPTIONS, Call, PigpiodWatch, describe_io_error
+from drivers.pigpiod_watch import (
+    LINK_TIMEOUT,
+    LINK_WATCH_INTERVAL,
+    Call,
+    PigpiodWatch,
+    describe_io_error,
+)
 from drivers.quadrature import QuadratureDecoder
 
 T = TypeVar("T")
 
 
 def _gpio(default: int, doc: str) -> Any:
-    return option(int, default, doc, minval=0, maxval=27)
+    return option(default, doc, minval=0, maxval=27)
 
 
-#: The open-loop speed -> duty map's keys (shared with the l298n driver).
-DUTY_MAP_OPTIONS: dict[str, Any] = {
-    "max_wheel_speed": option(float, 0.0, "wheel speed at full duty, rad/s "
-                              "(0 = the robot's maximum wheel speed)", minval=0.0),
-    "min_duty": option(float, 0.0, "smallest duty that turns the wheel (0..1)",
-                       minval=0.0, below=1.0),
-    "deadband": option(float, 0.0, "speeds at or below this, rad/s, stop the wheel",
-                       minval=0.0),
-}
-
-#: Quadrature encoder wiring keys (shared with the l298n driver).
-ENCODER_PIN_OPTIONS: dict[str, Any] = {
-    "left_encoder_a": _gpio(5, "left encoder channel A GPIO"),
-    "left_encoder_b": _gpio(6, "left encoder channel B GPIO"),
-    "right_encoder_a": _gpio(20, "right encoder channel A GPIO"),
-    "right_encoder_b": _gpio(21, "right encoder channel B GPIO"),
-}
+# The keys the pigpio and l298n sections share, each declared once here; each driver's settings
+# declare ``min_duty: float = option(**MIN_DUTY)`` and so on, in the order of their section.
+#: the open-loop speed -> duty map
+MAX_WHEEL_SPEED = shared_option(0.0, "wheel speed at full duty, rad/s (0 = the robot's maximum "
+                                "wheel speed)", minval=0.0)
+MIN_DUTY = shared_option(0.0, "smallest duty that turns the wheel (0..1)", minval=0.0, below=1.0)
+DEADBAND = shared_option(0.0, "speeds at or below this, rad/s, stop the wheel", minval=0.0)
+#: quadrature encoder wiring
+LEFT_ENCODER_A = shared_option(5, "left encoder channel A GPIO", minval=0, maxval=27)
+LEFT_ENCODER_B = shared_option(6, "left encoder channel B GPIO", minval=0, maxval=27)
+RIGHT_ENCODER_A = shared_option(20, "right encoder channel A GPIO", minval=0, maxval=27)
+RIGHT_ENCODER_B = shared_option(21, "right encoder channel B GPIO", minval=0, maxval=27)
 
 
 # -- pure helpers (shared with the l298n driver) --------------------------------------------------
@@ -81,9 +88,10 @@ class Side:
     encoder_invert: bool
 
 
-@dataclass(frozen=True)
 class BridgeSettings:
-    """The keys the pigpio and l298n sections share: bridges, duty map, encoders, pigpiod."""
+    """What the pigpio and l298n settings share: bridges, duty map, encoders, pigpiod (each
+    declares these keys among its own, in its section's order; the shared ones' options are
+    declared once, above)."""
 
     left_motor_inverted: bool
     right_motor_inverted: bool
@@ -121,20 +129,42 @@ class BridgeSettings:
 
 @dataclass(frozen=True)
 class PigpioSettings(BridgeSettings):
-    """The ``[driver.pigpio]`` section, read once (see ``PigpioDriver.OPTIONS``)."""
+    """The ``[driver.pigpio]`` section: its keys, each declared once (``OPTIONS`` is made from
+    them)."""
 
-    host: str
-    port: int
-    left_pwm: int
-    left_in1: int
-    left_in2: int
-    right_pwm: int
-    right_in1: int
-    right_in2: int
-    hardware_pwm: bool
-    pwm_range: int
-    glitch_filter_us: int
-    deadman_s: float
+    host: str = option("localhost", "host running pigpiod")
+    port: int = option(8888, "pigpiod TCP port", minval=1, maxval=65535)
+    left_pwm: int = _gpio(12, "left EN (PWM) GPIO; 12/13/18/19 get hardware PWM")
+    left_in1: int = _gpio(23, "left IN1 GPIO (high = forward)")
+    left_in2: int = _gpio(24, "left IN2 GPIO (high = backward)")
+    right_pwm: int = _gpio(13, "right EN (PWM) GPIO; 12/13/18/19 get hardware PWM")
+    right_in1: int = _gpio(27, "right IN1 GPIO (high = forward)")
+    right_in2: int = _gpio(22, "right IN2 GPIO (high = backward)")
+    left_motor_inverted: bool = motor_inverted("left")
+    right_motor_inverted: bool = motor_inverted("right")
+    left_encoder_inverted: bool = encoder_inverted("left")
+    right_encoder_inverted: bool = encoder_inverted("right")
+    hardware_pwm: bool = option(True, "use hardware PWM on GPIO 12/13/18/19")
+    pwm_frequency: int = option(1000, "PWM frequency, Hz (DMA PWM rounds to pigpiod's nearest "
+                                "allowed value)", minval=10, maxval=40000)
+    pwm_range: int = option(1000, "DMA PWM duty steps", minval=25, maxval=40000)
+    max_wheel_speed: float = option(**MAX_WHEEL_SPEED)
+    min_duty: float = option(**MIN_DUTY)
+    deadband: float = option(**DEADBAND)
+    encoders: bool = option(False, "read quadrature encoders through pigpio callbacks")
+    left_encoder_a: int = option(**LEFT_ENCODER_A)
+    left_encoder_b: int = option(**LEFT_ENCODER_B)
+    right_encoder_a: int = option(**RIGHT_ENCODER_A)
+    right_encoder_b: int = option(**RIGHT_ENCODER_B)
+    encoder_counts_per_rev: int = option(1440, "encoder edges (4 per quadrature cycle) per "
+                                         "wheel revolution", minval=1)
+    glitch_filter_us: int = option(100, "ignore encoder level changes shorter than this, us",
+                                   minval=0, maxval=300000)
+    timeout: float = option(**LINK_TIMEOUT)
+    watch_interval: float = option(**LINK_WATCH_INTERVAL)
+    deadman_s: float = option(0.5, "a script in pigpiod zeroes the motor pins when the driver has "
+                              "not written for this long (a frozen or killed daemon), s; 0 = off",
+                              minval=0.0, maxval=10.0)
 
 
 # -- connection helpers (shared with the l298n driver) ---------------------------------------------
@@ -165,32 +195,6 @@ class PigpioDriver(MotorDriver):
     ``open()`` reconnects, keeping the encoder totals.
     """
 
-    OPTIONS: ClassVar[Options] = {
-        "host": option(str, "localhost", "host running pigpiod"),
-        "port": option(int, 8888, "pigpiod TCP port", minval=1, maxval=65535),
-        "left_pwm": _gpio(12, "left EN (PWM) GPIO; 12/13/18/19 get hardware PWM"),
-        "left_in1": _gpio(23, "left IN1 GPIO (high = forward)"),
-        "left_in2": _gpio(24, "left IN2 GPIO (high = backward)"),
-        "right_pwm": _gpio(13, "right EN (PWM) GPIO; 12/13/18/19 get hardware PWM"),
-        "right_in1": _gpio(27, "right IN1 GPIO (high = forward)"),
-        "right_in2": _gpio(22, "right IN2 GPIO (high = backward)"),
-        **inversion_options(),
-        "hardware_pwm": option(bool, True, "use hardware PWM on GPIO 12/13/18/19"),
-        "pwm_frequency": option(int, 1000, "PWM frequency, Hz (DMA PWM rounds to pigpiod's "
-                                "nearest allowed value)", minval=10, maxval=40000),
-        "pwm_range": option(int, 1000, "DMA PWM duty steps", minval=25, maxval=40000),
-        **DUTY_MAP_OPTIONS,
-        "encoders": option(bool, False, "read quadrature encoders through pigpio callbacks"),
-        **ENCODER_PIN_OPTIONS,
-        "encoder_counts_per_rev": option(int, 1440, "encoder edges (4 per quadrature cycle) per "
-                                         "wheel revolution", minval=1),
-        "glitch_filter_us": option(int, 100, "ignore encoder level changes shorter than this, us",
-                                   minval=0, maxval=300000),
-        **PIGPIOD_LINK_OPTIONS,
-        "deadman_s": option(float, 0.5, "a script in pigpiod zeroes the motor pins when the "
-                            "driver has not written for this long (a frozen or killed "
-                            "daemon), s; 0 = off", minval=0.0, maxval=10.0),
-    }
     SETTINGS = PigpioSettings
     settings: PigpioSettings
 

@@ -3,38 +3,30 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
-from base.options import Option, Options
+from base.options import option
 from drivers.devices import DeviceError
 from drivers.pigpiod_client import connect_pigpio, drop_pigpio
 from drivers.pigpiod_watch import describe_io_error
-from drivers.servo_array import CALIBRATION_OPTIONS, CalibrationSettings, ServoArray
-
-SERVO_OPTIONS: Options = {
-    "host": Option(str, "localhost", "pigpiod host"),
-    "port": Option(int, 8888, "pigpiod port", minval=1, maxval=65535),
-    "pins": Option(list, [16], "GPIO (BCM) of each joint's servo signal, in joint order (not "
-                   "a pin of the wheel driver's section)",
-                   item=int, minval=0, maxval=53),
-    **CALIBRATION_OPTIONS,
-    "timeout_s": Option(float, 1.0, "connecting to and each reply from pigpiod, s",
-                        above=0.0, maxval=30.0),
-}
+from drivers.servo_array import CalibrationSettings, ServoArray
 
 
 @dataclass(frozen=True)
 class ServoSettings(CalibrationSettings):
-    host: str
-    port: int
-    pins: list[int]
-    timeout_s: float
+    """A pigpio_servo device's keys: pigpiod's address and each joint's GPIO."""
+
+    host: str = option("localhost", "pigpiod host")
+    port: int = option(8888, "pigpiod port", minval=1, maxval=65535)
+    pins: list[int] = option([16], "GPIO (BCM) of each joint's servo signal, in joint order (not "
+                             "a pin of the wheel driver's section)", minval=0, maxval=53)
+    timeout_s: float = option(1.0, "connecting to and each reply from pigpiod, s", above=0.0,
+                              maxval=30.0)
 
 
 class PigpioServos(ServoArray):
     """Servos on GPIO pins driven by pigpiod's servo pulses (``set_servo_pulsewidth``)."""
 
-    OPTIONS: ClassVar[Options] = SERVO_OPTIONS
     SETTINGS = ServoSettings
     OUTPUTS_KEY = "pins"
     OUTPUT_NOUN = "a GPIO"

@@ -7,17 +7,14 @@ import struct
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from base.options import Options
-from drivers.base import MotorDriver, option
+from base.options import shared_option
+from drivers.base import MotorDriver
 
 #: The pigpiod link keys of both GPIO drivers' sections (the l298n driver uses them with
-#: ``pin_factory = "pigpio"``).
-PIGPIOD_LINK_OPTIONS: Options = {
-    "timeout": option(float, 1.0, "pigpiod connect and reply timeout, s", above=0.0,
-                      maxval=30.0),
-    "watch_interval": option(float, 0.25, "how often to check pigpiod is still there, s "
-                             "(0 = only when writing)", minval=0.0),
-}
+#: ``pin_factory = "pigpio"``): ``timeout: float = option(**LINK_TIMEOUT)`` and so on.
+LINK_TIMEOUT = shared_option(1.0, "pigpiod connect and reply timeout, s", above=0.0, maxval=30.0)
+LINK_WATCH_INTERVAL = shared_option(0.25, "how often to check pigpiod is still there, s (0 = "
+                                    "only when writing)", minval=0.0)
 
 #: Runs a blocking pigpio call on the driver's worker thread (``SerialExecutor.call``).
 Call = Callable[[Callable[[], Any]], Awaitable[Any]]

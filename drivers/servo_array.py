@@ -6,47 +6,43 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from base.options import Option, Options
+from base.options import option, shared_option
 from drivers.devices import Actuator, Joint
 from drivers.servo_pulses import PULSE_MAX_US, PULSE_MIN_US, ServoCalibration
 
-#: the keys every servo device shares (the outputs' key is the backend's own: pins, channels)
-CALIBRATION_OPTIONS: Options = {
-    "joints": Option(list, ["joint1"], "joint names, one per servo", item=str),
-    "lower": Option(list, [-math.pi / 2], "each joint's lowest position, rad (m for a "
-                    "gripper's opening), at its min pulse", item=float),
-    "upper": Option(list, [math.pi / 2], "each joint's highest position, rad (m for a "
-                    "gripper's opening), at its max pulse", item=float),
-    "min_pulse_us": Option(int, 500, "pulse width at the lowest position, µs",
-                           minval=PULSE_MIN_US, maxval=PULSE_MAX_US),
-    "max_pulse_us": Option(int, 2500, "pulse width at the highest position, µs",
-                           minval=PULSE_MIN_US, maxval=PULSE_MAX_US),
-    "joint_min_pulse_us": Option(list, [], "per joint, in joint order: the pulse at its lowest "
-                                 "position, µs ([] = min_pulse_us for every joint)", item=int,
-                                 minval=PULSE_MIN_US, maxval=PULSE_MAX_US),
-    "joint_max_pulse_us": Option(list, [], "per joint, in joint order: the pulse at its "
-                                 "highest position, µs ([] = max_pulse_us for every joint)",
-                                 item=int, minval=PULSE_MIN_US, maxval=PULSE_MAX_US),
-    "offsets_us": Option(list, [], "per joint, in joint order: zero trim added to its pulse, "
-                         "µs ([] = none)", item=int, minval=-500, maxval=500),
-    "reversed": Option(list, [], "per joint, in joint order: true when the servo turns the "
-                       "other way (upper at the min pulse; [] = none)", item=bool),
-}
+#: the calibration keys the servo devices and the [arm] section share, declared once
+MIN_PULSE_US = shared_option(500, "pulse width at the lowest position, µs",
+                             minval=PULSE_MIN_US, maxval=PULSE_MAX_US)
+MAX_PULSE_US = shared_option(2500, "pulse width at the highest position, µs",
+                             minval=PULSE_MIN_US, maxval=PULSE_MAX_US)
+JOINT_MIN_PULSE_US = shared_option([], "per joint, in joint order: the pulse at its lowest "
+                                   "position, µs ([] = min_pulse_us for every joint)",
+                                   minval=PULSE_MIN_US, maxval=PULSE_MAX_US)
+JOINT_MAX_PULSE_US = shared_option([], "per joint, in joint order: the pulse at its highest "
+                                   "position, µs ([] = max_pulse_us for every joint)",
+                                   minval=PULSE_MIN_US, maxval=PULSE_MAX_US)
+OFFSETS_US = shared_option([], "per joint, in joint order: zero trim added to its pulse, µs "
+                           "([] = none)", minval=-500, maxval=500)
+REVERSED = shared_option([], "per joint, in joint order: true when the servo turns the other "
+                         "way (upper at the min pulse; [] = none)")
 
 
 @dataclass(frozen=True)
 class CalibrationSettings:
-    """The fields of :data:`CALIBRATION_OPTIONS`; each backend's settings add theirs."""
+    """The keys every servo device shares (the outputs' key is the backend's own: pins,
+    channels); each backend's settings add theirs."""
 
-    joints: list[str]
-    lower: list[float]
-    upper: list[float]
-    min_pulse_us: int
-    max_pulse_us: int
-    joint_min_pulse_us: list[int]
-    joint_max_pulse_us: list[int]
-    offsets_us: list[int]
-    reversed: list[bool]
+    joints: list[str] = option(["joint1"], "joint names, one per servo")
+    lower: list[float] = option([-math.pi / 2], "each joint's lowest position, rad (m for a "
+                                "gripper's opening), at its min pulse")
+    upper: list[float] = option([math.pi / 2], "each joint's highest position, rad (m for a "
+                                "gripper's opening), at its max pulse")
+    min_pulse_us: int = option(**MIN_PULSE_US)
+    max_pulse_us: int = option(**MAX_PULSE_US)
+    joint_min_pulse_us: list[int] = option(**JOINT_MIN_PULSE_US)
+    joint_max_pulse_us: list[int] = option(**JOINT_MAX_PULSE_US)
+    offsets_us: list[int] = option(**OFFSETS_US)
+    reversed: list[bool] = option(**REVERSED)
 
 
 class ServoArray(Actuator):

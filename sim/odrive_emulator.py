@@ -21,6 +21,7 @@ from drivers.cansimple import (
     AXIS_STATE_IDLE,
     CMD_CLEAR_ERRORS,
     CMD_ESTOP,
+    CMD_GET_BUS_VOLTAGE_CURRENT,
     CMD_GET_ENCODER_ESTIMATES,
     CMD_GET_ERROR,
     CMD_HEARTBEAT,
@@ -39,11 +40,13 @@ from drivers.cansimple import (
     decode_set_axis_state,
     decode_set_controller_mode,
     decode_set_input_vel,
+    encode_bus_voltage_current,
     encode_encoder_estimates,
     encode_error,
     encode_heartbeat,
     split_arbitration_id,
 )
+from sim.battery import BatteryModel
 from sim.motor_model import MotorPair
 
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
@@ -108,6 +111,8 @@ class ODriveEmulator:
         self.watchdog_timeout_s = watchdog_timeout_s
         self.axes = {node: EmulatedAxis(node, wheel, directions[wheel])
                      for wheel, node in enumerate(node_ids)}
+        #: the pack on the DC bus (Get_Bus_Voltage_Current)
+        self.battery = BatteryModel()
         self.bad_frames = 0
         self.frame_hooks: list[FrameHook] = []
         self._changed = threading.Condition()
@@ -301,8 +306,14 @@ class ODriveEmulator:
         for hook in list(self.frame_hooks):
             hook(node, cmd, data, now)
 
+    def use_battery(self, battery: BatteryModel) -> None:
+        """Answer Get_Bus_Voltage_Current with what ``battery`` (the simulator's pack) gives."""
+        self.battery = battery
+
     def _answer_request(self, axis: EmulatedAxis, cmd: int) -> None:
-        if cmd in (CMD_GET_ENCODER_ESTIMATES, CMD_GET_ERROR, CMD_HEARTBEAT):
+        if cmd == CMD_GET_BUS_VOLTAGE_CURRENT:
+            self._send(axis.node_id, cmd, encode_bus_voltage_current(*self.battery.measure()))
+        elif cmd in (CMD_GET_ENCODER_ESTIMATES, CMD_GET_ERROR, CMD_HEARTBEAT):
             self._send(axis.node_id, cmd, self._payload(axis, cmd))
 
     def _apply_command(self, axis: EmulatedAxis, cmd: int, data: bytes, now: float) -> bool:

@@ -5,12 +5,13 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from sim.battery import BatteryModel, BatterySpec
 from sim.metrics import RunMetrics
 from sim.motor_model import MotorPair
 from sim.noise import Noise
@@ -75,7 +76,7 @@ class SimWorld:
                  wheel_separation: float = 0.30, motors: MotorPair | None = None,
                  world: World | None = None, wheel_sign: int = 1,
                  internal_scans: bool = False) -> None:
-        self.config = config or SimConfig()
+        self.config = config or SimConfig.from_section()
         if motors is not None and getattr(motors, "_clock", None) is not None:
             raise ValueError("the world steps the motors: pass a MotorPair made with clock=None")
         self.world = world or build_world(self.config)
@@ -95,6 +96,12 @@ class SimWorld:
         self.internal_scans = internal_scans
         self.latest_scan: np.ndarray | None = None
         self.latest_scan_time = 0.0
+        #: the pack the motors and the computer draw from, charged while :attr:`on_charger`
+        self.battery = BatteryModel(BatterySpec(capacity_ah=self.config.battery_capacity_ah,
+                                                drain=self.config.battery_drain),
+                                    soc=self.config.battery_charge)
+        #: whether the robot's contacts touch a charging dock now (set by whoever models docks)
+        self.on_charger: Callable[[], bool] = lambda: False
         #: graspable objects (sim/objects.py), moved by :attr:`arm_tool` when an arm is on
         self.objects = Objects()
         #: where the arm's tool point is (set by whoever runs the arm), else None
@@ -135,6 +142,7 @@ class SimWorld:
                 self.objects.update(state.x, state.y, state.theta,
                                     self.arm_tool() if self.arm_tool else None,
                                     self.geometry.footprint_radius)
+            self.battery.step(self._dt, self.motors.speeds(), self.on_charger())
             self.metrics.record(self._dt, state.x, state.y, state.theta, state.v, state.w,
                                 state.travelled, state.collisions)
             if self.internal_scans and self.time + 1e-9 >= self._next_scan:

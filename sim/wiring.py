@@ -172,9 +172,38 @@ def _start_mock_servo(workdir: Path, options: Mapping[str, Any]) -> Emulated:
     return Emulated(None, {}, lambda: None)
 
 
+def _ina_starter(kind: str) -> DeviceStarter:
+    def start(workdir: Path, options: Mapping[str, Any]) -> Emulated:
+        """An INA2xx breakout on an emulated I2C bus (a loopback port) at the section's
+        address and with its shunt, measuring a battery model (``use_battery``: the
+        world's pack under ``run --sim``)."""
+        from sim.ina2xx_emulator import InaEmulator
+
+        board = InaEmulator(kind, options.get("address", 0x40),
+                            shunt_ohms=options.get("shunt_ohms", 0.1), host=LOOPBACK).start()
+        return Emulated(board, {"bus": board.bus}, board.close)
+
+    return start
+
+
+def _start_odrive_battery(workdir: Path, options: Mapping[str, Any]) -> Emulated:
+    """An ODrive of its own on a python-can virtual channel answering Get_Bus_Voltage_Current
+    with a battery model (``use_battery``: the world's pack under ``run --sim``)."""
+    from sim.odrive_emulator import ODriveEmulator
+
+    node = int(options.get("node_id", 0))
+    channel = f"arbiterd-battery-{workdir.name}-{uuid.uuid4().hex[:8]}"
+    odrive = ODriveEmulator("virtual", channel, node_ids=(node, (node + 1) % 64)).start()
+    return Emulated(odrive, {"interface": "virtual", "channel": channel}, odrive.stop,
+                    in_process_only=True)
+
+
 #: device name => the starter of its emulator; one row per name in ``drivers.device_registry``
 DEVICE_EMULATORS: dict[str, DeviceStarter] = {
     "pigpio_servo": _start_pigpio_servo,
     "pca9685_servo": _start_pca9685_servo,
     "mock_servo": _start_mock_servo,
+    "ina219": _ina_starter("ina219"),
+    "ina226": _ina_starter("ina226"),
+    "odrive_battery": _start_odrive_battery,
 }

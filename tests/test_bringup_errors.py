@@ -14,7 +14,7 @@ import pytest
 from base import ports
 from base.options import defaults
 from daemon.components.http.component import HttpServer
-from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
+from daemon.components.http.settings import HttpSettings
 from daemon.config import ConfigError, load_config
 from daemon.listen import PortInUse
 from daemon.security import Security
@@ -144,7 +144,7 @@ async def test_a_port_taken_between_the_check_and_the_bind_is_explained() -> Non
         taken.listen()
         port = taken.getsockname()[1]
         server = HttpServer(HttpSettings.from_values(
-            defaults(HTTP_OPTIONS) | {"host": "127.0.0.1", "port": port}), Security(""))
+            defaults(HttpSettings.OPTIONS) | {"host": "127.0.0.1", "port": port}), Security(""))
         with pytest.raises(PortInUse) as caught:
             await server.start()
         await server.stop()

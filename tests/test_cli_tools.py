@@ -344,3 +344,19 @@ def test_a_refusal_and_a_silent_address_are_said_the_way_a_user_can_act_on() -> 
         call_api(base, "", "GET", "/api/health")
     assert api_failure(base, silent.value).startswith(f"cannot reach {base}: ")
     assert "refused" in api_failure(base, silent.value)
+
+
+def test_every_argument_of_every_command_says_what_it_is() -> None:
+    """`--help` describes every positional argument too (issue 40: `map build --help` did not
+    say what its argument is)."""
+    def walk(parser: argparse.ArgumentParser, path: str) -> list[str]:
+        bare = []
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    bare += walk(sub, f"{path} {name}")
+            elif not action.option_strings and not action.help:
+                bare.append(f"{path} {action.dest}")
+        return bare
+
+    assert walk(build_parser(), "arbiterd") == []

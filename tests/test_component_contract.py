@@ -1,8 +1,7 @@
 # One contract over every registered component: its section, routes and topics are documented,
-# its settings match its option table, and what it plugs into the daemon goes when it stops.
+# and what it plugs into the daemon goes when it stops (its settings: test_settings_declaration.py).
 from __future__ import annotations
 
-import dataclasses
 import re
 from pathlib import Path
 from typing import Any
@@ -10,11 +9,11 @@ from typing import Any
 import aiohttp
 import pytest
 
-from base.config import SectionSettings, field_name
 from daemon.config import SETTINGS, all_sections
 from daemon.registry import COMPONENTS
 from daemon.topics import TopicIn, TopicOut
 from tests.support.in_process_daemon import InProcessDaemon, in_process_daemon
+from tests.support.net import free_port
 from tests.support.wait import eventually
 
 REPO = Path(__file__).resolve().parent.parent
@@ -30,7 +29,9 @@ def everything(directory: Path) -> str:
         if settings is None or settings.SECTION in ("http", "rosbridge"):
             continue  # the test robot sets their addresses; they are on by default
         extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
-                 "record": [f'directory = "{directory}"']}.get(settings.SECTION, [])
+                 "recorder": [f'directory = "{directory}"'],
+                 "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 }.get(settings.SECTION, [])
         enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
         if enabled or extra:
             lines += [f"[{settings.SECTION}]", *enabled, *extra]
@@ -106,19 +107,6 @@ def test_one_owner_per_topic_and_an_accepting_type_for_each_incoming_one(
                 assert topic.type in topic.accepted_types()
 
 
-@pytest.mark.parametrize("section", list(SETTINGS))
-def test_each_sections_settings_match_its_option_table(section: str) -> None:
-    settings: type[SectionSettings] = SETTINGS[section]
-    fields = {f.name: f.type for f in dataclasses.fields(settings)}
-    keys = {field_name(key): option for key, option in settings.OPTIONS.items()}
-    assert set(fields) == set(keys), section
-    for name, option in keys.items():
-        kind = str(fields[name])
-        assert kind.startswith(option.kind.__name__), (section, name, kind, option.kind)
-    assert section == settings.SECTION
-    assert dataclasses.is_dataclass(settings) and settings.__dataclass_params__.frozen  # type: ignore[attr-defined]
-
-
 def test_every_section_but_the_drivers_has_typed_settings() -> None:
     assert [s for s in all_sections() if not s.startswith("driver.")] == list(SETTINGS)
 
@@ -155,7 +143,7 @@ async def test_the_bridge_and_the_recorder_listen_to_the_bus_only_while_someone_
     and the recorder to the recorded topics while recording is on."""
     from daemon.telemetry import COMMAND, ODOM
 
-    async with in_process_daemon(tmp_path, '[record]\nenabled = false\ndirectory = "'
+    async with in_process_daemon(tmp_path, '[recorder]\nenabled = false\ndirectory = "'
                                  f'{tmp_path / "rec"}"\n') as robot:
         bus = robot.ctx.bus
         quiet = bus.subscribers(ODOM), bus.subscribers(COMMAND)

@@ -12,24 +12,22 @@ from aiohttp import web
 import daemon.app
 import daemon.config
 from base.config import Config, ConfigError, SectionSettings
-from base.options import Option, Options
+from base.options import option
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
 from daemon.config import load_config
 from daemon.health import Health
 from daemon.registry import COMPONENTS
 from daemon.web import json_response
 from drivers.devices import Actuator, create_device
-from drivers.pigpio_servo import SERVO_OPTIONS, ServoSettings
+from drivers.pigpio_servo import ServoSettings
 from tests.support.in_process_daemon import in_process_daemon
-
-WAVER_OPTIONS: Options = {"enabled": Option(bool, True, "wave"), **SERVO_OPTIONS}
 
 
 @dataclass(frozen=True)
-class WaverSettings(ServoSettings, SectionSettings, section="waver", options=WAVER_OPTIONS):
+class WaverSettings(ServoSettings, SectionSettings, section="waver"):
     """The servo's keys and its own switch."""
 
-    enabled: bool
+    enabled: bool = option(True, "wave")
 
 
 class Waver(BaseComponent):
@@ -77,7 +75,7 @@ def with_waver(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     monkeypatch.setattr(daemon.app, "COMPONENTS", table)
     monkeypatch.setattr(daemon.config, "COMPONENTS", table)
     monkeypatch.setitem(daemon.config.SETTINGS, "waver", WaverSettings)
-    monkeypatch.setitem(daemon.config.SECTIONS, "waver", WAVER_OPTIONS)
+    monkeypatch.setitem(daemon.config.SECTIONS, "waver", WaverSettings.OPTIONS)
     yield
 
 

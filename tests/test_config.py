@@ -105,6 +105,54 @@ def test_env_overrides_a_key_and_rejects_unknown(tmp_path: Path) -> None:
     assert "[control] update_rate: expected a number" in problems[0]
 
 
+def test_an_old_section_name_loads_with_one_deprecation_warning(tmp_path: Path) -> None:
+    path = write(tmp_path, '[record]\nenabled = true\ndirectory = "/tmp/rec"\n')
+    config = load_config(path, env={})
+    assert config["recorder"]["enabled"] and config["recorder"]["directory"] == "/tmp/rec"
+    assert "record" not in config.sections
+    assert config.warnings == [f"{path}: [record] is now [recorder]; rename the section in "
+                               f"{path}"]
+    renamed = write(tmp_path, '[recorder]\nenabled = true\ndirectory = "/tmp/rec"\n')
+    config_now = load_config(renamed, env={})
+    assert config_now["recorder"] == config["recorder"] and not config_now.warnings
+
+
+def test_an_old_and_a_new_section_name_in_one_file_is_an_error(tmp_path: Path) -> None:
+    path = write(tmp_path, "[recorder]\nenabled = true\n[record]\nenabled = false\n")
+    [problem] = problems_of(path)
+    assert f"{path}: [record] and [recorder] are the same section" in problem
+    assert "keep [recorder] only" in problem
+
+
+def test_a_key_of_an_old_section_name_is_still_checked(tmp_path: Path) -> None:
+    path = write(tmp_path, "[record]\nqueue_size = 5\nenabeld = true\n")
+    assert problems_of(path) == [
+        f"{path}: [recorder] queue_size: must be >= 100, got 5",
+        f"{path}: [recorder] enabeld: unknown key (did you mean 'enabled'?)"]
+
+
+def test_env_overrides_under_the_old_and_the_new_section_name(tmp_path: Path) -> None:
+    path = write(tmp_path, "[driver]\ntype = \"mock\"\n")
+    new = load_config(path, env={"ARBITERD_RECORDER_QUEUE_SIZE": "500"})
+    assert new["recorder"]["queue_size"] == 500 and not new.warnings
+    old = load_config(path, env={"ARBITERD_RECORD_QUEUE_SIZE": "600",
+                                 "ARBITERD_RECORD_ENABLED": "true"})
+    assert old["recorder"]["queue_size"] == 600 and old["recorder"]["enabled"]
+    assert old.warnings == [
+        "environment variable ARBITERD_RECORD_QUEUE_SIZE: [record] is now [recorder]; use "
+        "ARBITERD_RECORDER_QUEUE_SIZE",
+        "environment variable ARBITERD_RECORD_ENABLED: [record] is now [recorder]; use "
+        "ARBITERD_RECORDER_ENABLED"]
+    [both] = problems_of(path, env={"ARBITERD_RECORD_QUEUE_SIZE": "600",
+                                    "ARBITERD_RECORDER_QUEUE_SIZE": "500"})
+    assert "ARBITERD_RECORD_QUEUE_SIZE and ARBITERD_RECORDER_QUEUE_SIZE both set" in both
+    [bad] = problems_of(path, env={"ARBITERD_RECORD_QUEUE_SIZE": "5"})
+    assert bad.startswith("environment variable ARBITERD_RECORD_QUEUE_SIZE=5: [recorder] "
+                          "queue_size: must be >= 100"), bad
+    [typo] = problems_of(path, env={"ARBITERD_RECORD_QUEUE_SIZ": "500"})
+    assert "ARBITERD_RECORD_QUEUE_SIZ: no such config key" in typo
+
+
 def test_token_file(tmp_path: Path) -> None:
     token_file = tmp_path / "token"
     token_file.write_text("s3cret-t0ken\n")
@@ -169,6 +217,15 @@ def test_check_lists_all_problems_and_prints_effective_config(tmp_path: Path) ->
     assert result.stdout.startswith(f"arbiterd check: ok: {good}: configuration valid and the "
                                     "hardware answers")
     assert "wheel_radius = 0.04" in result.stdout  # the effective config, with --verbose
+
+
+def test_check_shows_the_deprecation_of_an_old_section_name_once(tmp_path: Path) -> None:
+    path = write(tmp_path, "[driver]\ntype = \"mock\"\n[record]\nenabled = false\n")
+    result = run_cli("check", "--no-probe", "--config", str(path))
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = [line for line in result.stdout.splitlines() if "[record]" in line]
+    assert lines == [f"warning: {path}: [record] is now [recorder]; rename the section in "
+                     f"{path}"]
 
 
 def test_usage_error_exits_2() -> None:

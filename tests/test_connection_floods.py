@@ -130,7 +130,7 @@ def test_stalled_downloads_leave_health_and_the_estop_a_way_in(
     recordings.mkdir()
     with (recordings / RECORDING).open("wb") as sparse:
         sparse.truncate(256 * 1024 * 1024)
-    proc = daemon_subprocess(WITH_TOKEN + f'[record]\ndirectory = "{recordings}"\n',
+    proc = daemon_subprocess(WITH_TOKEN + f'[recorder]\ndirectory = "{recordings}"\n',
                              env={"ARBITERD_HTTP_MAX_CONNECTIONS": "16",
                                   "ARBITERD_HTTP_SEND_TIMEOUT_S": "3"})
     downloads = []
@@ -164,7 +164,7 @@ async def test_the_attack_tool_sees_slow_headers_and_stalled_readers_cut_off(
     recordings.mkdir()
     with (recordings / RECORDING).open("wb") as sparse:
         sparse.truncate(256 * 1024 * 1024)
-    proc = daemon_subprocess(f'[record]\ndirectory = "{recordings}"\n',
+    proc = daemon_subprocess(f'[recorder]\ndirectory = "{recordings}"\n',
                              env={"ARBITERD_ROSBRIDGE_HANDSHAKE_TIMEOUT_S": "1",
                                   "ARBITERD_HTTP_IDLE_TIMEOUT_S": "1",
                                   "ARBITERD_HTTP_SEND_TIMEOUT_S": "1"})

@@ -19,9 +19,9 @@ from daemon.components.control.kinematics import DiffDrive
 from daemon.components.control.loop import ControlLoop
 from daemon.config import build_driver, load_config
 from daemon.latency import LatencyTracker
-from daemon.settings import DRIVER_OPTIONS
+from daemon.settings import DriverSettings
 from drivers import DRIVERS, create_driver
-from sim.settings import SIM_OPTIONS
+from sim.settings import SimSettings
 from sim.wiring import EMULATORS
 from tests.support.compare import close_to
 from tests.support.paths import REPO
@@ -43,8 +43,8 @@ MOVES = [
 
 
 def test_the_config_choices_are_the_registered_drivers() -> None:
-    assert DRIVER_OPTIONS["type"].choices == tuple(DRIVERS)
-    assert SIM_OPTIONS["driver"].choices == tuple(DRIVERS)
+    assert DriverSettings.OPTIONS["type"].choices == tuple(DRIVERS)
+    assert SimSettings.OPTIONS["driver"].choices == tuple(DRIVERS)
     assert sorted(EMULATORS) == sorted(DRIVERS), "one row in sim/wiring.py EMULATORS per driver"
 
 

@@ -229,7 +229,7 @@ async def test_a_route_added_without_a_bound_fails_the_contract(tmp_path: Path) 
     file without the send deadline (never-reading clients hold it)."""
     from base.options import defaults
     from daemon.components.http.component import HttpServer
-    from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
+    from daemon.components.http.settings import HttpSettings
     from daemon.security import Security
     from tests.support.net import free_port
 
@@ -246,7 +246,7 @@ async def test_a_route_added_without_a_bound_fails_the_contract(tmp_path: Path) 
         return web.FileResponse(big)
 
     port = free_port()
-    settings = HttpSettings.from_values(defaults(HTTP_OPTIONS) | {
+    settings = HttpSettings.from_values(defaults(HttpSettings.OPTIONS) | {
         "host": "127.0.0.1", "port": port, "send_timeout_s": 1.0, "idle_timeout_s": 1.0})
     server = HttpServer(settings, Security(TOKEN, own_names=()))
     server.add_route("POST", "/api/unchecked", unchecked_goal)

@@ -780,3 +780,29 @@ def grp_exists(name: str) -> bool:
     except KeyError:
         return False
     return True
+
+
+def test_dev_setup_installs_the_compiler_and_headers_a_minimal_debian_lacks(
+        tmp_path: Path) -> None:
+    """Issue 40 item 0: the ros2 extra's binding compiles, so a machine with only python3 gets
+    gcc and python3-dev from the dev and test setup, not only from `systemd --ros2`."""
+    headless = tmp_path / "python3"  # a Python whose headers are not installed
+    headless.write_text(f'#!/bin/sh\ncase "$*" in *sysconfig*) echo /nonexistent; exit 0;; esac\n'
+                        f'exec {sys.executable} "$@"\n')
+    headless.chmod(0o755)
+    result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": str(headless),
+                                                 "ARBITERD_CC": "no-such-compiler"})
+    assert result.returncode == 0, result.stderr
+    apt = next(line for line in result.stdout.splitlines() if "apt-get install" in line)
+    assert " gcc" in apt and " python3-dev" in apt, apt
+    result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": sys.executable})
+    assert "python3-dev" not in result.stdout and " gcc" not in result.stdout, result.stdout
+
+
+@pytest.mark.parametrize(("args", "port"), [((), "8085"), (("--http-port", "18085"), "18085"),
+                                            (("--http-port=18086",), "18086")])
+def test_sim_names_the_address_it_will_really_serve(args: tuple[str, ...], port: str) -> None:
+    """Issue 40 item 6: `install.sh sim --http-port P` said to open :8085."""
+    result = install_sh("sim", *args, env={"ARBITERD_DRY_RUN": "1"})
+    assert result.returncode == 0, result.stderr
+    assert f"open http://localhost:{port}/" in result.stdout + result.stderr

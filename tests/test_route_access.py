@@ -23,13 +23,13 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
 def locked_toml(tmp_path: Path) -> str:
     """LOCKED with every optional component on (its maps in the test's own folder)."""
     return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n' \
-        '[arm]\nenabled = true\n'
+        '[arm]\nenabled = true\n[battery]\nenabled = true\ndevice = "sim"\n'
 
 
 @pytest.fixture
 async def locked(tmp_path: Path) -> AsyncIterator[InProcessDaemon]:
     """Token configured, reads need it too, every optional route registered (sim, lidar,
-    fault injection, mapping, the arm)."""
+    fault injection, mapping, the arm, the battery)."""
     async with in_process_daemon(tmp_path, locked_toml(tmp_path)) as robot:
         yield robot
 
@@ -56,10 +56,10 @@ async def status_of(robot: InProcessDaemon, method: str, path: str,
 def test_access_levels_are_checked_at_registration() -> None:
     from base.options import defaults
     from daemon.components.http.component import HttpServer
-    from daemon.components.http.settings import HTTP_OPTIONS, HttpSettings
+    from daemon.components.http.settings import HttpSettings
     from daemon.security import Security
 
-    http = HttpServer(HttpSettings.from_values(defaults(HTTP_OPTIONS) | {
+    http = HttpServer(HttpSettings.from_values(defaults(HttpSettings.OPTIONS) | {
         "host": "127.0.0.1", "port": 0, "max_body_bytes": 1024, "body_timeout_s": 1.0,
         "idle_timeout_s": 1.0, "max_connections": 8}), Security(""))
 

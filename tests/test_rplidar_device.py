@@ -15,12 +15,12 @@ from base.options import defaults
 from daemon.bus import Bus
 from daemon.components.lidar.component import create
 from daemon.hooks import HookMap
-from daemon.settings import ROBOT_OPTIONS
+from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN
 from sensors.rplidar.assembler import Revolution
 from sensors.rplidar.client import RplidarClient, open_serial
 from sensors.rplidar.device import LidarManager, ManagerConfig
-from sensors.rplidar.settings import LIDAR_OPTIONS, LidarSettings
+from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan
 from sim.rplidar_emulator import A1, S2, EmulatedModel, RplidarEmulator
 from tests.support.wait import Collector, wait_for
@@ -194,10 +194,10 @@ class FakeCtx:
     """What the lidar component's create() reads from a DaemonContext."""
 
     def __init__(self, port: str, enabled: bool = True) -> None:
-        lidar = defaults(LIDAR_OPTIONS) | {"enabled": enabled, "port": port,
+        lidar = defaults(LidarSettings.OPTIONS) | {"enabled": enabled, "port": port,
                                           "baudrate": 115200, "scan_mode": "express",
                                           "angle_bins": 360, "frame_id": "lidar_link"}
-        self.config = Config({"lidar": lidar, "robot": defaults(ROBOT_OPTIONS)})
+        self.config = Config({"lidar": lidar, "robot": defaults(RobotSettings.OPTIONS)})
         self.bus = Bus()
         self.robot_info: HookMap[Any] = HookMap()
         self.mode = "sim"

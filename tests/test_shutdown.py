@@ -58,7 +58,7 @@ async def test_sigterm_with_a_stalled_download_exits_in_time_and_nothing_moves(
     recordings.mkdir()
     with (recordings / RECORDING).open("wb") as sparse:
         sparse.truncate(256 * 1024 * 1024)
-    proc = DaemonSubprocess(tmp_path, WITH_TOKEN + f'[record]\ndirectory = "{recordings}"\n')
+    proc = DaemonSubprocess(tmp_path, WITH_TOKEN + f'[recorder]\ndirectory = "{recordings}"\n')
     with proc:
         assert proc.proc is not None
         downloader = stalled_download(proc.http_port, RECORDING)

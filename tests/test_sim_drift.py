@@ -76,7 +76,8 @@ def test_separation_error_makes_turns_drift_in_heading_but_not_straights() -> No
 
 
 def test_zero_errors_keep_the_configured_geometry() -> None:
-    world = SimWorld(SimConfig(), wheel_radius=0.04, wheel_separation=0.25, world=OPEN)
+    world = SimWorld(SimConfig.from_section(), wheel_radius=0.04, wheel_separation=0.25,
+                     world=OPEN)
     assert world.geometry == world.configured
     tuned = SimWorld(SimConfig.from_section({"wheel_radius_error": 0.1,
                                              "wheel_separation_error": -0.1}),

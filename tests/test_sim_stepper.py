@@ -11,7 +11,7 @@ import pytest
 from base.options import defaults
 from sim.motor_model import MotorPair
 from sim.physics import make_motors
-from sim.settings import SIM_OPTIONS, SimConfig, SimConfigError
+from sim.settings import SimConfig, SimConfigError, SimSettings
 from sim.stepper import SimWorld, heading_error
 from sim.world import Circle, Pose, World, arena_walls
 
@@ -129,17 +129,17 @@ def test_motors_must_be_stepped_by_the_world() -> None:
 
 
 def test_sim_options_defaults_match_the_design() -> None:
-    values = defaults(SIM_OPTIONS)
+    values = defaults(SimSettings.OPTIONS)
     assert values["driver"] == "serial" and values["seed"] == 1
-    assert SIM_OPTIONS["driver"].choices is not None
-    assert set(SIM_OPTIONS["driver"].choices) == {"mock", "l298n", "pigpio", "serial",
-                                                  "odrive_can"}
+    assert SimSettings.OPTIONS["driver"].choices is not None
+    assert set(SimSettings.OPTIONS["driver"].choices) == {"mock", "l298n", "pigpio",
+                                                          "serial", "odrive_can"}
     config = SimConfig.from_section({})
     assert (config.arena_size, config.obstacles, config.lidar_rays) == (16.0, 8, 360)
     assert (config.range_min, config.range_max, config.lidar_rate) == (0.1, 10.0, 10.0)
     assert (config.physics_rate, config.noise.lidar_sigma, config.noise.odom_sigma) == (
         50.0, 0.02, 0.005)
-    for key, option in SIM_OPTIONS.items():
+    for key, option in SimSettings.OPTIONS.items():
         assert option.validate(option.default)[1] is None, key
     assert config.exact().noise.enabled is False
 

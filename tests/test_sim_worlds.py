@@ -19,7 +19,7 @@ from sim.stepper import SimWorld, build_world
 from sim.world import Segment, World, WorldError, builtin_worlds, load_world
 from tests.support.paths import REPO
 
-FOOTPRINT = SimConfig().footprint_radius
+FOOTPRINT = SimConfig.from_section().footprint_radius
 RES = 0.05
 
 #: (width, height) of each world's bounding box (m)

@@ -12,11 +12,11 @@ from typing import Any
 
 import pytest
 
-from daemon.components.collision_monitor.settings import COLLISION_MONITOR_OPTIONS
+from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from tests.support.paths import REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"
-STOP_MARGIN = COLLISION_MONITOR_OPTIONS["stop_margin_m"].default
+STOP_MARGIN = CollisionMonitorSettings.stop_margin_m
 
 
 def simulate(*args: str, expect: int = 0) -> subprocess.CompletedProcess[str]:

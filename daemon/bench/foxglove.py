@@ -174,7 +174,7 @@ async def _tick_results(quick: bool) -> list[BenchResult]:
     seconds, segment = (3.0, 1.0) if quick else (15.0, 5.0)
     with tempfile.TemporaryDirectory(prefix="arbiterd-bench-") as tmp:
         # the recorder present but off: _alternate switches it
-        record = f'[record]\nenabled = false\ndirectory = "{Path(tmp) / "rec"}"\n'
+        record = f'[recorder]\nenabled = false\ndirectory = "{Path(tmp) / "rec"}"\n'
         async with bench_daemon(Path(tmp), record, serve_scan=True) as (daemon, url):
             stop = asyncio.Event()
             scans = asyncio.create_task(_publish_scans(daemon, stop))

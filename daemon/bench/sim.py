@@ -23,7 +23,7 @@ def _wander(world: SimWorld, step: int) -> None:
 def _world_speed(sim_seconds: float) -> tuple[float, float, SimWorld]:
     """Step a default world (50 Hz physics, 10 Hz scans of 360 rays, noise on) for
     ``sim_seconds``; returns steps per wall second, the real-time factor and the world."""
-    world = SimWorld(SimConfig(), internal_scans=True)
+    world = SimWorld(SimConfig.from_section(), internal_scans=True)
     steps = round(sim_seconds * world.config.physics_rate)
     start = time.perf_counter()
     for index in range(steps):
@@ -36,7 +36,7 @@ def _world_speed(sim_seconds: float) -> tuple[float, float, SimWorld]:
 
 
 def _scan_rate(scans: int) -> float:
-    world = SimWorld(SimConfig())
+    world = SimWorld(SimConfig.from_section())
     caster = RayCaster(world.world, ray_angles(360))
     start = time.perf_counter()
     for index in range(scans):

@@ -35,7 +35,9 @@ def add_parser(subparsers: Any) -> None:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("action", choices=["info", "health", "scan"])
+    parser.add_argument("action", choices=["info", "health", "scan"],
+                        help="info: model and firmware; health: the device's health; "
+                        "scan: revolutions")
     parser.add_argument("--port", required=True, help="serial port, e.g. /dev/rplidar")
     parser.add_argument("--baud", type=int, default=115200,
                         help="115200 (A1, A2M8), 256000 (A2M7, A3, S1), 460800 (C1), "

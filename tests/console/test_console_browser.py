@@ -227,7 +227,7 @@ def test_console_controls_beyond_driving(tmp_path: Path) -> None:
     _require_browser()
     shots = tmp_path / "screenshots"
     shots.mkdir()
-    toml = SIM + f'[record]\ndirectory = "{tmp_path / "recordings"}"\nflush_interval_s = 0.2\n'
+    toml = SIM + f'[recorder]\ndirectory = "{tmp_path / "recordings"}"\nflush_interval_s = 0.2\n'
     with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
         steps = _run_console(daemon, "controls", "--shots", str(shots))
         recordings = daemon.get("/api/recordings")[1]["recordings"]

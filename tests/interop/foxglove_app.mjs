@@ -2,8 +2,9 @@
 // in Debian's Chromium (WebGL through SwiftShader) against arbiterd's rosbridge, with a layout
 // holding one 3D panel that shows /map and /scan in frame `map`.
 //   node foxglove_app.mjs WS_URL HTTP_PORT SCREENSHOT.png [GOAL_JSON]
-// Serves a host page (App + RosbridgeDataSourceFactory + an in-memory layout storage) on
-// 127.0.0.1:HTTP_PORT, opens it with ?ds=rosbridge-websocket&ds.url=WS_URL&layoutId=…, waits
+// Serves a host page (App + the Rosbridge and Foxglove WebSocket data sources + an in-memory
+// layout storage) on 127.0.0.1:HTTP_PORT, opens it with ?ds=SOURCE&ds.url=WS_URL&layoutId=…
+// (SOURCE: rosbridge-websocket, or foxglove-websocket when FOXGLOVE_APP_SOURCE=foxglove), waits
 // until the app's own topic table (its Data source sidebar) counts /map and /scan messages
 // received, then until the panel's pixels show the map, and writes the screenshot.
 // With GOAL_JSON ({"api", "frame", "target": [x, y], "distance": m, "clicks": [[x, y], [x, y]]})
@@ -24,6 +25,9 @@ const require = createRequire(import.meta.url);
 const [wsUrl, httpPort, shotPath, goalJson] = process.argv.slice(2);
 const GOAL = goalJson ? JSON.parse(goalJson) : null;
 const CHROMIUM = process.env.ARBITERD_CHROMIUM || "/usr/bin/chromium";
+// the app's connection: "Rosbridge" (default) or "Foxglove WebSocket"
+const SOURCE = process.env.FOXGLOVE_APP_SOURCE === "foxglove" ? "foxglove-websocket"
+  : "rosbridge-websocket";
 // WebGL without a GPU: SwiftShader through ANGLE
 const ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
   "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update",
@@ -93,7 +97,8 @@ const appConfiguration = {
   await window.initI18n();
   ReactDOM.render(React.createElement(window.App, {
     deepLinks: [location.href], appConfiguration, layoutStorage, extensionLoaders: [],
-    dataSources: [new window.RosbridgeDataSourceFactory()], enableGlobalCss: true,
+    dataSources: [new window.RosbridgeDataSourceFactory(),
+      new window.FoxgloveWebSocketDataSourceFactory()], enableGlobalCss: true,
   }), document.getElementById("root"));
 })().catch((e) => console.error("host: " + (e && e.stack || e)));
 `;
@@ -242,8 +247,7 @@ async function sendGoal(page) {
   const published = await until("the app's publish on /goal_pose", () =>
     frames.sent.find((f) => f.op === "publish" && f.topic === "/goal_pose"), 30000);
   report("published", { title: before, box, pixels: [at, toward], msg: published.msg,
-    advertised: frames.sent.filter((f) => f.op === "advertise")
-      .map((f) => ({ topic: f.topic, type: f.type })) });
+    cdr: published.cdr, advertised: advertised() });
   // the robot drives; the app stays connected, receiving everything, until navigation ends
   const goal = await until("the navigation's end", async () => {
     const body = await (await fetch(`${GOAL.api}/api/goal`)).json();
@@ -273,6 +277,18 @@ let page = null;
 const errors = [];
 // the app's rosbridge traffic as JSON text frames (the binary ones are cbor-raw messages)
 const frames = { sent: [], statuses: [], received: {} }; // received: text ops by name
+// what the app advertised: rosbridge's one topic per op, or the Foxglove protocol's channels
+const advertised = () => frames.sent.filter((f) => f.op === "advertise").flatMap((f) =>
+  f.channels ? f.channels.map((c) => ({ topic: c.topic, type: c.schemaName, id: c.id }))
+    : [{ topic: f.topic, type: f.type }]);
+// a Foxglove client's binary MESSAGE_DATA (opcode 1, channel id, the CDR message) as a publish
+const foxgloveMessage = (payload) => {
+  const bytes = Buffer.from(payload);
+  if (bytes.length < 5 || bytes[0] !== 1) return null;
+  const channelId = bytes.readUInt32LE(1);
+  const channel = advertised().find((c) => c.id === channelId);
+  return { op: "publish", topic: channel?.topic, cdr: bytes.subarray(5).toString("base64") };
+};
 const parse = (payload) => {
   if (typeof payload !== "string") return null;
   try { return JSON.parse(payload); } catch { return null; }
@@ -285,7 +301,7 @@ try {
   page.on("response", (r) => { if (r.status() >= 400) errors.push(`${r.status()} ${r.url()}`); });
   page.on("websocket", (ws) => {
     ws.on("framesent", ({ payload }) => {
-      const op = parse(payload);
+      const op = typeof payload === "string" ? parse(payload) : foxgloveMessage(payload);
       if (op && op.op !== "call_service") frames.sent.push(op);
     });
     ws.on("framereceived", ({ payload }) => {
@@ -294,7 +310,7 @@ try {
       if (op?.op === "status") frames.statuses.push(op);
     });
   });
-  const query = new URLSearchParams({ ds: "rosbridge-websocket", "ds.url": wsUrl,
+  const query = new URLSearchParams({ ds: SOURCE, "ds.url": wsUrl,
     layoutId: LAYOUT_ID });
   await page.goto(`http://127.0.0.1:${httpPort}/?${query}`);
   const webgl = await page.evaluate(() => {

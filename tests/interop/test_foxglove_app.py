@@ -4,6 +4,7 @@
 # tool, worked by the mouse, sends a goal on /goal_pose and the robot drives there.
 from __future__ import annotations
 
+import base64
 import json
 import math
 import os
@@ -14,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from daemon.messages.cdr_read import decode
 from slam.pose import compose
 from tests.support.daemon_subprocess import DaemonSubprocess
 from tests.support.net import free_port
@@ -23,8 +25,9 @@ HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
 CHROMIUM = os.environ.get("ARBITERD_CHROMIUM", "/usr/bin/chromium")
 PACKAGES = ("@foxglove/studio-base", "react", "react-dom", "playwright-core")
-# Set to a file (e.g. docs/img/foxglove-3d-map.png) to keep the screenshot.
-SHOT_TO = os.environ.get("ARBITERD_FOXGLOVE_SCREENSHOT")
+# Set to a file (e.g. docs/img/foxglove-3d-map.png) to keep the screenshot (not ARBITERD_*: the
+# daemon reads those as config overrides, and [foxglove] is a section).
+SHOT_TO = os.environ.get("FOXGLOVE_APP_SCREENSHOT")
 
 
 def _require_app() -> str:
@@ -40,12 +43,16 @@ def _require_app() -> str:
     return NODE
 
 
-def _run_app(node: str, daemon: DaemonSubprocess, shot: Path,
-             *extra: str) -> dict[str, dict[str, Any]]:
-    """Runs foxglove_app.mjs against the daemon: its steps by name, once every step passed."""
-    result = subprocess.run([node, str(HERE / "foxglove_app.mjs"),
-                             f"ws://127.0.0.1:{daemon.ws_port}/", str(free_port()), str(shot),
-                             *extra], cwd=HERE, capture_output=True, text=True, timeout=300)
+def _run_app(node: str, daemon: DaemonSubprocess, shot: Path, *extra: str,
+             foxglove_port: int | None = None) -> dict[str, dict[str, Any]]:
+    """Runs foxglove_app.mjs against the daemon: its steps by name, once every step passed.
+    With ``foxglove_port`` the app connects with "Foxglove WebSocket" to that port, else with
+    "Rosbridge" to the daemon's rosbridge port."""
+    url = f"ws://127.0.0.1:{foxglove_port or daemon.ws_port}/"
+    env = {**os.environ, "FOXGLOVE_APP_SOURCE": "foxglove" if foxglove_port else ""}
+    result = subprocess.run([node, str(HERE / "foxglove_app.mjs"), url, str(free_port()),
+                             str(shot), *extra], cwd=HERE, capture_output=True, text=True,
+                            timeout=300, env=env)
     steps: dict[str, dict[str, Any]] = {}
     for line in result.stdout.splitlines():
         if line.startswith("{"):
@@ -57,16 +64,26 @@ def _run_app(node: str, daemon: DaemonSubprocess, shot: Path,
 
 
 @pytest.mark.timeout(330)  # the app loads 56 MB of JavaScript, SwiftShader renders on the CPU
-def test_foxglove_3d_panel_shows_the_map_and_the_scan(tmp_path: Path) -> None:
+@pytest.mark.parametrize("connection", ["rosbridge", "foxglove"])
+def test_foxglove_3d_panel_shows_the_map_and_the_scan(tmp_path: Path, connection: str) -> None:
+    """With either of the app's connections: "Rosbridge" on :9090's port, "Foxglove
+    WebSocket" on [foxglove]'s."""
     node = _require_app()
     shot = tmp_path / "foxglove-3d-map.png"
+    fox_port = free_port() if connection == "foxglove" else None
     toml = '[sim]\ndriver = "mock"\n[mapping]\nenabled = true\n' \
         f'directory = "{tmp_path / "maps"}"\n'
+    if fox_port:
+        toml += f'[foxglove]\nenabled = true\nhost = "127.0.0.1"\nport = {fox_port}\n'
     with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
         wait_for(lambda: daemon.get("/api/health")[1]["components"]["mapping"]
                  .get("maps_published", 0) > 0, "the first /map", within_s=30, interval_s=0.1)
-        steps = _run_app(node, daemon, shot)
+        steps = _run_app(node, daemon, shot, foxglove_port=fox_port)
+        health = daemon.get("/api/health")[1]["components"]
         assert daemon.stop() == 0
+    if fox_port:  # the app's data came over the Foxglove WebSocket protocol
+        fox = health["foxglove"]
+        assert fox["connections"] >= 1 and fox["protocol_errors"] == 0, fox
     assert steps["webgl"]["renderer"], steps["webgl"]  # WebGL 2 works (SwiftShader)
     topics = steps["topics"]["topics"]  # the app's own table: datatype, messages received
     assert topics["/map"]["type"] == "nav_msgs/msg/OccupancyGrid", topics
@@ -94,15 +111,21 @@ TARGET, DISTANCE = (0.5, 1.0), 6.0
 
 
 @pytest.mark.timeout(330)
-def test_a_goal_published_from_the_3d_panel_drives_the_robot_there(tmp_path: Path) -> None:
+@pytest.mark.parametrize("connection", ["rosbridge", "foxglove"])
+def test_a_goal_published_from_the_3d_panel_drives_the_robot_there(tmp_path: Path,
+                                                                   connection: str) -> None:
     node = _require_app()
+    fox_port = free_port() if connection == "foxglove" else None
     toml = '[sim]\ndriver = "mock"\nworld_file = "apartment"\n'
+    if fox_port:
+        toml += f'[foxglove]\nenabled = true\nhost = "127.0.0.1"\nport = {fox_port}\n'
     with DaemonSubprocess(tmp_path, toml, args=("--sim",)) as daemon:
         wait_for(lambda: daemon.get("/api/status")[1]["safety"]["zone"] != "unknown",
                  "the first revolution", within_s=30, interval_s=0.1)
         spec = {"api": daemon.base_url, "frame": "odom", "target": TARGET,
                 "distance": DISTANCE, "clicks": CLICKS}
-        steps = _run_app(node, daemon, tmp_path / "foxglove-goal.png", json.dumps(spec))
+        steps = _run_app(node, daemon, tmp_path / "foxglove-goal.png", json.dumps(spec),
+                         foxglove_port=fox_port)
         wait_for(lambda: abs(daemon.get("/api/status")[1]["ground_truth"]["v"]) < 0.01,
                  "the robot at rest", within_s=10, interval_s=0.1)
         truth = daemon.get("/api/status")[1]["ground_truth"]
@@ -113,13 +136,14 @@ def test_a_goal_published_from_the_3d_panel_drives_the_robot_there(tmp_path: Pat
     print(json.dumps(steps, indent=1))  # shown when an assertion fails
 
     # (a) the app advertised its three publish topics (in the short spelling, without /msg/)
-    # and published a PoseStamped in odom
+    # and published a PoseStamped in odom (over the Foxglove protocol: CDR, as a channel)
     published = steps["published"]
     advertised = {a["topic"]: a["type"] for a in published["advertised"]}
     assert advertised == {"/goal_pose": "geometry_msgs/PoseStamped",
                           "/clicked_point": "geometry_msgs/PointStamped",
                           "/initialpose": "geometry_msgs/PoseWithCovarianceStamped"}, advertised
-    msg = published["msg"]
+    msg = published["msg"] if not fox_port else decode(
+        "geometry_msgs/msg/PoseStamped", base64.b64decode(published["cdr"]))
     assert msg["header"]["frame_id"] == "odom", msg
     position, q = msg["pose"]["position"], msg["pose"]["orientation"]
     yaw = 2 * math.atan2(q["z"], q["w"])
@@ -142,7 +166,9 @@ def test_a_goal_published_from_the_3d_panel_drives_the_robot_there(tmp_path: Pat
     assert collisions == 0
     # (c) no status error reached the app, nothing about an unknown type in its own lists
     app = steps["app"]
-    assert app["received"].get("service_response", 0) >= 1, app  # the watch sees its replies
+    # the watch sees the app's text traffic: rosapi replies, or parameter values
+    seen = "parameterValues" if fox_port else "service_response"
+    assert app["received"].get(seen, 0) >= 1, app
     assert app["statuses"] == [], app["statuses"]
     assert app["unknownType"] == [], app
     assert app["problems"]["lines"][:1] == ["No problems found"], app["problems"]

@@ -10,13 +10,15 @@ from typing import Any
 
 from daemon.bus import Bus, BusKey
 from daemon.registry import COMPONENTS
+from tests.support.net import free_port
 
 
 def everything(directory: Path) -> str:
     """A config that turns every optional part on: each component section's ``enabled`` key,
     the fault-injection route and the odometry transform. Every ``directory`` option (the
     recordings, the maps) points into ``directory``; the ROS 2 face, when there is one, stays
-    on this machine (``discovery = "localhost"``) in a domain of this process's own."""
+    on this machine (``discovery = "localhost"``) in a domain of this process's own; the
+    Foxglove server listens on a free port of 127.0.0.1."""
     lines = []
     for spec in COMPONENTS:
         settings = spec.settings
@@ -28,7 +30,9 @@ def everything(directory: Path) -> str:
             keys.append(f'directory = "{directory / settings.SECTION}"')
         keys += {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
                  "ros2": ['discovery = "localhost"',
-                          f"domain_id = {100 + os.getpid() % 100}"]}.get(settings.SECTION, [])
+                          f"domain_id = {100 + os.getpid() % 100}"],
+                 "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 }.get(settings.SECTION, [])
         if keys:
             lines += [f"[{settings.SECTION}]", *keys]
     return "\n".join(lines) + "\n"

@@ -6,13 +6,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from base.config import SectionSettings
-from base.options import Option, Options
+from base.options import option
 from drivers.i2c_link import check_bus
-from drivers.mock_servo import MOCK_SERVO_OPTIONS
 from drivers.pca9685_protocol import DEFAULT_ADDRESS
-from drivers.pca9685_servo import PCA9685_OPTIONS
-from drivers.pigpio_servo import SERVO_OPTIONS
-from drivers.servo_array import CalibrationSettings
+from drivers.servo_array import (
+    JOINT_MAX_PULSE_US,
+    JOINT_MIN_PULSE_US,
+    MAX_PULSE_US,
+    MIN_PULSE_US,
+    OFFSETS_US,
+    REVERSED,
+)
 from drivers.servo_pulses import SERVO_HZ
 
 JOINT_COUNT = 4  # three pitching joints, then the gripper
@@ -45,75 +49,59 @@ def pose_entry_problem(value: Any) -> str | None:
     return None
 
 
-def _per_joint(default: list[Any], doc: str, item: type, **bounds: Any) -> Option:
-    return Option(list, default, doc, item=item, length=JOINT_COUNT, **bounds)
-
-
-ARM_OPTIONS: Options = {
-    "enabled": Option(bool, False, "drive the arm and gripper servos"),
-    "backend": Option(str, "mock", "servo output: pigpio (pigpiod's servo pulses on GPIO "
-                      "pins), pca9685 (a PCA9685 board over I2C) or mock (records)",
-                      choices=tuple(BACKENDS)),
-    **SERVO_OPTIONS,
-    **PCA9685_OPTIONS,
-    **{k: v for k, v in MOCK_SERVO_OPTIONS.items() if k not in ("history",)},
-    "host": Option(str, "localhost", "pigpio: the host running pigpiod"),
-    "port": Option(int, 8888, "pigpio: pigpiod's port", minval=1, maxval=65535),
-    "timeout_s": Option(float, 1.0, "pigpio: connecting to and each reply from pigpiod; "
-                        "pca9685: each transfer on the simulator's emulated bus, s", above=0.0,
-                        maxval=30.0),
-    "bus": Option(str, "/dev/i2c-1", "pca9685: the I2C bus, /dev/i2c-N (or N); the simulator "
-                  "writes emulated:HOST:PORT", check=check_bus),
-    "address": Option(int, DEFAULT_ADDRESS, "pca9685: the board's I2C address (64 = 0x40, "
-                      "A0..A5 open)", minval=0x03, maxval=0x77),
-    "frequency_hz": Option(float, SERVO_HZ, "pca9685: PWM frequency, Hz (hobby servos: 50)",
-                           minval=24.0, maxval=1526.0),
-    "joints": _per_joint(["arm_joint1", "arm_joint2", "arm_joint3", "gripper"],
-                         "names of joint1, joint2, joint3 (pitch about y) and the gripper",
-                         str),
-    "pins": _per_joint([16, 20, 21, 26], "pigpio: each joint's servo GPIO (BCM), in joint "
-                       "order; not a pin of the wheel driver", int, minval=0, maxval=53),
-    "channels": _per_joint([0, 1, 2, 3], "pca9685: each joint's channel (0..15), in joint "
-                           "order", int, minval=0, maxval=15),
-    "lower": _per_joint([-HALF_PI, -HALF_PI, -HALF_PI, 0.0], "each joint's lowest position "
-                        "(rad; the gripper's opening in m), at its min pulse", float),
-    "upper": _per_joint([HALF_PI, HALF_PI, HALF_PI, 0.035], "each joint's highest position "
-                        "(rad; the gripper's opening in m), at its max pulse", float),
-    "max_speed": _per_joint([1.0, 1.0, 1.0, 0.05], "each joint's speed limit (rad/s; the "
-                            "gripper's in m/s)", float, above=0.0, maxval=20.0),
-    "update_rate": Option(float, 50.0, "servo updates per second while moving", minval=5.0,
-                          maxval=200.0),
-    "publish_rate": Option(float, 20.0, "/joint_states messages per second", above=0.0,
-                           maxval=100.0),
-    "on_stop": Option(str, "relax", "at shutdown and safe-stop: relax (pulses off, the servos "
-                      "go limp) or home (park at the home pose and hold it)",
-                      choices=("relax", "home")),
-    "poses": Option(list, [], "named poses beside (or replacing) the built-in ones: "
-                    "[name, joint1, joint2, joint3, gripper_m] each", item=list,
-                    check=pose_entry_problem),
-}
-
-
 @dataclass(frozen=True)
-class ArmSettings(CalibrationSettings, SectionSettings, section="arm", options=ARM_OPTIONS):
-    """The [arm] section, read once (the servo calibration fields come from the drivers'
-    CalibrationSettings). Device keys are read by the device itself."""
+class ArmSettings(SectionSettings, section="arm"):
+    """The [arm] section, read once. The servo calibration keys the devices share are declared
+    in drivers/servo_array.py; the device reads its own keys from this section."""
 
-    enabled: bool
-    backend: str
-    host: str
-    port: int
-    pins: list[int]
-    timeout_s: float
-    bus: str
-    address: int
-    channels: list[int]
-    frequency_hz: float
-    max_speed: list[float]
-    update_rate: float
-    publish_rate: float
-    on_stop: str
-    poses: list[list[Any]]
+    enabled: bool = option(False, "drive the arm and gripper servos")
+    backend: str = option("mock", "servo output: pigpio (pigpiod's servo pulses on GPIO pins), "
+                          "pca9685 (a PCA9685 board over I2C) or mock (records)",
+                          choices=tuple(BACKENDS))
+    host: str = option("localhost", "pigpio: the host running pigpiod")
+    port: int = option(8888, "pigpio: pigpiod's port", minval=1, maxval=65535)
+    pins: list[int] = option([16, 20, 21, 26], "pigpio: each joint's servo GPIO (BCM), in joint "
+                             "order; not a pin of the wheel driver", length=JOINT_COUNT,
+                             minval=0, maxval=53)
+    joints: list[str] = option(["arm_joint1", "arm_joint2", "arm_joint3", "gripper"],
+                               "names of joint1, joint2, joint3 (pitch about y) and the gripper",
+                               length=JOINT_COUNT)
+    lower: list[float] = option([-HALF_PI, -HALF_PI, -HALF_PI, 0.0], "each joint's lowest "
+                                "position (rad; the gripper's opening in m), at its min pulse",
+                                length=JOINT_COUNT)
+    upper: list[float] = option([HALF_PI, HALF_PI, HALF_PI, 0.035], "each joint's highest "
+                                "position (rad; the gripper's opening in m), at its max pulse",
+                                length=JOINT_COUNT)
+    min_pulse_us: int = option(**MIN_PULSE_US)
+    max_pulse_us: int = option(**MAX_PULSE_US)
+    joint_min_pulse_us: list[int] = option(**JOINT_MIN_PULSE_US)
+    joint_max_pulse_us: list[int] = option(**JOINT_MAX_PULSE_US)
+    offsets_us: list[int] = option(**OFFSETS_US)
+    reversed: list[bool] = option(**REVERSED)
+    timeout_s: float = option(1.0, "pigpio: connecting to and each reply from pigpiod; pca9685: "
+                              "each transfer on the simulator's emulated bus, s", above=0.0,
+                              maxval=30.0)
+    bus: str = option("/dev/i2c-1", "pca9685: the I2C bus, /dev/i2c-N (or N); the simulator "
+                      "writes emulated:HOST:PORT", check=check_bus)
+    address: int = option(DEFAULT_ADDRESS, "pca9685: the board's I2C address (64 = 0x40, "
+                          "A0..A5 open)", minval=0x03, maxval=0x77)
+    channels: list[int] = option([0, 1, 2, 3], "pca9685: each joint's channel (0..15), in joint "
+                                 "order", length=JOINT_COUNT, minval=0, maxval=15)
+    frequency_hz: float = option(SERVO_HZ, "pca9685: PWM frequency, Hz (hobby servos: 50)",
+                                 minval=24.0, maxval=1526.0)
+    max_speed: list[float] = option([1.0, 1.0, 1.0, 0.05], "each joint's speed limit (rad/s; "
+                                    "the gripper's in m/s)", length=JOINT_COUNT, above=0.0,
+                                    maxval=20.0)
+    update_rate: float = option(50.0, "servo updates per second while moving", minval=5.0,
+                                maxval=200.0)
+    publish_rate: float = option(20.0, "/joint_states messages per second", above=0.0,
+                                 maxval=100.0)
+    on_stop: str = option("relax", "at shutdown and safe-stop: relax (pulses off, the servos go "
+                          "limp) or home (park at the home pose and hold it)",
+                          choices=("relax", "home"))
+    poses: list[list[Any]] = option([], "named poses beside (or replacing) the built-in ones: "
+                                    "[name, joint1, joint2, joint3, gripper_m] each",
+                                    check=pose_entry_problem)
 
     @property
     def device(self) -> str:

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 PAGE = "index.html"
 ASSETS = ("console.css", "icon.svg", "app.js", "api.js", "bridge.js", "drive.js",
           "joystick.js", "view.js", "hud.js", "health.js", "token.js", "robot.js", "log.js",
-          "map.js", "navigate.js", "arm.js", "fetch.js")
+          "map.js", "navigate.js", "arm.js", "fetch.js", "battery.js")
 FILES = (PAGE, *ASSETS)
 
 

@@ -601,6 +601,9 @@ class ControlLoop:
     def pose_xyt(self) -> tuple[float, float, float]:
         return self.odometry.reported_xyt()
 
+    def integrated_pose(self) -> Pose2D:
+        return self.odometry.pose
+
     def heading(self) -> float:
         return self.odometry.theta
 

@@ -104,7 +104,7 @@ def read_recording(path: Path) -> tuple[Timeline, list[Revolution], ScanPoints]:
         raise RecordingError(f"{path}: not a readable MCAP recording: {exc}") from None
     if not scans:
         raise RecordingError(f"{path}: no /scan messages: record with the lidar enabled "
-                             "([lidar] enabled, [record] on)")
+                             "([lidar] enabled, [recorder] on)")
     if not odometry.stamps:
         raise RecordingError(f"{path}: no /odom messages: the mapper needs odometry")
     x, y, yaw = mount

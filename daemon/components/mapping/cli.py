@@ -21,7 +21,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     actions = parser.add_subparsers(dest="map_command", required=True)
     save = actions.add_parser("save", help="save the running daemon's map as NAME "
                               "(POST /api/map/save)")
-    save.add_argument("name")
+    save.add_argument("name", help="the map's name: letters, digits, _ - . (its files are "
+                      "NAME.pgm and NAME.yaml)")
     save.add_argument("--url", help="the daemon's address (default: from the config)")
     save.add_argument("--config", help="config file (its [http] address and token)")
     listing = actions.add_parser("list", help="the saved maps")
@@ -30,7 +31,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     listing.add_argument("--json", action="store_true")
     build = actions.add_parser("build", help="build a map offline from a recording (.mcap "
                                "from arbiterd, or a ROS 1 .bag / CARMEN .clf log)")
-    build.add_argument("recording")
+    build.add_argument("recording", help="the log to build from: the path of an arbiterd "
+                       "recording (.mcap), a ROS 1 .bag or a CARMEN .clf file")
     build.add_argument("--name", help="map name (default: the recording's name)")
     build.add_argument("--dir", help="write the map here (default: the [mapping] directory)")
     build.add_argument("--config", help="config whose [mapping] settings to use")

@@ -41,7 +41,7 @@ from daemon.messages.definitions import OCCUPANCY_GRID, POSE_WITH_COVARIANCE_STA
 from daemon.paths import state_directory
 from daemon.security import Security
 from daemon.settings import RobotSettings
-from daemon.telemetry import SCAN, TRANSFORMS, Transform
+from daemon.telemetry import POWER, SCAN, TRANSFORMS, PowerEvent, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from daemon.web import ApiError, HttpPort, json_response, read_json_object
 from daemon.workers import WorkerDown
@@ -117,6 +117,7 @@ class MappingComponent(BaseComponent):
         self._tasks: set[asyncio.Task[Any]] = set()
         plugs.on_tick(self._on_tick)
         plugs.subscribe(SCAN, self.on_scan)
+        plugs.subscribe(POWER, self._on_power)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -377,6 +378,20 @@ class MappingComponent(BaseComponent):
         if not isinstance(name, str) or map_name_error(name):
             raise ApiError(422, f"invalid map name: {map_name_error(str(name))}")
         return json_response(await self.save(name))
+
+    def _on_power(self, event: PowerEvent) -> None:
+        """Critical charge: save the map being built (the write is atomic) while there is
+        power to do it."""
+        if event.level == "critical" and self.settings.mode != "localize":
+            self._spawn(self._save_before_power_off(event))
+
+    async def _save_before_power_off(self, event: PowerEvent) -> None:
+        name = time.strftime("power-off-%Y%m%d-%H%M%S", time.localtime(event.stamp))
+        try:
+            saved = await self.save(name)
+            log.warning("mapping: %s: map saved as %s", event.reason, saved["yaml"])
+        except ApiError as exc:
+            log.warning("mapping: %s: map not saved: %s", event.reason, exc.message)
 
     async def save(self, name: str) -> dict[str, Any]:
         """Write the current map as NAME.yaml + NAME.pgm in the maps directory."""

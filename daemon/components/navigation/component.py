@@ -128,6 +128,8 @@ class NavigationComponent(BaseComponent):
         self.clock = control.clock
         self.wall_clock = wall_clock
         self.lidar, self.inline = lidar, inline
+        #: other components' reasons to refuse a goal now (the battery's charge), or None
+        self.gates: list[Callable[[], str | None]] = []
         self.points = points or scan_points(config)
         self.area: GridArea = centred_area(settings.resolution, settings.size_m)
         self.costmap = Costmap(self.area, cost_params(config))
@@ -222,6 +224,10 @@ class NavigationComponent(BaseComponent):
 
     def refusal(self) -> str | None:
         """Why no goal can start now, or None."""
+        for gate in self.gates:
+            problem = gate()
+            if problem:
+                return problem
         if not self.lidar:
             return "navigation needs the lidar: enable [lidar]"
         if self.robot.estop_engaged:

@@ -17,14 +17,14 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     record = sub.add_parser("record", help="the flight recorder's MCAP files")
     actions = record.add_subparsers(dest="record_command", required=True)
     listing = actions.add_parser("list", help="the recordings with size, start and duration")
-    listing.add_argument("--config", help="config whose [record] directory to list "
+    listing.add_argument("--config", help="config whose [recorder] directory to list "
                          "(default /etc/arbiterd/arbiterd.toml if present)")
     listing.add_argument("--dir", help="list this directory instead")
     listing.add_argument("--json", action="store_true", help="one JSON object per file")
     info = actions.add_parser("info", help="duration, topics and message counts of a file")
     info.add_argument("file", metavar="NAME|FILE",
                       help="a name `record list` prints (looked up in its directory) or a path")
-    info.add_argument("--config", help="config whose [record] directory holds NAME "
+    info.add_argument("--config", help="config whose [recorder] directory holds NAME "
                       "(default /etc/arbiterd/arbiterd.toml if present)")
     info.add_argument("--dir", help="look for NAME in this directory instead")
     info.add_argument("--json", action="store_true")

@@ -16,11 +16,11 @@ from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Route
 from daemon.components.recorder.channels import Channel, channels_by_bus
 from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
-from daemon.components.recorder.settings import RecordSettings
+from daemon.components.recorder.settings import RecorderSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
 from daemon.files import sees_paths, serve_file, shown
 from daemon.health import Health
-from daemon.telemetry import ROBOT_INFO
+from daemon.telemetry import POWER, ROBOT_INFO, PowerEvent
 from daemon.topics import TopicOut
 from daemon.web import ApiError, json_response, read_json_object
 
@@ -39,7 +39,7 @@ class RecorderComponent(BaseComponent):
     name = "recorder"
     core = False
 
-    def __init__(self, ctx: DaemonContext, options: RecordSettings) -> None:
+    def __init__(self, ctx: DaemonContext, options: RecorderSettings) -> None:
         self.ctx = ctx
         self.bus = ctx.bus
         self.options = options
@@ -74,6 +74,13 @@ class RecorderComponent(BaseComponent):
                 self._latched.append((topic, group))
         self.set_recording(bool(self.options.enabled))
         self.recorder.start()
+        self.ctx.plugs.subscribe(POWER, self._on_power)
+
+    def _on_power(self, event: PowerEvent) -> None:
+        """Critical charge: close the file with its summary before the power goes."""
+        if event.level == "critical" and self.recorder.wanted:
+            log.warning("recorder: closing the recording: %s", event.reason)
+            self.set_recording(False)
 
     def set_recording(self, enabled: bool) -> None:
         """Switch recording on or off; the bus is listened to only while it is on, so a
@@ -161,8 +168,8 @@ class RecorderComponent(BaseComponent):
 
 
 def create(ctx: DaemonContext) -> RecorderComponent:
-    """Build the recorder from ``[record]`` (always present: POST /api/record can start it)."""
-    return RecorderComponent(ctx, ctx.settings(RecordSettings))
+    """Build the recorder from ``[recorder]`` (always present: POST /api/record can start it)."""
+    return RecorderComponent(ctx, ctx.settings(RecorderSettings))
 
 
-COMPONENT = ComponentSpec("recorder", create, RecordSettings)
+COMPONENT = ComponentSpec("recorder", create, RecorderSettings)

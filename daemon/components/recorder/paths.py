@@ -1,4 +1,4 @@
-# Where the flight recorder's files go: [record] directory, or the service's state directory.
+# Where the flight recorder's files go: [recorder] directory, or the service's state directory.
 from __future__ import annotations
 
 import os

@@ -284,7 +284,7 @@ class FlightRecorder:
     def _write_failed(self, file: OpenFile, exc: OSError) -> None:
         """Abandon the file (what reached the disk stays readable) and pause recording."""
         self._fail(f"cannot write {file.path}: {exc.strerror or exc}; recording paused (free "
-                   f"some space or fix the permissions of {self.options.directory}, [record] "
+                   f"some space or fix the permissions of {self.options.directory}, [recorder] "
                    f"directory); retrying every {RETRY_S:g} s")
         file.abandon()
         self._file = None
@@ -305,7 +305,7 @@ class FlightRecorder:
         except OSError as exc:
             self._fail(f"cannot write recordings to {directory}: {exc.strerror or exc}; "
                        "recording paused (check that the directory exists, is writable by "
-                       "the daemon and has free space; [record] directory); retrying every "
+                       "the daemon and has free space; [recorder] directory); retrying every "
                        f"{RETRY_S:g} s")
             return
         if self.error is not None:

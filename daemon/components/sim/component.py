@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import shutil
 import tempfile
 import time
@@ -14,8 +13,10 @@ from typing import Any
 from aiohttp import web
 
 from base.config import Config
+from daemon import coords
 from daemon.commands import CommandError, parse_pose
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
+from daemon.coords import CoordinateError, Extent
 from daemon.health import Health
 from daemon.messages.convert import odometry_msg
 from daemon.messages.definitions import ODOMETRY
@@ -29,6 +30,7 @@ from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
 from sim.wiring import DEVICE_EMULATORS, EMULATORS
 from sim.world import Pose
+from slam.pose import Pose2, between, compose, inverse
 
 log = logging.getLogger("arbiterd.sim")
 
@@ -61,6 +63,8 @@ class SimRuntime(BaseComponent):
         self.robot: RobotBase | None = None
         self._stops: list[Callable[[], None]] = []
         self._publisher: asyncio.Task[None] | None = None
+        #: the world pose odometry started from (its integrated frame's origin)
+        self._anchor: Pose2 = (0.0, 0.0, 0.0)
         self.driver_options: dict[str, Any] = {}
         self.lidar_options: dict[str, Any] = {}
 
@@ -108,6 +112,9 @@ class SimRuntime(BaseComponent):
         workdir.mkdir(exist_ok=True)
         emulated = starter(workdir, self.config[use.section])
         self._stops.append(emulated.stop)
+        use_battery = getattr(emulated.emulator, "use_battery", None)
+        if use_battery is not None:  # a battery monitor measures the world's pack
+            use_battery(self.world.battery)
         self.device_options[use.section] = emulated.options
         self.device_emulators[use.section] = emulated.emulator
         log.info("simulated device: %s for [%s] on %s", use.device, use.section,
@@ -144,6 +151,8 @@ class SimRuntime(BaseComponent):
                          "20 Hz"),)
 
     async def start(self) -> None:
+        truth = self.world.ground_truth()
+        self._anchor = (truth.x, truth.y, truth.theta)  # odometry starts here, at zero
         self._publisher = asyncio.create_task(self._publish_ground_truth(), name="sim-truth")
 
     async def stop(self) -> None:
@@ -165,23 +174,48 @@ class SimRuntime(BaseComponent):
         robot = self.config.get(RobotSettings)
         while True:
             truth = self.world.ground_truth()
+            x, y, theta = self.truth_in_odom((truth.x, truth.y, truth.theta))
             self.bus.publish(ODOM_GROUND_TRUTH, OdomSample(
-                time.time(), robot.odom_frame_id, robot.base_frame_id, truth.x, truth.y,
-                truth.theta, truth.v, truth.w))
+                time.time(), robot.odom_frame_id, robot.base_frame_id, x, y, theta, truth.v,
+                truth.w))
             await asyncio.sleep(period)
+
+    def truth_in_odom(self, truth: Pose2) -> Pose2:
+        """The world pose ``truth`` in the odometry frame ``/odom`` reports in: the world seen
+        from where odometry started (``_anchor``), moved as odometry resets moved the reported
+        frame (reported ∘ integrated⁻¹). Drawn beside ``/odom``, the gap is the drift."""
+        start_frame = between(self._anchor, truth)
+        if self.robot is None:
+            return start_frame
+        reported, integrated = self.robot.pose(), self.robot.integrated_pose()
+        moved = compose((reported.x, reported.y, reported.theta),
+                        inverse((integrated.x, integrated.y, integrated.theta)))
+        return compose(moved, start_frame)
+
+    def _extent(self) -> Extent:
+        """The simulated world's walls (what a teleport or an object must be within)."""
+        walls = self.world.world.segment_array
+        xs, ys = walls[:, [0, 2]], walls[:, [1, 3]]
+        return Extent(float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()),
+                      "the simulated world") if walls.size else Extent(0.0, 0.0, 0.0, 0.0)
 
     async def _post_reset(self, request: web.Request) -> web.Response:
         """Teleport, and let odometry report the new pose, so the two start together again."""
         body = await read_json_object(request, 4096) if request.can_read_body else {}
         try:
             values = parse_pose(body)
-        except CommandError as exc:
+            if values is not None:
+                self._extent().check(values[0], values[1], "x, y")
+        except (CommandError, CoordinateError) as exc:
             raise ApiError(422, f"invalid pose: {exc}") from None
         try:
             truth = self.world.reset(Pose(*values) if values else None)
         except ValueError as exc:  # not finite, or the footprint on an obstacle
             raise ApiError(400, f"cannot place the robot there: {exc}") from None
-        if self.robot is not None:
+        if self.robot is not None:  # a teleport: odometry's start moves with the robot
+            integrated = self.robot.integrated_pose()
+            self._anchor = compose((truth.x, truth.y, truth.theta),
+                                   inverse((integrated.x, integrated.y, integrated.theta)))
             self.robot.reset_odometry(truth.x, truth.y, truth.theta,
                                         by=f"HTTP {request.remote or '?'} (sim reset)")
         return json_response({"ground_truth": truth.to_json()})
@@ -195,13 +229,10 @@ class SimRuntime(BaseComponent):
         unknown = sorted(set(body) - {"x", "y"})
         if unknown:
             raise ApiError(422, f"{unknown[0]}: unknown field (x, y)")
-        point = []
-        for key in ("x", "y"):
-            value = body.get(key)
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not math.isfinite(value):
-                raise ApiError(422, f"{key}: expected a finite number, got {value!r}")
-            point.append(float(value))
+        try:
+            point = coords.point([body.get("x"), body.get("y")], ("x", "y"), self._extent())
+        except CoordinateError as exc:
+            raise ApiError(422, str(exc)) from None
         try:
             self.world.place_object(point[0], point[1])
         except ValueError as exc:

@@ -12,7 +12,7 @@ import pytest
 from base.options import defaults
 from daemon.components.arm.controller import ArmController, ArmRefused
 from daemon.components.arm.kinematics import forward
-from daemon.components.arm.settings import ARM_OPTIONS, SEED_POSES, ArmSettings
+from daemon.components.arm.settings import SEED_POSES, ArmSettings
 from drivers import pca9685_protocol as chip
 from drivers.devices import create_device
 from drivers.servo_array import ServoArray
@@ -77,7 +77,7 @@ class Rig:
 
 
 def arm_settings(**over: Any) -> ArmSettings:
-    return ArmSettings.from_values({**defaults(ARM_OPTIONS), "enabled": True, **over})
+    return ArmSettings.from_values({**defaults(ArmSettings.OPTIONS), "enabled": True, **over})
 
 
 BACKENDS = {"pigpio": "pigpio_servo", "pca9685": "pca9685_servo", "mock": "mock_servo"}
@@ -89,7 +89,7 @@ async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[R
     device = BACKENDS[backend]
     emulated = DEVICE_EMULATORS[device](tmp_path, {})
     settings = arm_settings(backend=backend, **emulated.options)
-    servo = create_device(device, {k: getattr(settings, k) for k in ARM_OPTIONS
+    servo = create_device(device, {k: getattr(settings, k) for k in ArmSettings.OPTIONS
                                    if hasattr(settings, k)}, section="arm")
     assert isinstance(servo, ServoArray)
     estop: list[str] = []

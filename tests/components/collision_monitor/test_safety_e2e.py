@@ -4,14 +4,14 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from daemon.components.collision_monitor.settings import COLLISION_MONITOR_OPTIONS
+from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from tests.support.daemon_subprocess import DaemonSubprocess, StartDaemonSubprocess
 from tests.support.paths import REPO
 from tests.support.wait import wait_for
 
 WALL_X = 3.0  # tests/scenarios/wall.toml: the robot starts at x = 0 facing this wall
 FOOTPRINT = 0.2  # [sim] footprint_radius default
-STOP_MARGIN = COLLISION_MONITOR_OPTIONS["stop_margin_m"].default
+STOP_MARGIN = CollisionMonitorSettings.stop_margin_m
 
 
 def status(daemon: DaemonSubprocess) -> dict[str, Any]:

@@ -61,7 +61,7 @@ async def test_odometry_reset_over_http(tmp_path: Path) -> None:
         status, body = await call(robot, "POST", "/api/odom/reset", {"x": 1, "theta": 1.5})
         assert status == 200 and body["pose"]["x"] == pytest.approx(1.0, abs=0.05)
         for bad, message in (({"z": 1}, "invalid pose: z: unknown field"),
-                             ({"x": "far"}, "invalid pose: x: expected a number")):
+                             ({"x": "far"}, "invalid pose: x: expected a finite number")):
             status, body = await call(robot, "POST", "/api/odom/reset", bad)
             assert status == 422 and message in body["error"], body
 
@@ -85,7 +85,7 @@ async def test_a_simulator_reset_puts_odometry_on_the_ground_truth(tmp_path: Pat
 
 
 async def test_the_recorder_reports_its_file_and_size(tmp_path: Path) -> None:
-    config = f'[record]\ndirectory = "{tmp_path / "rec"}"\nflush_interval_s = 0.1\n'
+    config = f'[recorder]\ndirectory = "{tmp_path / "rec"}"\nflush_interval_s = 0.1\n'
     async with in_process_daemon(tmp_path, config) as robot:
         status, body = await call(robot, "POST", "/api/record", {"enabled": True})
         assert status == 200 and body["recording"] is True, body

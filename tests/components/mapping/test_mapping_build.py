@@ -37,7 +37,7 @@ def occupied_in(grid: MapData, frame: MapData) -> np.ndarray:
 async def test_a_map_built_from_the_recording_matches_the_live_one(tmp_path: Path) -> None:
     maps, rec = tmp_path / "maps", tmp_path / "rec"
     toml = (f'[mapping]\nenabled = true\npublish_period_s = 0.5\ndirectory = "{maps}"\n'
-            f'[record]\nenabled = true\ndirectory = "{rec}"\n'
+            f'[recorder]\nenabled = true\ndirectory = "{rec}"\n'
             '[autonomy]\nmode = "wander"\nseed = 3\n')
     async with in_process_daemon(tmp_path, toml) as robot:
         mapping = robot.component("mapping")

@@ -170,7 +170,7 @@ def test_an_unwritable_directory_is_an_error_naming_it(tmp_path: Path) -> None:
     try:
         rec.enqueue(ODOM, odom(0))
         error = wait_for(lambda: rec.error, "the recorder's error")
-        assert str(blocker / "recordings") in error and "[record] directory" in error
+        assert str(blocker / "recordings") in error and "[recorder] directory" in error
         wait_for(lambda: rec.lost >= 1, "the queued message to be counted as lost")
     finally:
         rec.stop()
@@ -218,9 +218,9 @@ def test_files_go_to_the_service_state_directory_by_default(tmp_path: Path) -> N
 
 
 def test_the_service_records_and_a_plain_config_does_not(tmp_path: Path) -> None:
-    assert load_config(REPO / "systemd" / "arbiterd.toml.example", env={})["record"]["enabled"]
+    assert load_config(REPO / "systemd" / "arbiterd.toml.example", env={})["recorder"]["enabled"]
     (tmp_path / "plain.toml").write_text("")
-    assert not load_config(tmp_path / "plain.toml", env={})["record"]["enabled"]
+    assert not load_config(tmp_path / "plain.toml", env={})["recorder"]["enabled"]
 
 
 def documented_recipe() -> Any:

@@ -33,7 +33,7 @@ RECORDED = {"/odom", "/tf", "/tf_static", "/scan", "/commands", "/latency_report
 
 
 def record_toml(directory: Path, extra: str = "") -> str:
-    return f'[record]\nenabled = true\ndirectory = "{directory}"\n{extra}'
+    return f'[recorder]\nenabled = true\ndirectory = "{directory}"\n{extra}'
 
 
 def drive(daemon: DaemonSubprocess, linear: float, angular: float, cmd_id: str) -> None:
@@ -180,7 +180,7 @@ def test_an_unwritable_directory_degrades_health_and_the_robot_still_drives(
 def test_http_control_listing_and_download(daemon_subprocess: StartDaemonSubprocess,
                                            tmp_path: Path) -> None:
     rec = tmp_path / "rec"
-    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n'
+    daemon = daemon_subprocess(f'[recorder]\ndirectory = "{rec}"\n'
                                '[security]\ntoken = "s3cret-t0ken"\n', args=("--sim",))
     assert daemon.get("/api/recordings")[1]["recordings"] == []
     status, _ = daemon.post("/api/record", {"enabled": True})
@@ -220,7 +220,7 @@ def test_links_and_odd_names_in_the_recordings_directory_are_not_served(
     (rec / "arbiterd-dir.mcap").mkdir()
     os.mkfifo(rec / "arbiterd-fifo.mcap")
     (rec / "arbiterd-real.mcap").write_bytes(b"\x89MCAP0\r\n")
-    daemon = daemon_subprocess(f'[record]\ndirectory = "{rec}"\n'
+    daemon = daemon_subprocess(f'[recorder]\ndirectory = "{rec}"\n'
                                '[security]\ntoken = "s3cret-t0ken"\n')
     names = [r["name"] for r in daemon.get("/api/recordings")[1]["recordings"]]
     assert names == ["arbiterd-real.mcap"]

@@ -2,6 +2,7 @@
 // view, the latency HUD and the health panel together. docs/console.md describes it.
 import { Api } from "./api.js";
 import { ArmPanel } from "./arm.js";
+import { BatteryGauge } from "./battery.js";
 import { Bridge } from "./bridge.js";
 import { Drive, isDriveKey } from "./drive.js";
 import { renderHealth, renderMotion } from "./health.js";
@@ -47,6 +48,10 @@ const hud = new Hud({ p50: $("lat-p50"), p99: $("lat-p99"), rtt: $("lat-rtt"),
 const clientTag = Math.random().toString(36).slice(2, 6);
 let commandSeq = 0;
 const drive = new Drive(sendCommand);
+const battery = new BatteryGauge($("battery-pill"), (warning) => {
+  state.batteryWarning = warning;
+  renderBanner();
+});
 const logTail = new LogTail($("log"));
 const robot = new RobotPanel({
   wander: $("wander"), explore: $("explore"), wanderState: $("wander-state"), record: $("record"),
@@ -151,6 +156,9 @@ function renderBanner() {
   } else if (state.access === "read-only") {
     message = "Read-only: this robot needs a token to drive. Enter it with Token….";
     kind = "info";
+  } else if (state.batteryWarning) {
+    message = state.batteryWarning;
+    kind = "fault";
   }
   banner.textContent = message;
   banner.dataset.kind = kind;
@@ -201,6 +209,14 @@ bridge.subscribe("/latency_reports", STRING, (m) => hud.report(m.data));
 bridge.subscribe("/robot_info", STRING, (m) => robotInfo(JSON.parse(m.data)));
 bridge.subscribe("/autonomy/state", STRING, (m) => robot.setAutonomy(JSON.parse(m.data)));
 bridge.subscribe("/rosout", "rcl_interfaces/msg/Log", (m) => logTail.add(m));
+bridge.subscribe("/battery_state", "sensor_msgs/msg/BatteryState", (m) => {
+  if (!battery.asked) {
+    battery.asked = true;
+    api.get("/api/battery").then((r) => battery.setThresholds(r.body && r.body.thresholds))
+      .catch(() => {});
+  }
+  battery.update(m);
+});
 
 function robotInfo(info) {
   $("robot-name").textContent = info.name || "arbiterd";

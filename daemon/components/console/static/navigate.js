@@ -25,6 +25,8 @@ export class NavPanel {
   constructor(el, api, bridge, view, { onRefused }) {
     Object.assign(this, { el, api, bridge, view, onRefused });
     this.present = false;
+    this.goals = null; // the navigation's goal count in its last state
+    this.held = null; // a refusal or error on screen: {text, goals} until something new happens
     el.tool.addEventListener("click", () => this.toggleTool());
     el.figure8.addEventListener("click", () =>
       this.send({ path: "figure_eight", size: FIGURE_EIGHT_M }, "the figure-eight"));
@@ -46,6 +48,7 @@ export class NavPanel {
   }
 
   toggleTool() {
+    this.held = null; // the user acts: the refusal has been read
     const on = !this.view.goalTool;
     this.view.setGoalTool(on);
     this.el.tool.setAttribute("aria-pressed", String(on));
@@ -59,6 +62,11 @@ export class NavPanel {
 
   stateArrived(nav) {
     const active = ACTIVE.has(nav.state);
+    this.goals = nav.goals ?? this.goals;
+    // the 1 Hz state of the previous goal must not wipe a refusal: it stays until a new goal
+    // starts (the count moves, or navigation becomes active) or the user acts
+    if (this.held && !active && (nav.goals ?? null) === this.held.goals) return;
+    this.held = null;
     this.el.cancel.hidden = !active;
     this.el.state.dataset.state = nav.state;
     this.show(describe(nav));
@@ -68,6 +76,12 @@ export class NavPanel {
   }
 
   show(text) { this.el.state.textContent = text; }
+
+  hold(text) {
+    this.held = { text, goals: this.goals };
+    this.el.state.dataset.state = "refused";
+    this.show(text);
+  }
 
   // A goal from the view: in the frame the view draws (the map's once /tf placed it).
   async goTo({ x, y, theta }) {
@@ -80,6 +94,7 @@ export class NavPanel {
   }
 
   async send(body, what) {
+    this.held = null;
     await this.answer(() => this.api.post("/api/goal", body), `to send ${what}`);
   }
 
@@ -89,6 +104,6 @@ export class NavPanel {
 
   answer(request, what) {
     return report(request, what, { ok: (body) => this.stateArrived(body),
-      show: (text) => this.show(text), refused: this.onRefused });
+      show: (text) => this.hold(text), refused: this.onRefused });
   }
 }

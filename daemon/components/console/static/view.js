@@ -1,5 +1,6 @@
 // Top-down view in the odometry frame, centred on the robot: /scan on a metres grid, the
-// footprint, the odometry trail and, on the simulated robot, the ground truth beside it. Until
+// footprint, the odometry trail and, on the simulated robot, the ground truth beside it (in the
+// odometry frame too: the gap is the drift). Until
 // the user zooms, the view fits the latest scan (the walls of a room or of the simulated arena).
 // When the robot maps (map.js), the view is in the map frame: the occupancy grid under the scan,
 // and the odometry-frame scan, trail and robot moved by map -> odom to the robot's map pose.
@@ -270,17 +271,17 @@ export class View {
     const reach = Math.hypot(w, h) / 2 / scale + 1;
     this.drawMap();
     this.drawGrid(here, reach, px, dpr);
-    this.drawTrail(this.truthTrail, cssColor("--truth"), 1.5 * dpr * px);
     ctx.save();
-    if (this.mapToOdom) { // the odometry trail, where the map says it was
+    if (this.mapToOdom) { // the trails (both in the odometry frame), where the map puts it
       ctx.translate(this.mapToOdom.x, this.mapToOdom.y);
       ctx.rotate(this.mapToOdom.theta);
     }
+    this.drawTrail(this.truthTrail, cssColor("--truth"), 1.5 * dpr * px);
     this.drawTrail(this.trail, cssColor("--odom"), 2 * dpr * px);
     ctx.restore();
     this.drawPlan(cssColor("--accent"), dpr * px);
     this.drawScan(cssColor("--scan"), 3 * dpr * px);
-    if (this.truth) this.drawRobot(this.truth, cssColor("--truth"), false, dpr * px);
+    if (this.truth) this.drawRobot(this.shown(this.truth), cssColor("--truth"), false, dpr * px);
     this.drawRobot(here, cssColor("--odom"), true, dpr * px);
     if (this.drag) this.drawDrag(dpr * px);
     const frame = this.mapToOdom ? " · map frame" : "";

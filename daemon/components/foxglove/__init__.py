@@ -1,0 +1,1 @@
+# The Foxglove WebSocket protocol server (foxglove.sdk.v1 / foxglove.websocket.v1), :8765.
