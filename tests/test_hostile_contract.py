@@ -156,11 +156,32 @@ async def _never_reading_clients(robot: InProcessDaemon, findings: Findings) -> 
         await eventually(lambda: http.health().values["connections"] <= 2,
                          "the never-reading clients let go", within_s=20)
     except AssertionError:
-        findings.add("GET routes", "never-reading clients",
-                     f"{http.health().values['connections']} connections still held")
+        for sock in clients:
+            sock.close()
+        await _name_the_holders(robot, port, findings)
     finally:
         for sock in clients:
             sock.close()
+
+
+async def _name_the_holders(robot: InProcessDaemon, port: int, findings: Findings) -> None:
+    """Route by route: which one holds its never-reading clients."""
+    http = robot.component("http")
+    for method, path, _ in robot.ctx.http.access_table():
+        if method != "GET":
+            continue
+        for concrete in {*concrete_paths(path), *_big_paths(path)}:
+            await eventually(lambda: http.health().values["connections"] <= 2, "quiet")
+            clients = await never_reading(port, method, concrete, TOKEN, 4)
+            try:
+                await eventually(lambda: http.health().values["connections"] <= 2,
+                                 "the never-reading clients let go", within_s=5)
+            except AssertionError:
+                findings.add(f"GET {concrete[:60]}", "never-reading clients",
+                             f"{http.health().values['connections']} connections held")
+            finally:
+                for sock in clients:
+                    sock.close()
 
 
 def _big_paths(path: str) -> list[str]:
@@ -226,7 +247,8 @@ async def _answered(ws: aiohttp.ClientWebSocketResponse, topic: str, case: str,
 async def test_a_route_added_without_a_bound_fails_the_contract(tmp_path: Path) -> None:
     """The same checks against a server with two routes that skip the kernel's bounds: one
     that indexes a grid with the body's x unchecked (1e308 answers 500), one that streams a
-    file without the send deadline (never-reading clients hold it)."""
+    file itself instead of through ``send_file`` (never-reading clients hold it; an answer a
+    handler returns, ``web.FileResponse`` included, is watched by the server)."""
     from base.options import defaults
     from daemon.components.http.component import HttpServer
     from daemon.components.http.settings import HttpSettings
@@ -243,7 +265,12 @@ async def test_a_route_added_without_a_bound_fails_the_contract(tmp_path: Path) 
         return web.json_response({"cell": cell})
 
     async def unbounded_file(request: web.Request) -> web.StreamResponse:
-        return web.FileResponse(big)
+        response = web.StreamResponse()  # streamed by the handler itself, not send_file
+        await response.prepare(request)
+        with big.open("rb") as file:
+            while chunk := file.read(65536):
+                await response.write(chunk)
+        return response
 
     port = free_port()
     settings = HttpSettings.from_values(defaults(HttpSettings.OPTIONS) | {

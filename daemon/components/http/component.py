@@ -252,6 +252,7 @@ class HttpServer:
         self._accept_errors.install()
         self._runner = CappedRunner(self.app, self.max_connections,
                                     reserved=self.reserved_connections, access_log=None,
+                                    send_timeout_s=self.send_timeout_s,
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s,
                                     shutdown_timeout=SHUTDOWN_GRACE_S)
         self.bound_port = await start_listening(self._runner,
