@@ -26,6 +26,7 @@ from daemon.components.recorder.paths import listing_directory
 from daemon.components.recorder.settings import RecorderSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.health import problem_of as problem_text
+from daemon.logthrottle import RepeatFilter
 from daemon.settings import LoggingSettings
 from sensors.rplidar import cli as lidar_cli
 from sensors.rplidar.settings import LidarSettings
@@ -76,6 +77,7 @@ def setup_logging(level: str = "info", timestamps: bool = False, stream: Any = N
     handler = logging.StreamHandler(stream)
     journald = writes_to_journal(stream, os.environ if env is None else env)
     handler.setFormatter(JournalFormatter(journald, timestamps))
+    handler.addFilter(RepeatFilter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(LEVELS[level])

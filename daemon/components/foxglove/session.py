@@ -18,6 +18,7 @@ from daemon.components.foxglove import protocol
 from daemon.components.foxglove.channels import Channel, Outgoing
 from daemon.components.foxglove.protocol import ERROR, WARNING, ProtocolError
 from daemon.components.rosbridge.access import TOKEN_HINT, Authority
+from daemon.coords import missing_required
 from daemon.messages.cdr import CdrError
 from daemon.messages.cdr_read import decode as cdr_decode
 from daemon.messages.msgtypes import MessageError, check_message, has_type, normalize_type
@@ -282,7 +283,12 @@ class FoxgloveSession:
                 value: Any = cdr_decode(channel.type, payload)
             else:
                 value = json.loads(payload)
-            return check_message(channel.type, value)
+            msg = check_message(channel.type, value)
+            missing = None if channel.robot is None else missing_required(
+                value, channel.robot.required)  # as sent: before the defaults filled it in
+            if missing is not None:
+                raise MessageError(f"msg.{missing}")
+            return msg
         except (CdrError, MessageError, ValueError, RecursionError) as exc:
             reason = str(exc) or type(exc).__name__
             raise ProtocolError(f"publish {channel.topic}: {reason[:300]}") from None
