@@ -23,7 +23,7 @@ from daemon.components.ros2.inlet import Inlet
 from daemon.components.ros2.outlet import Outlet
 from daemon.components.ros2.settings import Ros2Settings
 from daemon.health import Health
-from daemon.messages import cdr
+from daemon.messages import cdr, typehash
 from daemon.messages.cdr_read import decode
 from daemon.messages.definitions import LASER_SCAN
 from daemon.messages.msgtypes import MessageError, check_message
@@ -143,14 +143,15 @@ class Ros2Face(BaseComponent):
         node = DdsNode(self.domain, self.localhost, self.settings.distro != "kilted")
         for topic in outs:
             qos = self._qos(topic.name)
-            writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos)
+            writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos,
+                                 _user_data(topic.type))
             self.outgoing[topic.name] = Outgoing(topic, writer, _encoder(topic),
                                                  qos.transient_local)
         self.inlet = Inlet(node, self._on_data, self._on_unmatched)
         for inbound in ins:
             self.incoming[inbound.name] = inbound
             reader = node.reader(self._dds_name(inbound.name), idl_type(inbound.type),
-                                 self._qos(inbound.name))
+                                 self._qos(inbound.name), _user_data(inbound.type))
             self.inlet.add(inbound, reader, watch_publishers=inbound.moves)
         info_type = announcement_type(self.gid_size)
         self._announcer = node.writer(announce.TOPIC, info_type, ANNOUNCE_QOS)
@@ -346,6 +347,12 @@ def _served(topic: TopicOut[Any] | TopicIn) -> bool:
     """Every incoming topic, and every outgoing one that rosbridge serves or whose type is a
     ROS 2 one (/diagnostics; not arbiterd's own /commands log)."""
     return isinstance(topic, TopicIn) or topic.bridge or not topic.type.startswith("arbiterd_")
+
+
+def _user_data(ros_type: str) -> bytes:
+    """The endpoint's USER_DATA: ROS 2's type hash of ``ros_type`` (REP 2011), which the
+    middlewares of Iron and later read and compare."""
+    return typehash.user_data(ros_type)
 
 
 def _encoder(topic: TopicOut[Any]) -> Callable[[Any], bytes]:

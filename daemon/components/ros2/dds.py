@@ -119,14 +119,18 @@ class QosSpec:
     transient_local: bool
     depth: int
 
-    def qos(self) -> Any:
+    def qos(self, user_data: bytes = b"") -> Any:
+        """The binding's QoS; ``user_data`` is the endpoints' USER_DATA (ROS 2's type hash)."""
         mods = cyclone()
         policy, duration = mods["qos"].Policy, mods["util"].duration
         reliability = (policy.Reliability.Reliable(duration(milliseconds=MAX_BLOCKING_MS))
                        if self.reliable else policy.Reliability.BestEffort)
         durability = (policy.Durability.TransientLocal if self.transient_local
                       else policy.Durability.Volatile)
-        return mods["qos"].Qos(reliability, durability, policy.History.KeepLast(self.depth))
+        policies = [reliability, durability, policy.History.KeepLast(self.depth)]
+        if user_data:
+            policies.append(policy.Userdata(user_data))
+        return mods["qos"].Qos(*policies)
 
 
 ANNOUNCE_QOS = QosSpec(reliable=True, transient_local=True, depth=1)
@@ -197,15 +201,15 @@ class DdsNode:
             self._topics[name] = self.mods["topic"].Topic(self.participant, name, data_type)
         return self._topics[name]
 
-    def writer(self, name: str, data_type: Any, qos: QosSpec) -> Any:
+    def writer(self, name: str, data_type: Any, qos: QosSpec, user_data: bytes = b"") -> Any:
         writer = self.mods["pub"].DataWriter(self.publisher, self._topic(name, data_type),
-                                             qos.qos())
+                                             qos.qos(user_data))
         self._entities.append(writer)
         return writer
 
-    def reader(self, name: str, data_type: Any, qos: QosSpec) -> Any:
+    def reader(self, name: str, data_type: Any, qos: QosSpec, user_data: bytes = b"") -> Any:
         reader = self.mods["sub"].DataReader(self.subscriber, self._topic(name, data_type),
-                                             qos.qos())
+                                             qos.qos(user_data))
         self._entities.append(reader)
         return reader
 
