@@ -5,6 +5,7 @@ import ctypes
 import importlib
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -25,6 +26,10 @@ _IDL_PRIMITIVES: dict[str, str] = {
     "uint16": "uint16", "int32": "int32", "uint32": "uint32", "int64": "int64",
     "uint64": "uint64", "float32": "float32", "float64": "float64",
 }
+
+
+class DdsError(OSError):
+    """Cyclone DDS refused to make the participant (its configuration, security's files)."""
 
 
 class DdsUnavailable(RuntimeError):
@@ -50,6 +55,16 @@ def available() -> str | None:
     except DdsUnavailable as exc:
         return str(exc)
     return None
+
+
+def libddsc_path() -> Path | None:
+    """The Cyclone DDS C library the binding loaded (its security plugins sit beside it)."""
+    cyclone()["internal"].load_cyclonedds()
+    try:
+        maps = Path("/proc/self/maps").read_text().split()
+    except OSError:
+        return None
+    return next((Path(word) for word in maps if "/libddsc.so" in word), None)
 
 
 # -- types ----------------------------------------------------------------------------------
@@ -175,11 +190,16 @@ class DdsNode:
     GIL while it writes to a local reader of that entity then waits for it (a deadlock; see
     docs/ros2.md). Matches are counted on request, samples waited for on a :meth:`waitset`."""
 
-    def __init__(self, domain: int, localhost: bool, type_information: bool) -> None:
+    def __init__(self, domain: int, localhost: bool, type_information: bool,
+                 security: str = "") -> None:
         mods = self.mods = cyclone()
         self.type_information = type_information
-        self.domain = mods["domain"].Domain(domain, cyclone_config(localhost))
-        self.participant = mods["domain"].DomainParticipant(domain)
+        self.domain = mods["domain"].Domain(domain, cyclone_config(localhost, security))
+        try:
+            self.participant = mods["domain"].DomainParticipant(domain)
+        except mods["core"].DDSException as exc:
+            self.domain.__del__()
+            raise DdsError(str(exc)) from None
         self.publisher = mods["pub"].Publisher(self.participant)
         self.subscriber = mods["sub"].Subscriber(self.participant)
         self._topics: dict[str, Any] = {}

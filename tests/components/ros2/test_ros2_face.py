@@ -35,6 +35,14 @@ def test_ros2_face_with_real_kilted_and_jazzy_nodes() -> None:
     in_netns("tests/ros2_netns/checks_peers.py", {"ARBITERD_KILTED_PYTHON": str(kilted)})
 
 
+@pytest.mark.timeout(300)
+def test_ros2_face_with_dds_security() -> None:
+    """checks_security.py in its own namespace: with [ros2] security a reader holding an
+    enclave of the same keystore receives /scan, one without receives nothing (and receives
+    from the face without security)."""
+    in_netns("tests/ros2_netns/checks_security.py", {})
+
+
 def in_netns(checks: str, env: dict[str, str]) -> None:
     """pytest of ``checks`` inside `unshare -n` with only `lo` up; fails with their output."""
     why = unavailable()
