@@ -15,7 +15,7 @@ PROG="install.sh"
 
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
-DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test}"
+DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test,fleet,camera}"
 # ROS 2 Kilted's rclpy for the ROS 2 face's tests: it installs `rclpy` as Jazzy's does, so it
 # lives in a venv of its own (tests/ros2_netns/kilted-requirements.txt; x86_64 Linux only)
 KILTED_VENV="${ARBITERD_KILTED_VENV:-${SRCDIR}/.venv-kilted}"
