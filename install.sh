@@ -16,6 +16,10 @@ PROG="install.sh"
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
 DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test,fleet,camera}"
+# ROS 2 Kilted's rclpy for the ROS 2 face's tests: it installs `rclpy` as Jazzy's does, so it
+# lives in a venv of its own (tests/ros2_netns/kilted-requirements.txt; x86_64 Linux only)
+KILTED_VENV="${ARBITERD_KILTED_VENV:-${SRCDIR}/.venv-kilted}"
+KILTED_REQUIREMENTS=tests/ros2_netns/kilted-requirements.txt
 NODE_TEST_DIRS=(tests/interop tests/console)   # npm ci in each (lock files committed)
 WITH_BROWSER=0   # test mode: Debian's chromium for the web console's browser tests
 DRY_RUN="${ARBITERD_DRY_RUN:-0}"
@@ -197,6 +201,24 @@ venv_has_extras() {
     return 0
 }
 
+# Step 2b: with the ros2-test extra, the venv with ROS 2 Kilted's rclpy (tests only; PyPI's
+# wheels are x86_64 Linux only, elsewhere the Kilted checks skip). Stamped with the
+# requirements file's hash.
+dev_step_kilted_venv() {
+    local reqs="${SRCDIR}/${KILTED_REQUIREMENTS}" stamp="${KILTED_VENV}/.arbiterd-stamp" want
+    [[ ",$1," == *",ros2-test,"* ]] || return 0
+    [[ "$(uname -s)-$(uname -m)" == Linux-x86_64 && -f "${reqs}" ]] || return 0
+    want="$(sha256_of "${reqs}") $("${PYTHON}" -V 2>&1)"
+    if [[ -x "${KILTED_VENV}/bin/python" && -f "${stamp}" && "$(cat "${stamp}")" == "${want}" ]]; then
+        report_status "ROS 2 Kilted venv ${KILTED_VENV}: up to date"
+        return 0
+    fi
+    report_status "creating the ROS 2 Kilted venv ${KILTED_VENV} (${KILTED_REQUIREMENTS})"
+    [[ -x "${KILTED_VENV}/bin/python" ]] || run "${PYTHON}" -m venv "${KILTED_VENV}"
+    run "${KILTED_VENV}/bin/python" -m pip install -q --disable-pip-version-check -r "${reqs}"
+    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${want}" >"${stamp}"
+}
+
 # Step 3: the Node packages of the tests that run real JavaScript clients (roslib, the
 # console's browser driver), from their committed lock files.
 dev_step_node_packages() {
@@ -234,6 +256,7 @@ setup_dev() {
         dev_step_venv ""
     else
         dev_step_venv "${DEV_EXTRAS}"
+        dev_step_kilted_venv "${DEV_EXTRAS}"
         dev_step_node_packages
     fi
     dev_step_bytecode
