@@ -89,8 +89,11 @@ STATUS_TIMEOUT_S = 5.0
 
 
 def _load(args: argparse.Namespace) -> Config:
+    """The config a command reads; ``run`` and ``check`` without a config file: the whole
+    simulated robot (daemon/config.py WHOLE_ROBOT)."""
     path = Path(args.config) if getattr(args, "config", None) else None
-    return load_config(path, sim=getattr(args, "sim", False))
+    return load_config(path, sim=getattr(args, "sim", False),
+                       whole_robot=getattr(args, "command", "") in ("run", "check"))
 
 
 def _report_config_error(exc: ConfigError, args: argparse.Namespace, out: Any = None,

@@ -237,8 +237,7 @@ class SimWorld:
         angles = np.asarray(angles_rad, dtype=float)
         caster = self._device_caster
         if caster is None or not np.array_equal(caster.angles, -angles):
-            caster = RayCaster(self.world, -angles, self.config.range_min,
-                               self.config.range_max)
+            caster = self.lidar.with_angles(-angles)
             self._device_caster = caster
         pose = self._pose()
         return self.noise.lidar(self._with_objects(caster, caster.cast(*pose), pose))
