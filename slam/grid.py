@@ -79,6 +79,25 @@ class OccupancyGrid:
         need_lo, need_hi = self._fit_budget(need_lo, need_hi, lo, hi)
         self._reshape(int(need_lo[0]), int(need_lo[1]), int(need_hi[0]), int(need_hi[1]))
 
+    def cover(self, world_xy: np.ndarray) -> None:
+        """Grow (bounded by max_cells, with the usual margin) to cover these world points."""
+        self._grow_to_cover(np.asarray(world_xy, dtype=np.float64).reshape(-1, 2))
+
+    def cropped(self) -> OccupancyGrid:
+        """A copy cut down to the observed cells (cell boundaries unchanged); one cell if none
+        is observed."""
+        rows = np.flatnonzero(self.log_odds.any(axis=1))
+        cols = np.flatnonzero(self.log_odds.any(axis=0))
+        twin = self.copy()
+        if not len(rows):
+            rows = cols = np.zeros(1, dtype=np.int64)
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        twin.log_odds = self.log_odds[r0:r1, c0:c1].copy()
+        twin.height, twin.width = r1 - r0, c1 - c0
+        twin.origin_x = self.origin_x + c0 * self.resolution
+        twin.origin_y = self.origin_y + r0 * self.resolution
+        return twin
+
     def _fit_budget(self, need_lo: np.ndarray, need_hi: np.ndarray, lo: np.ndarray,
                     hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shrink a growth request until its area fits max_cells (margin first, then coverage)."""

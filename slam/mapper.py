@@ -10,11 +10,13 @@ import numpy as np
 
 from slam.farloops import FarLoopConfig, far_loops, residual
 from slam.field import DistanceField
+from slam.globalloc import FOUND, NOT_FOUND, GlobalConfig, GlobalLocalizer
 from slam.graph import PoseGraph
 from slam.grid import OccupancyGrid
 from slam.matcher import Match, SearchWindow, match, polish
 from slam.pose import Pose2, between, compose, inverse, transform_points
 from slam.smooth import learn_noise, smooth
+from slam.submaps import SubmapAtlas
 
 IDENTITY: Pose2 = (0.0, 0.0, 0.0)
 
@@ -63,6 +65,18 @@ class MapperConfig:
         the odometry's motion since then, when that prediction differs from the usual one by
         more than ``stall_gap`` (m, rad); the better score wins. (The usual prediction adds
         the jump on top of the motion the matcher already followed during the stall.)
+    keys_per_submap: map mode, the map is rendered from rigid submaps of this many
+        consecutive key scans, composed by pose (``slam.submaps``).
+    global_search: localize mode, once lost (``lost_after``) search the whole map for the
+        pose (``slam.globalloc``, tuned by ``global_config``), as after ``find_pose()``.
+        If the scan fits several places alike, each is followed by odometry and matched
+        again on every scan; the sum of its log scores must lead the next one's by
+        ``global_lead`` before it is taken. While tracking, a match scoring below
+        ``suspect_share`` x the median of the last good ones counts as refused (the robot
+        was carried or slipped): ``lost_after`` of them in a row start the global search.
+        Every ``global_check_every`` tracked scans (0: never) the whole map is searched
+        too: if its best place is elsewhere (a carry to a place that looks alike nearby),
+        its best three and the tracked pose are followed until one leads.
     """
 
     resolution: float = 0.05
@@ -109,6 +123,12 @@ class MapperConfig:
     weak_gate: float = 3.0
     stall_gap: tuple[float, float] = (0.1, math.radians(3))
     stall_follow: int = 3
+    keys_per_submap: int = 20
+    global_search: bool = True
+    global_lead: float = 0.7
+    suspect_share: float = 0.6
+    global_check_every: int = 100
+    global_config: GlobalConfig = field(default_factory=GlobalConfig)
 
 
 @dataclass(frozen=True)
@@ -121,6 +141,10 @@ class ScanResult:
     score: float
     covariance: tuple[float, ...]
     lost: bool
+    #: localize mode: tracking, lost, searching (the global search found nothing sure yet)
+    #: or ambiguous (it found several places alike: ``candidates``); map mode: tracking
+    status: str = "tracking"
+    candidates: tuple[tuple[Pose2, float], ...] = ()
 
 
 @dataclass
@@ -158,9 +182,9 @@ def windows(linear: float, angular: float, resolution: float) -> tuple[SearchWin
 class Mapper:
     """Online 2D SLAM (map mode) or localisation in a fixed grid (localize mode).
 
-    Not thread-safe: one caller at a time (add_scan, set_pose, optimize, grid). The grid is
-    re-rendered from the key scans on first access after a graph optimisation (about 1 ms a
-    key scan); call ``grid`` off the control path."""
+    Not thread-safe: one caller at a time (add_scan, set_pose, optimize, grid). In map mode
+    the grid is composed from submaps (``slam.submaps``) on access: only the submaps that a
+    graph optimisation moved are re-placed, so its cost does not grow with the run."""
 
     def __init__(self, config: MapperConfig, grid: OccupancyGrid | None = None,
                  initial_pose: Pose2 = IDENTITY) -> None:
@@ -171,7 +195,9 @@ class Mapper:
         self.config = config
         self._grid = grid if grid is not None else OccupancyGrid(config.resolution,
                                                                 config.max_cells)
+        #: the graph moved since the submaps were last composed
         self._grid_stale = False
+        self._atlas = SubmapAtlas(config.resolution, config.max_cells, config.keys_per_submap)
         self._pose = initial_pose
         self._last_odom: Pose2 | None = None
         self._graph = PoseGraph()
@@ -198,15 +224,33 @@ class Mapper:
         self._wide_search = config.mode == "localize"
         self._fixed = (DistanceField.from_grid(self._grid, config.field_max_distance)
                        if config.mode == "localize" else None)
+        self._global: GlobalLocalizer | None = None
+        #: localize mode: the next scans search the whole map (find_pose, or lost)
+        self._searching = False
+        self.global_searches = 0
+        #: while ambiguous: [pose, sum of log scores] per place the scan fitted, followed
+        #: by odometry and re-matched each scan until one is clearly ahead
+        self._hypotheses: list[tuple[Pose2, float]] = []
+        #: localize mode: scores of the last accepted matches, and how often a run of poor
+        #: ones (``suspect_share``) sent the mapper to search the whole map again
+        self._recent_scores: list[float] = []
+        self.kidnaps = 0
+        self._since_check = 0
 
     # ------------------------------------------------------------------ public API
 
     @property
     def grid(self) -> OccupancyGrid:
-        """The current map, re-rendered from the key scans after a graph optimisation."""
-        if self._grid_stale:
-            self._render_grid()
+        """The current map: the fixed one (localize mode), else the submaps composed at their
+        current graph poses."""
+        if self.config.mode == "map" and self._keys:
+            self._atlas.compose(self._graph.poses, self._key_points, moved=self._grid_stale)
+            self._grid_stale = False
+            self._grid = self._atlas.grid()
         return self._grid
+
+    def _key_points(self, key: int) -> np.ndarray:
+        return self._keys[key].points
 
     @property
     def trajectory(self) -> list[tuple[float, Pose2]]:
@@ -222,7 +266,17 @@ class Mapper:
         if odom_pose is not None:
             self._last_odom = odom_pose
         self._wide_search = True
+        self._searching = False
+        self._hypotheses = []
         self._refused_in_a_row = 0
+
+    def find_pose(self) -> None:
+        """Localize mode: forget the pose; the next scans search the whole map for it."""
+        if self.config.mode != "localize":
+            raise ValueError("find_pose needs localize mode (a loaded map)")
+        self._searching = True
+        self._lost = True
+        self._hypotheses = []
 
     def add_scan(self, odom_pose: Pose2, points_xy: np.ndarray, stamp: float) -> ScanResult:
         """One revolution: odometry pose of the base, points (N, 2) in the base frame."""
@@ -354,6 +408,9 @@ class Mapper:
             "grid_cells": self._grid.width * self._grid.height,
             "grid_bytes": self._grid.nbytes,
             "dropped_points": self._grid.dropped_points,
+            "submaps": len(self._atlas.submaps),
+            "submaps_bytes": self._atlas.nbytes,
+            "submaps_last_placed": self._atlas.last_placed,
         }
 
     # ------------------------------------------------------------------ shared steps
@@ -416,6 +473,8 @@ class Mapper:
     def _localize(self, predicted: Pose2, points: np.ndarray) -> ScanResult:
         assert self._fixed is not None
         cfg = self.config
+        if self._searching:
+            return self._search_globally(predicted, points, between(self._pose, predicted))
         if self._wide_search:
             lin, ang = cfg.relocalize_window
         else:
@@ -423,7 +482,28 @@ class Mapper:
         found = match(self._fixed, points, predicted, windows(lin, ang, cfg.resolution),
                       cfg.score_sigma) if len(points) >= 10 else None
         threshold = cfg.min_score * (1.5 if self._wide_search else 1.0)
+        if found is not None and found.score >= threshold and self._suspect(found.score):
+            # it fits somewhere near, but far worse than the scans here did: moved (carried,
+            # slipped)? Followed, and counted towards lost
+            self._refused_in_a_row += 1
+            if self._refused_in_a_row >= cfg.lost_after:
+                self._refused_in_a_row = 0
+                self._recent_scores.clear()
+                self._lost = self._wide_search = True
+                self._searching = cfg.global_search
+                self.kidnaps += 1
+                result = self._result(predicted, self._last_odom or IDENTITY, None)
+                return ScanResult(result.pose, result.map_to_odom, False, found.score,
+                                  result.covariance, True, "lost")
+            return self._result(found.pose, self._last_odom or IDENTITY, found)
+        if found is not None and found.score >= threshold and self._check_due():
+            elsewhere = self._elsewhere(points, found)
+            if elsewhere is not None:
+                return elsewhere
         if found is not None and found.score >= threshold:
+            self._recent_scores.append(found.score)
+            if len(self._recent_scores) > 30:
+                del self._recent_scores[0]
             self._refused_in_a_row = 0
             self._lost = False
             self._wide_search = False
@@ -432,10 +512,102 @@ class Mapper:
         if self._refused_in_a_row >= cfg.lost_after:
             self._lost = True
             self._wide_search = True
+            self._searching = cfg.global_search
         result = self._result(predicted, self._last_odom or IDENTITY, None)
         return ScanResult(result.pose, result.map_to_odom, False,
                           found.score if found is not None else 0.0, result.covariance,
-                          self._lost)
+                          self._lost, "lost" if self._lost else "tracking")
+
+    def _check_due(self) -> bool:
+        every = self.config.global_check_every
+        self._since_check += 1
+        if not self.config.global_search or every <= 0 or self._since_check < every:
+            return False
+        self._since_check = 0
+        return True
+
+    def _elsewhere(self, points: np.ndarray, tracked: Match) -> ScanResult | None:
+        """The periodic whole-map check: a sure pose far from the tracked one starts
+        following both (None: it agrees, or it is not sure)."""
+        if self._global is None:
+            assert self._fixed is not None
+            self._global = GlobalLocalizer(self._grid, self._fixed, self.config.global_config)
+        self.global_searches += 1
+        found = self._global.search(points)
+        best = found.candidates[0][0] if found.candidates else tracked.pose
+        if found.status == NOT_FOUND or \
+                math.hypot(best[0] - tracked.pose[0], best[1] - tracked.pose[1]) < 0.5:
+            return None  # the tracked pose is the best place (or nothing fits)
+        self.kidnaps += 1
+        self._searching = self._lost = True
+        candidates = (*found.candidates[:3], (tracked.pose, tracked.score))
+        self._hypotheses = [(pose, math.log(max(score, 1e-3))) for pose, score in candidates]
+        return self._unsure(tracked.pose, "ambiguous", found.score, candidates)
+
+    def _suspect(self, score: float) -> bool:
+        recent = self._recent_scores
+        return (not self._wide_search and len(recent) >= 3
+                and score < self.config.suspect_share * float(np.median(recent)))
+
+    def _search_globally(self, predicted: Pose2, points: np.ndarray,
+                         motion: Pose2) -> ScanResult:
+        """The whole map searched for this scan (or, while ambiguous, the places it fitted
+        followed by ``motion``, the odometry's since the last scan); a sure pose ends it."""
+        if self._hypotheses:
+            tracked = self._follow_hypotheses(points, motion)
+            if tracked is not None:
+                return tracked
+        if self._global is None:
+            assert self._fixed is not None
+            self._global = GlobalLocalizer(self._grid, self._fixed, self.config.global_config)
+        self.global_searches += 1
+        found = self._global.search(points)
+        if found.status == FOUND and found.pose is not None:
+            return self._localised(found.pose, found.score, found.candidates)
+        if found.status != NOT_FOUND:
+            self._hypotheses = [(pose, math.log(max(score, 1e-3)))
+                                for pose, score in found.candidates]
+        status = "searching" if found.status == NOT_FOUND else found.status
+        return self._unsure(predicted, status, found.score, found.candidates)
+
+    def _localised(self, pose: Pose2, score: float,
+                   candidates: tuple[tuple[Pose2, float], ...]) -> ScanResult:
+        self._searching = self._lost = self._wide_search = False
+        self._refused_in_a_row = 0
+        self._hypotheses = []
+        result = self._result(pose, self._last_odom or IDENTITY, None)
+        return ScanResult(pose, result.map_to_odom, True, score, result.covariance, False,
+                          "tracking", candidates)
+
+    def _unsure(self, predicted: Pose2, status: str, score: float,
+                candidates: tuple[tuple[Pose2, float], ...]) -> ScanResult:
+        result = self._result(predicted, self._last_odom or IDENTITY, None)
+        return ScanResult(result.pose, result.map_to_odom, False, score, result.covariance,
+                          True, status, candidates)
+
+    def _follow_hypotheses(self, points: np.ndarray, motion: Pose2) -> ScanResult | None:
+        """Each ambiguous place moved by ``motion`` and matched again; the sums of log scores
+        decide once one leads by ``global_lead`` (None: every place failed, search again)."""
+        assert self._fixed is not None
+        cfg = self.config
+        lin, ang = cfg.track_window
+        kept: list[tuple[Pose2, float, float]] = []
+        for pose, weight in self._hypotheses:
+            found = match(self._fixed, points, compose(pose, motion),
+                          windows(lin, ang, cfg.resolution), cfg.score_sigma)
+            if found.score >= cfg.min_score:
+                kept.append((found.pose, weight + math.log(found.score), found.score))
+        kept.sort(key=lambda h: -h[1])
+        kept = [h for h in kept if h[1] >= kept[0][1] - 2 * cfg.global_lead]
+        if not kept:
+            self._hypotheses = []
+            return None
+        self._hypotheses = [(pose, weight) for pose, weight, _ in kept]
+        best = kept[0]
+        candidates = tuple((pose, score) for pose, _, score in kept[:5])
+        if len(kept) == 1 or kept[1][1] <= best[1] - cfg.global_lead:
+            return self._localised(best[0], best[2], candidates)
+        return self._unsure(best[0], "ambiguous", best[2], candidates)
 
     # ------------------------------------------------------------------ map mode
 
@@ -547,8 +719,9 @@ class Mapper:
             sigmas = self.config.match_sigmas if found is not None else self.config.odometry_sigmas
             self._graph.add_edge(index - 1, index, between(self._graph.pose(index - 1), pose),
                                  sigmas)
-        if not self._grid_stale:
-            self._grid.integrate(pose, points)
+        anchor = self._atlas.anchor_key()
+        self._atlas.add_key(index, pose, None if anchor is None else self._graph.pose(anchor),
+                            points)
         self._submap_age += 1
         if self._submap_age >= self.config.submap_every:
             self._submap = None
@@ -634,11 +807,3 @@ class Mapper:
         gaps = np.hypot(*(positions - self._graph.poses[index, :2]).T)
         best = int(np.argmin(gaps))
         return old[best] if gaps[best] <= cfg.loop_search_radius else None
-
-    def _render_grid(self) -> None:
-        grid = OccupancyGrid(self.config.resolution, self.config.max_cells)
-        for k, key in enumerate(self._keys):
-            grid.integrate(self._graph.pose(k), key.points)
-        grid.version = self._grid.version + 1
-        self._grid = grid
-        self._grid_stale = False

@@ -133,6 +133,8 @@ class MappingComponent(BaseComponent):
             if grid is None:
                 return
         self.runner = self._runner(grid, self._initial_pose())
+        if grid is not None and self.settings.find_pose:
+            await self.runner.find_pose()
         if not self.inline:  # the worker's start-up (its imports) before the first revolution
             self._spawn(self._warm_up(self.runner))
 
@@ -443,6 +445,7 @@ class MappingComponent(BaseComponent):
         name = body.get("name")
         if not isinstance(name, str) or map_name_error(name):
             raise ApiError(422, f"invalid map name: {map_name_error(str(name))}")
+        find = "pose" not in body and self.settings.find_pose
         try:
             grid = await asyncio.to_thread(self.load, name)
             pose = messages.pose_of_json(body.get("pose", {"x": 0, "y": 0, "theta": 0}))
@@ -453,6 +456,8 @@ class MappingComponent(BaseComponent):
             {**self.settings.__dict__, "mode": "localize", "map": name})
         self.runner, self.map_name, self.problem = self._runner(grid, pose), name, ""
         self.map_version, self.last = 0, None
+        if find:
+            await self.runner.find_pose()
         if old is not None:
             await asyncio.to_thread(old.close)
         await self._fetch_map()
@@ -487,7 +492,10 @@ class MappingComponent(BaseComponent):
         if last is not None:
             out.update(pose=[round(last.pose[0], 3), round(last.pose[1], 3),
                              round(math.degrees(last.pose[2]), 1)],
-                       matched=last.matched, score=round(last.score, 3), lost=last.lost)
+                       matched=last.matched, score=round(last.score, 3), lost=last.lost,
+                       localisation=last.status,
+                       candidates=[[round(p[0], 3), round(p[1], 3), round(math.degrees(p[2]), 1),
+                                    round(score, 3)] for p, score in last.candidates])
         if self.latest_map is not None:
             m = self.latest_map
             out["map_size"] = {"width": m.width, "height": m.height,
@@ -508,6 +516,11 @@ class MappingComponent(BaseComponent):
         if down is not None:
             return Health(down[0], f"{down[1]} (the map since the last save starts anew)"
                           if self.settings.mode == "map" else down[1], status)
+        if status.get("localisation") == "ambiguous":
+            return Health("degraded", "the robot's view fits several places of the map alike "
+                          "(candidates): drive on, or set the pose", status)
+        if status.get("localisation") == "searching":
+            return Health("degraded", "searching the whole map for the robot's pose", status)
         if status.get("lost"):
             return Health("degraded", "localisation lost: set the pose (/initialpose, "
                           "POST /api/pose) or drive where the map is known", status)

@@ -33,6 +33,8 @@ class MapperRunner(Protocol):
 
     async def set_pose(self, pose: Pose2, odom_pose: Pose2 | None) -> None: ...
 
+    async def find_pose(self) -> None: ...
+
     async def snapshot(self, newer_than: int) -> MapSnapshot | None: ...
 
     async def health(self) -> dict[str, Any]: ...
@@ -72,6 +74,9 @@ class InlineRunner:
     async def set_pose(self, pose: Pose2, odom_pose: Pose2 | None) -> None:
         self.mapper.set_pose(pose, odom_pose)
 
+    async def find_pose(self) -> None:
+        self.mapper.find_pose()
+
     async def snapshot(self, newer_than: int) -> MapSnapshot | None:
         return snapshot_of(self.mapper, newer_than)
 
@@ -106,6 +111,10 @@ def _worker_add_scan(odom_pose: Pose2, points_xy: np.ndarray, stamp: float) -> S
 
 def _worker_set_pose(pose: Pose2, odom_pose: Pose2 | None) -> None:
     _worker().set_pose(pose, odom_pose)
+
+
+def _worker_find_pose() -> None:
+    _worker().find_pose()
 
 
 def _worker_snapshot(newer_than: int) -> MapSnapshot | None:
@@ -144,6 +153,9 @@ class ProcessRunner:
 
     async def set_pose(self, pose: Pose2, odom_pose: Pose2 | None) -> None:
         await self._call(_worker_set_pose, pose, odom_pose)
+
+    async def find_pose(self) -> None:
+        await self._call(_worker_find_pose)
 
     async def snapshot(self, newer_than: int) -> MapSnapshot | None:
         return await self._call(_worker_snapshot, newer_than)

@@ -36,6 +36,9 @@ class MappingSettings(SectionSettings, section="mapping"):
     initial_pose: list[float] = option([0.0, 0.0, 0.0], "localize: the pose to start from, [x m, "
                                        "y m, heading degrees] in the map; /initialpose and POST "
                                        "/api/pose set it later", length=3)
+    find_pose: bool = option(True, "localize: find the pose on the whole map by itself at start "
+                             "and after POST /api/map/load without a pose (initial_pose is then "
+                             "not used); false: start from initial_pose")
     resolution: float = option(0.05, "cell size of the map, m", minval=0.01, maxval=0.5)
     max_range_m: float = option(12.0, "returns farther than this are not put in the map, m",
                                 minval=1.0, maxval=40.0)

@@ -98,6 +98,28 @@ async def test_a_saved_map_is_listed_downloaded_and_localised_in(tmp_path: Path)
         assert not mapping.health().values["lost"]
 
 
+async def test_a_map_loaded_without_a_pose_finds_the_pose_by_itself(tmp_path: Path) -> None:
+    wander = '[autonomy]\nmode = "wander"\nseed = 3\n'
+    async with in_process_daemon(tmp_path, mapping_toml(tmp_path, wander)) as robot:
+        mapping = robot.component("mapping")
+        await eventually(lambda: mapping.counters.scans >= 100, "ten seconds of mapping",
+                         within_s=60)
+        await robot.control.engage_estop("test: hold still")
+        stopped_at = mapping.counters.scans
+        await eventually(lambda: mapping.counters.scans >= stopped_at + 5, "still scans")
+        assert mapping.last is not None
+        here = mapping.last.pose
+        status, saved = await post(robot, "/api/map/save", {"name": "room"})
+        assert status == 200, saved
+        status, body = await post(robot, "/api/map/load", {"name": "room"})  # no pose given
+        assert status == 200 and body["mode"] == "localize", body
+        await eventually(lambda: mapping.health().values.get("localisation") == "tracking",
+                         lambda: f"the pose found on the whole map: {mapping.status()}",
+                         within_s=30)
+        pose = mapping.health().values["pose"]
+        assert abs(pose[0] - here[0]) < 0.1 and abs(pose[1] - here[1]) < 0.1, (pose, here)
+
+
 async def test_bad_requests_are_refused_and_the_old_map_stays(tmp_path: Path) -> None:
     maps = tmp_path / "maps"
     async with in_process_daemon(tmp_path, mapping_toml(tmp_path)) as robot:
