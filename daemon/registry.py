@@ -9,6 +9,7 @@ from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
+from daemon.components.dock import component as dock
 from daemon.components.fetch import component as fetch
 from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
@@ -35,6 +36,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     arm.COMPONENT,
     fetch.COMPONENT,
     battery.COMPONENT,
+    dock.COMPONENT,
     rosbridge.COMPONENT,
     foxglove.COMPONENT,
     recorder.COMPONENT,
