@@ -15,7 +15,7 @@ PROG="install.sh"
 
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
-DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test}"
+DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test,fleet,camera}"
 NODE_TEST_DIRS=(tests/interop tests/console)   # npm ci in each (lock files committed)
 WITH_BROWSER=0   # test mode: Debian's chromium for the web console's browser tests
 DRY_RUN="${ARBITERD_DRY_RUN:-0}"

@@ -417,6 +417,39 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return command.run(args)
 
 
+def cmd_fleet(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from daemon.components.fleet.component import available
+    from daemon.components.fleet.operator import serve
+
+    setup_logging(args.log_level)
+    missing = available()
+    if missing is not None:
+        print(f"arbiterd fleet: {missing}", file=sys.stderr)
+        return 2
+    try:
+        config = load_config(args.config, sim=True)
+    except ConfigError as exc:
+        return _report_config_error(exc, args)
+    return asyncio.run(serve(config, args.listen, args.http_port))
+
+
+def _add_fleet(sub: Any) -> None:
+    fleet = sub.add_parser("fleet", help="the operator's side: a Zenoh router and the fleet "
+                           "page (docs/fleet.md)")
+    fleet.add_argument("--listen", metavar="tcp/HOST:PORT",
+                       help="the router's endpoint (default [fleet] operator.listen, "
+                       "tcp/0.0.0.0:7447)")
+    fleet.add_argument("--http-port", type=tcp_port, metavar="PORT",
+                       help="the fleet page's port (default 8086)")
+    fleet.add_argument("--config", type=Path, metavar="PATH",
+                       help="a config file: its [fleet] operator.* keys and [security]")
+    fleet.add_argument("--log-level", default="info",
+                       choices=["debug", "info", "warning", "error"])
+    fleet.set_defaults(func=cmd_fleet)
+
+
 def cmd_lidar(args: argparse.Namespace) -> int:
     result: int = lidar_cli.run(args)
     return result
@@ -524,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     record_cli.add_parser(sub).set_defaults(func=cmd_record)
     _add_map(sub)
     _add_mission(sub)
+    _add_fleet(sub)
     return parser
 
 

@@ -5,12 +5,14 @@ from daemon.component import ComponentSpec
 from daemon.components.arm import component as arm
 from daemon.components.autonomy import component as autonomy
 from daemon.components.battery import component as battery
+from daemon.components.camera import component as camera
 from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
 from daemon.components.dock import component as dock
 from daemon.components.fetch import component as fetch
+from daemon.components.fleet import component as fleet
 from daemon.components.foxglove import component as foxglove
 from daemon.components.http import component as http
 from daemon.components.lidar import component as lidar
@@ -37,10 +39,12 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     fetch.COMPONENT,
     battery.COMPONENT,
     dock.COMPONENT,
+    camera.COMPONENT,
     rosbridge.COMPONENT,
     foxglove.COMPONENT,
     recorder.COMPONENT,
     ros2.COMPONENT,
+    fleet.COMPONENT,
     console.COMPONENT,
     core.COMPONENT,
     http.COMPONENT,

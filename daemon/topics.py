@@ -39,6 +39,7 @@ class TopicOut(Generic[T]):
     state: bool = True
     latched: bool = False
     bulk: bool = False
+    record_rate: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -10,4 +10,6 @@ DEVICES: dict[str, tuple[str, str]] = {
     "ina219": ("drivers.ina2xx", "Ina219Monitor"),
     "ina226": ("drivers.ina2xx", "Ina226Monitor"),
     "odrive_battery": ("drivers.odrive_battery", "ODriveBattery"),
+    "picamera2_camera": ("drivers.picamera2_camera", "Picamera2Camera"),
+    "v4l2_camera": ("drivers.v4l2_camera", "V4l2Camera"),
 }

@@ -11,6 +11,13 @@ import numpy as np
 OBJECT_RADIUS = 0.0225
 #: the tool point must be this near the object's centre (horizontally) when the fingers close
 GRASP_TOLERANCE = 0.04
+#: how tall an object stands (m; the camera sees it, the planar world does not need it)
+OBJECT_HEIGHT = 0.12
+#: the colours an object may have, as the simulated camera paints them (RGB)
+OBJECT_COLORS: dict[str, tuple[int, int, int]] = {
+    "red": (210, 30, 30), "green": (30, 170, 50), "blue": (30, 70, 210),
+    "yellow": (225, 200, 20), "magenta": (200, 40, 190), "cyan": (20, 190, 200),
+}
 
 
 @dataclass(frozen=True)
@@ -31,6 +38,8 @@ class SimObject:
     y: float
     radius: float = OBJECT_RADIUS
     held: bool = False
+    #: its colour, a name of :data:`OBJECT_COLORS`
+    color: str = "red"
     #: the robot's footprint touched it while it stood on the floor (a collision)
     contacts: int = 0
     _touching: bool = False
@@ -57,11 +66,15 @@ class Objects:
         #: heading and across it (m)
         self.last_offset: tuple[float, float] | None = None
 
-    def place(self, x: float, y: float, radius: float = OBJECT_RADIUS) -> SimObject:
+    def place(self, x: float, y: float, radius: float = OBJECT_RADIUS,
+              color: str = "red") -> SimObject:
         if not (math.isfinite(x) and math.isfinite(y) and radius > 0):
             raise ValueError(f"an object needs a finite position and radius > 0, got "
                              f"({x}, {y}), r {radius}")
-        item = SimObject(x, y, radius)
+        if color not in OBJECT_COLORS:
+            raise ValueError(f"unknown object colour {color!r}; colours: "
+                             f"{', '.join(OBJECT_COLORS)}")
+        item = SimObject(x, y, radius, color=color)
         self.items.append(item)
         return item
 
@@ -73,6 +86,10 @@ class Objects:
         """``(N, 3)``: the objects standing on the floor (x, y, r) — what the lidar sees."""
         rows = [(o.x, o.y, o.radius) for o in self.items if not o.held]
         return np.array(rows, dtype=float).reshape(-1, 3)
+
+    def standing(self) -> list[tuple[float, float, float, str]]:
+        """The objects standing on the floor: (x, y, r, colour) — what the camera sees."""
+        return [(o.x, o.y, o.radius, o.color) for o in self.items if not o.held]
 
     @property
     def held(self) -> SimObject | None:
@@ -130,9 +147,9 @@ class Objects:
                 f"({along:+.3f} m ahead, {across:+.3f} m to the left), the tolerance is "
                 f"{self.tolerance:g} m")
 
-    def report(self) -> list[dict[str, float | bool | int]]:
+    def report(self) -> list[dict[str, float | bool | int | str]]:
         return [{"x": round(o.x, 4), "y": round(o.y, 4), "radius": o.radius, "held": o.held,
-                 "contacts": o.contacts} for o in self.items]
+                 "contacts": o.contacts, "color": o.color} for o in self.items]
 
 
 def cast_circles(ranges: np.ndarray, circles: np.ndarray, x: float, y: float, theta: float,

@@ -275,18 +275,25 @@ class SimWorld:
             s = self.physics.state
             return s.x, s.y, s.theta
 
-    def place_object(self, x: float, y: float) -> None:
+    def place_object(self, x: float, y: float, color: str = "red") -> None:
         """A graspable object standing at (x, y); ValueError when it would stand inside a
-        wall or an obstacle, or under the robot."""
+        wall or an obstacle, or under the robot, or has an unknown colour."""
         with self._cond:
-            radius = self.objects.place(x, y).radius  # checks it is finite
+            radius = self.objects.place(x, y, color=color).radius  # checks it is finite
             self.objects.items.pop()
             if self.world.clearance(x, y) < radius:
                 raise ValueError(f"({x}, {y}) is inside a wall or an obstacle")
             state = self.physics.state
             if math.hypot(x - state.x, y - state.y) < self.geometry.footprint_radius + radius:
                 raise ValueError(f"({x}, {y}) is under the robot")
-            self.objects.place(x, y)
+            self.objects.place(x, y, color=color)
+
+    def camera_view(self) -> tuple[tuple[float, float, float], list[tuple[float, float, float,
+                                                                             str]]]:
+        """The true pose and the standing objects at one instant, for the simulated camera."""
+        with self._cond:
+            s = self.physics.state
+            return (s.x, s.y, s.theta), self.objects.standing()
 
     def clear_objects(self) -> None:
         with self._cond:

@@ -31,6 +31,7 @@ def everything(directory: Path) -> str:
         extra = {"control": ["allow_fault_injection = true", "enable_odom_tf = true"],
                  "recorder": [f'directory = "{directory}"'],
                  "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 "fleet": [f'router = "tcp/127.0.0.1:{free_port()}"'],
                  }.get(settings.SECTION, [])
         enabled = ["enabled = true"] if "enabled" in settings.OPTIONS else []
         if enabled or extra:

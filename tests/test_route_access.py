@@ -23,7 +23,8 @@ LOCKED = (f'[security]\ntoken = "{TOKEN}"\nread_requires_token = true\n'
 def locked_toml(tmp_path: Path) -> str:
     """LOCKED with every optional component on (its maps in the test's own folder)."""
     return LOCKED + f'[mapping]\nenabled = true\ndirectory = "{tmp_path / "maps"}"\n' \
-        '[arm]\nenabled = true\n[battery]\nenabled = true\ndevice = "sim"\n'
+        '[arm]\nenabled = true\n[battery]\nenabled = true\ndevice = "sim"\n' \
+        '[camera]\nenabled = true\n'
 
 
 @pytest.fixture
@@ -49,8 +50,7 @@ async def status_of(robot: InProcessDaemon, method: str, path: str,
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     async with aiohttp.ClientSession() as session, session.request(
             method, robot.http_url + concrete(path), headers=headers) as response:
-        await response.read()
-        return response.status
+        return response.status  # the status line only: a stream (the camera's) never ends
 
 
 def test_access_levels_are_checked_at_registration() -> None:

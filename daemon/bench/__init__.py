@@ -141,6 +141,8 @@ SUITES: dict[str, Suite] = {
                   "it, /scan latency to an rclpy node"),
     "foxglove": Suite("daemon.bench.foxglove", "scan frames (JSON, cbor, cbor-raw); tick "
                       "lateness with the flight recorder off and on"),
+    "fleet": Suite("daemon.bench.fleet", "the fleet component: tick lateness publishing ÷ "
+                   "paused, its CPU beside the daemon without it, bandwidth per robot"),
     "slam": Suite("daemon.bench.slam", "the mapper over the Freiburg logs: relation errors "
                   "beside Cartographer and odometry, speed vs real time"),
     "mapping-sim": Suite("daemon.bench.mapping_sim", "the mapper in `arbiterd simulate`: pose "
@@ -153,6 +155,8 @@ SUITES: dict[str, Suite] = {
                              "planned and followed beside navigation idle, in turns"),
     "localize": Suite("daemon.bench.localize", "localisation in a saved map from 1 m / 30° "
                       "off, 20 trials in `arbiterd simulate`: converged within 0.05 m in 5 s"),
+    "camera": Suite("daemon.bench.camera", "sim render + JPEG encode per frame; tick "
+                    "lateness and CPU with an MJPEG viewer beside nobody watching"),
     "mapping-cost": Suite("daemon.bench.mapping_cost", "mapper ms per 360-ray revolution "
                           "beside the lidar decode; tick lateness, mapping on vs off"),
 }

@@ -67,8 +67,10 @@ def _field_converter(f: Field) -> Convert | None:
 
 
 def _to_bytes(value: Any) -> bytes:
-    if isinstance(value, bytes):
+    if type(value) is bytes:
         return value
+    if isinstance(value, bytes):  # a Blob: plain bytes for the CBOR encoder
+        return bytes(value)
     if isinstance(value, np.ndarray):
         return value.astype("u1", copy=False).tobytes()
     return bytes(value)

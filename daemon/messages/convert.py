@@ -1,6 +1,7 @@
 # Daemon telemetry as ROS 2 messages (dicts of the message's fields), and the JSON fallback.
 from __future__ import annotations
 
+import base64
 import logging
 import math
 from collections.abc import Callable
@@ -28,6 +29,16 @@ class ScanLike(Protocol):
     range_max: float
     ranges: Any
     intensities: Any
+
+
+class Blob(bytes):
+    """uint8[] data (a JPEG) that JSON carries as base64, as rosbridge_suite does; CDR and
+    CBOR carry the bytes as they are."""
+
+    __slots__ = ()
+
+    def to_json(self) -> str:
+        return base64.b64encode(self).decode("ascii")
 
 
 def header(t: float, frame_id: str) -> dict[str, Any]:

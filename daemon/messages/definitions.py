@@ -158,6 +158,39 @@ MSG_TEXT: dict[str, str] = {
         "string location\n"
         "string serial_number\n"),
     "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n",
+    "sensor_msgs/msg/CompressedImage": (
+        "# A compressed image: format is jpeg or png.\n"
+        "std_msgs/Header header\n"
+        "string format\n"
+        "uint8[] data\n"),
+    "sensor_msgs/msg/Image": (
+        "# An uncompressed image, row by row from the top left.\n"
+        "std_msgs/Header header\n"
+        "uint32 height\n"
+        "uint32 width\n"
+        "string encoding\n"
+        "uint8 is_bigendian\n"
+        "uint32 step\n"
+        "uint8[] data\n"),
+    "sensor_msgs/msg/RegionOfInterest": (
+        "uint32 x_offset\n"
+        "uint32 y_offset\n"
+        "uint32 height\n"
+        "uint32 width\n"
+        "bool do_rectify\n"),
+    "sensor_msgs/msg/CameraInfo": (
+        "# A camera's calibration: the pinhole model of its images.\n"
+        "std_msgs/Header header\n"
+        "uint32 height\n"
+        "uint32 width\n"
+        "string distortion_model\n"
+        "float64[] d\n"
+        "float64[9] k\n"
+        "float64[9] r\n"
+        "float64[12] p\n"
+        "uint32 binning_x\n"
+        "uint32 binning_y\n"
+        "RegionOfInterest roi\n"),
     "rcl_interfaces/msg/Log": (
         "# A log line, as published on /rosout.\n"
         "byte DEBUG=10\n"
@@ -223,3 +256,6 @@ POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
 PATH = "nav_msgs/msg/Path"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"

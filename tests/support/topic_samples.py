@@ -18,7 +18,7 @@ def everything(directory: Path) -> str:
     the fault-injection route and the odometry transform. Every ``directory`` option (the
     recordings, the maps) points into ``directory``; the ROS 2 face, when there is one, stays
     on this machine (``discovery = "localhost"``) in a domain of this process's own; the
-    Foxglove server listens on a free port of 127.0.0.1."""
+    Foxglove server listens on a free port of 127.0.0.1; the fleet looks for a router on one."""
     lines = []
     for spec in COMPONENTS:
         settings = spec.settings
@@ -32,6 +32,8 @@ def everything(directory: Path) -> str:
                  "ros2": ['discovery = "localhost"',
                           f"domain_id = {100 + os.getpid() % 100}"],
                  "foxglove": ['host = "127.0.0.1"', f"port = {free_port()}"],
+                 # a router nobody runs: the robot keeps trying, on this machine only
+                 "fleet": [f'router = "tcp/127.0.0.1:{free_port()}"'],
                  }.get(settings.SECTION, [])
         if keys:
             lines += [f"[{settings.SECTION}]", *keys]

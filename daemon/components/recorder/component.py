@@ -88,7 +88,8 @@ class RecorderComponent(BaseComponent):
         """Switch recording on or off; the bus is listened to only while it is on, so a
         recorder that is off costs the publishers (the control tick, every command) nothing."""
         if enabled and not self._unsubscribers:
-            self._unsubscribers = [self.bus.subscribe(topic.bus, self._enqueuer(group))
+            self._unsubscribers = [self.bus.subscribe(topic.bus,
+                                                      self._enqueuer(group, topic.record_rate))
                                    for topic, group in self._groups]
         elif not enabled:
             self._unsubscribe()
@@ -114,9 +115,23 @@ class RecorderComponent(BaseComponent):
 
     # -- feeding the writer (hot path: enqueue only) ----------------------------------------------
 
-    def _enqueuer(self, channels: tuple[Channel, ...]) -> Callable[[Any], None]:
+    def _enqueuer(self, channels: tuple[Channel, ...],
+                  rate: float = 0.0) -> Callable[[Any], None]:
+        """What the bus calls per message: into the writer's queue (at most ``rate`` a
+        second when it is > 0: the camera's frames)."""
         enqueue = self.recorder.enqueue
-        return lambda message: enqueue(channels, message)
+        if rate <= 0:
+            return lambda message: enqueue(channels, message)
+        period, due = 1.0 / rate, [0.0]
+
+        def throttled(message: Any) -> None:
+            now = time.monotonic()
+            if now >= due[0]:
+                # keep the cadence; after a pause, start it afresh
+                due[0] = due[0] + period if now - due[0] < period else now + period
+                enqueue(channels, message)
+
+        return throttled
 
     def _on_open(self) -> list[tuple[tuple[Channel, ...], Any]]:
         """Each new file starts with the latest message of every latched topic (health)."""

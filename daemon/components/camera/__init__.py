@@ -1,0 +1,1 @@
+# The camera: frames from a Pi camera, a USB webcam or the simulator, streamed and recorded.

@@ -1,0 +1,1 @@
+# The fleet: robots publishing to one operator over Zenoh (docs/fleet.md).
