@@ -154,9 +154,11 @@ class DockComponent(BaseComponent):
     # -- the dock's pose -----------------------------------------------------------------------
 
     def _load(self) -> tuple[str, Pose2] | None:
-        if self.store is None or not self.store.is_file():
+        if self.store is None:
             return None
         try:
+            if not self.store.is_file():  # may raise: a folder this user may not look into
+                return None
             data = json.loads(self.store.read_text())
             pose = (float(data["x"]), float(data["y"]), float(data["theta"]))
             if not all(math.isfinite(v) for v in pose):
@@ -172,11 +174,15 @@ class DockComponent(BaseComponent):
                  math.degrees(pose[2]), frame)
         if self.store is None:
             return
-        self.store.parent.mkdir(parents=True, exist_ok=True)
-        temporary = self.store.with_suffix(".tmp")
-        temporary.write_text(json.dumps({"frame": frame, "x": pose[0], "y": pose[1],
-                                         "theta": pose[2]}))
-        os.replace(temporary, self.store)
+        try:
+            self.store.parent.mkdir(parents=True, exist_ok=True)
+            temporary = self.store.with_suffix(".tmp")
+            temporary.write_text(json.dumps({"frame": frame, "x": pose[0], "y": pose[1],
+                                             "theta": pose[2]}))
+            os.replace(temporary, self.store)
+        except OSError as exc:  # the dock is known until the next start
+            log.error("dock: cannot keep the dock's pose in %s (%s): set [dock] file to a "
+                      "folder this user may write", self.store, exc)
 
     def set_here(self) -> Pose2:
         """The robot stands docked now: its pose is the dock's."""
