@@ -110,11 +110,11 @@ class FoxgloveSession:
     # -- reading ------------------------------------------------------------------------------
 
     async def serve(self, hello: list[str]) -> None:
-        """Greets (``serverInfo``, the time, then ``advertise``: a player that takes the
-        server's time has one before it sees any topic), then reads until the socket closes."""
-        info, *rest = hello
+        """Greets (``serverInfo``, ``advertise``, then the time: a player that takes the
+        server's time has one before any message, which flows only after it subscribed), then
+        reads until the socket closes."""
         self._last_time_ns = time.time_ns()
-        first: list[str | bytes] = [info, protocol.time_frame(self._last_time_ns), *rest]
+        first: list[str | bytes] = [*hello, protocol.time_frame(self._last_time_ns)]
         self._texts.extend(first)
         self._wake.set()
         writer = asyncio.create_task(self._write_forever(), name=f"foxglove-writer-{self.id}")
