@@ -16,6 +16,10 @@ PROG="install.sh"
 PYTHON="${ARBITERD_PYTHON:-python3}"
 DEV_VENV="${ARBITERD_DEV_VENV:-${SRCDIR}/.venv}"
 DEV_EXTRAS="${ARBITERD_DEV_EXTRAS:-test,dev,bench,ros2,ros2-test,fleet,camera}"
+# ROS 2 Kilted's rclpy for the ROS 2 face's tests: it installs `rclpy` as Jazzy's does, so it
+# lives in a venv of its own (tests/ros2_netns/kilted-requirements.txt; x86_64 Linux only)
+KILTED_VENV="${ARBITERD_KILTED_VENV:-${SRCDIR}/.venv-kilted}"
+KILTED_REQUIREMENTS=tests/ros2_netns/kilted-requirements.txt
 NODE_TEST_DIRS=(tests/interop tests/console)   # npm ci in each (lock files committed)
 WITH_BROWSER=0   # test mode: Debian's chromium for the web console's browser tests
 DRY_RUN="${ARBITERD_DRY_RUN:-0}"
@@ -86,8 +90,10 @@ missing_test_packages() {
     # the ros2 extra's cyclonedds binding is built against Debian's Cyclone DDS (docs/ros2.md):
     # with a C compiler and the Python headers, which a minimal Debian (the Pi's OS) lacks
     [[ -e /usr/include/dds/dds.h ]] || missing+=(cyclonedds-dev)
-    command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
-    python_headers_present || missing+=(python3-dev)
+    if ! dev_venv_current "${DEV_EXTRAS}"; then  # the venv gets (re)built: the binding compiles
+        command -v "${ARBITERD_CC:-gcc}" >/dev/null 2>&1 || missing+=(gcc)
+        python_headers_present || missing+=(python3-dev)
+    fi
     if [[ "${WITH_BROWSER}" == 1 ]]; then
         [[ -x "${ARBITERD_CHROMIUM:-/usr/bin/chromium}" ]] || missing+=(chromium)
     fi
@@ -142,16 +148,21 @@ dev_step_system_packages() {
 # Step 2: the developer virtual environment with the package editable plus EXTRAS. The stamp
 # holds the pyproject hash, the Python version and the extras installed; a venv with more
 # extras than asked for is up to date.
-dev_step_venv() {
-    local extras="$1" stamp="${DEV_VENV}/.arbiterd-dev-stamp" want have extra
+# dev_venv_current EXTRAS: the developer venv exists, was made from this pyproject.toml and
+# this Python, and holds EXTRAS (its stamp says so).
+dev_venv_current() {
+    local stamp="${DEV_VENV}/.arbiterd-dev-stamp" want
+    [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" ]] || return 1
     want="$(sha256_of "${SRCDIR}/pyproject.toml") $("${PYTHON}" -V 2>&1)"
-    if [[ -x "${DEV_VENV}/bin/python" && -f "${stamp}" ]]; then
-        have="$(sed -n 1p "${stamp}")"
-        if [[ "${have}" == "${want}" ]] && venv_has_extras "$(sed -n 2p "${stamp}")" "${extras}"
-        then
-            report_status "virtual environment ${DEV_VENV}: up to date"
-            return 0
-        fi
+    [[ "$(sed -n 1p "${stamp}")" == "${want}" ]] && venv_has_extras "$(sed -n 2p "${stamp}")" "$1"
+}
+
+dev_step_venv() {
+    local extras="$1" stamp="${DEV_VENV}/.arbiterd-dev-stamp" want
+    want="$(sha256_of "${SRCDIR}/pyproject.toml") $("${PYTHON}" -V 2>&1)"
+    if dev_venv_current "${extras}"; then
+        report_status "virtual environment ${DEV_VENV}: up to date"
+        return 0
     fi
     if [[ ! -x "${DEV_VENV}/bin/python" ]]; then
         report_status "creating virtual environment ${DEV_VENV}"
@@ -188,6 +199,24 @@ venv_has_extras() {
         [[ ",$1," == *",${extra},"* ]] || return 1
     done
     return 0
+}
+
+# Step 2b: with the ros2-test extra, the venv with ROS 2 Kilted's rclpy (tests only; PyPI's
+# wheels are x86_64 Linux only, elsewhere the Kilted checks skip). Stamped with the
+# requirements file's hash.
+dev_step_kilted_venv() {
+    local reqs="${SRCDIR}/${KILTED_REQUIREMENTS}" stamp="${KILTED_VENV}/.arbiterd-stamp" want
+    [[ ",$1," == *",ros2-test,"* ]] || return 0
+    [[ "$(uname -s)-$(uname -m)" == Linux-x86_64 && -f "${reqs}" ]] || return 0
+    want="$(sha256_of "${reqs}") $("${PYTHON}" -V 2>&1)"
+    if [[ -x "${KILTED_VENV}/bin/python" && -f "${stamp}" && "$(cat "${stamp}")" == "${want}" ]]; then
+        report_status "ROS 2 Kilted venv ${KILTED_VENV}: up to date"
+        return 0
+    fi
+    report_status "creating the ROS 2 Kilted venv ${KILTED_VENV} (${KILTED_REQUIREMENTS})"
+    [[ -x "${KILTED_VENV}/bin/python" ]] || run "${PYTHON}" -m venv "${KILTED_VENV}"
+    run "${KILTED_VENV}/bin/python" -m pip install -q --disable-pip-version-check -r "${reqs}"
+    [[ "${DRY_RUN}" == 1 ]] || printf '%s\n' "${want}" >"${stamp}"
 }
 
 # Step 3: the Node packages of the tests that run real JavaScript clients (roslib, the
@@ -227,6 +256,7 @@ setup_dev() {
         dev_step_venv ""
     else
         dev_step_venv "${DEV_EXTRAS}"
+        dev_step_kilted_venv "${DEV_EXTRAS}"
         dev_step_node_packages
     fi
     dev_step_bytecode

@@ -26,6 +26,7 @@ from daemon.components.recorder.paths import listing_directory
 from daemon.components.recorder.settings import RecorderSettings
 from daemon.config import Config, ConfigError, ConfigUnreadable, load_config
 from daemon.health import problem_of as problem_text
+from daemon.logthrottle import RepeatFilter
 from daemon.settings import LoggingSettings
 from sensors.rplidar import cli as lidar_cli
 from sensors.rplidar.settings import LidarSettings
@@ -76,6 +77,7 @@ def setup_logging(level: str = "info", timestamps: bool = False, stream: Any = N
     handler = logging.StreamHandler(stream)
     journald = writes_to_journal(stream, os.environ if env is None else env)
     handler.setFormatter(JournalFormatter(journald, timestamps))
+    handler.addFilter(RepeatFilter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(LEVELS[level])
@@ -87,8 +89,11 @@ STATUS_TIMEOUT_S = 5.0
 
 
 def _load(args: argparse.Namespace) -> Config:
+    """The config a command reads; ``run`` and ``check`` without a config file: the whole
+    simulated robot (daemon/config.py WHOLE_ROBOT)."""
     path = Path(args.config) if getattr(args, "config", None) else None
-    return load_config(path, sim=getattr(args, "sim", False))
+    return load_config(path, sim=getattr(args, "sim", False),
+                       whole_robot=getattr(args, "command", "") in ("run", "check"))
 
 
 def _report_config_error(exc: ConfigError, args: argparse.Namespace, out: Any = None,

@@ -6,8 +6,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from daemon import coords
+
 VECTOR_FIELDS = ("x", "y", "z")
 TWIST_FIELDS = ("linear", "angular")
+#: the largest speed a command may ask for (m/s, rad/s): far beyond any robot this drives, so
+#: a real command is clamped by the limiter, while 1e308 is a bad request, not full speed
+MAX_COMMAND = 100.0
 _EMPTY: dict[str, float] = {}
 
 
@@ -78,6 +83,10 @@ def parse_twist(body: Mapping[str, Any], *, extra: tuple[str, ...] = (),
                                                 ("angular.x", ax), ("angular.y", ay)) if v)
         raise CommandError(f"{prefix}{field}: a differential-drive base cannot move "
                            f"along this axis; must be 0, got {value}")
+    if not (-MAX_COMMAND <= lx <= MAX_COMMAND and -MAX_COMMAND <= az <= MAX_COMMAND):
+        field, value = ("linear.x", lx) if abs(lx) > MAX_COMMAND else ("angular.z", az)
+        raise CommandError(f"{prefix}{field}: {value:g} is beyond ±{MAX_COMMAND:g} (the "
+                           "largest command taken; the limiter clamps to the robot's own)")
     return Twist(lx, az)
 
 
@@ -86,14 +95,19 @@ POSE_FIELDS = ("x", "y", "theta")
 
 def parse_pose(body: Mapping[str, Any]) -> tuple[float, float, float] | None:
     """``{"x", "y", "theta"}`` (m, m, rad; each 0 when absent) or None for ``{}``; a field of
-    another name or that is not a finite number is :class:`CommandError` naming it."""
+    another name, or not a coordinate :mod:`daemon.coords` takes, is :class:`CommandError`
+    naming it."""
     unknown = sorted(set(body) - set(POSE_FIELDS))
     if unknown:
         raise CommandError(f"{unknown[0]}: unknown field")
     if not body:
         return None
-    x, y, theta = (finite_number(body.get(key, 0.0), key) for key in POSE_FIELDS)
-    return x, y, theta
+    try:
+        return (coords.coordinate(body.get("x", 0.0), "x"),
+                coords.coordinate(body.get("y", 0.0), "y"), coords.angle(body.get("theta", 0.0),
+                                                                          "theta"))
+    except coords.CoordinateError as exc:
+        raise CommandError(str(exc)) from None
 
 
 STAMP_FIELDS = ("id", "t_sent")
@@ -122,6 +136,8 @@ def plain_stamped(body: Any) -> Stamped | None:
                         or (number and axis != wanted):
                     return None
                 if axis == wanted:
+                    if not -MAX_COMMAND <= number <= MAX_COMMAND:
+                        return None  # the general parse refuses it, naming the field
                     speed = number
             if key == "linear":
                 lx = speed

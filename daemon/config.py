@@ -1,6 +1,7 @@
 # Strict TOML configuration: every key declared, typed and range-checked; every problem reported.
 from __future__ import annotations
 
+import copy
 import difflib
 import os
 import tomllib
@@ -129,15 +130,18 @@ def _section_tables(problems: list[str], used: set[str], source: str) -> dict[st
 
 
 def load_config(path: Path | None = None, *, sim: bool = False,
-                env: Mapping[str, str] | None = None) -> Config:
+                env: Mapping[str, str] | None = None, whole_robot: bool = False) -> Config:
     """Load and validate a config; raises :class:`ConfigError` listing every problem.
 
     ``path=None`` means the default path if it exists, else the built-in defaults, which run
-    the simulated robot. An explicit path must exist.
+    the simulated robot (with ``whole_robot``, what ``arbiterd run`` asks: :data:`WHOLE_ROBOT`
+    on top of them). An explicit path must exist.
     """
     env = os.environ if env is None else env
     notes: list[str] = []
     raw, source, builtin = _read_source(path, sim, notes)
+    if builtin and whole_robot:
+        raw = copy.deepcopy(WHOLE_ROBOT)
     problems: list[str] = []
     raw = _renamed_sections(raw, source, problems, notes)
     flat = _flatten_file(raw, source, problems)
@@ -167,6 +171,32 @@ def _device_problems(config: Config) -> list[str]:
             except (ValueError, DriverError) as exc:
                 problems.append(f"{config.source}: {exc}")
     return problems
+
+
+#: what ``arbiterd run --sim`` (and ``./install.sh sim``) runs without a config file: the whole
+#: simulated robot in a furnished world, so every console panel works on first open. Each key
+#: is an ordinary default underneath: ``ARBITERD_ARM_ENABLED=false`` turns the arm off.
+WHOLE_ROBOT: dict[str, dict[str, Any]] = {
+    "sim": {"world_file": "apartment"},
+    "mapping": {"enabled": True},
+    "arm": {"enabled": True, "backend": "pca9685"},
+    "battery": {"enabled": True},
+}
+
+
+def whole_robot_toml() -> str:
+    """:data:`WHOLE_ROBOT` as the TOML lines a config file of one's own would need."""
+    lines = []
+    for section, values in WHOLE_ROBOT.items():
+        lines.append(f"[{section}]")
+        lines += [f"{key} = {_toml_value(value)}" for key, value in values.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return f'"{value}"' if isinstance(value, str) else str(value)
 
 
 def _read_source(path: Path | None, sim: bool,

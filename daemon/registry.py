@@ -10,6 +10,7 @@ from daemon.components.collision_monitor import component as collision_monitor
 from daemon.components.console import component as console
 from daemon.components.control import component as control
 from daemon.components.core import component as core
+from daemon.components.dock import component as dock
 from daemon.components.fetch import component as fetch
 from daemon.components.fleet import component as fleet
 from daemon.components.foxglove import component as foxglove
@@ -37,6 +38,7 @@ COMPONENTS: tuple[ComponentSpec, ...] = (
     arm.COMPONENT,
     fetch.COMPONENT,
     battery.COMPONENT,
+    dock.COMPONENT,
     camera.COMPONENT,
     rosbridge.COMPONENT,
     foxglove.COMPONENT,

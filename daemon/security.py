@@ -8,8 +8,12 @@ import socket
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, Literal
 from urllib.parse import urlsplit
+
+#: what a request's token is: none needed or the right one, none offered, a wrong one, or a
+#: wrong one from an address over its budget of wrong ones
+TokenCheck = Literal["ok", "missing", "wrong", "guessing"]
 
 LOCAL_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
 
@@ -61,8 +65,8 @@ def is_ip_literal(name: str) -> bool:
 
 class Guesses:
     """Wrong tokens per peer address: ``burst`` at once, then ``rate`` a second. A peer over
-    its budget has every token it offers refused without a comparison until the budget
-    refills (so 8 000 guesses a second become one). At most ``max_peers`` are remembered
+    its budget has every wrong token it offers refused with 429 until the budget refills
+    (the right one still passes: :meth:`Security.check_token`). At most ``max_peers`` are remembered
     (the longest unheard of is forgotten first)."""
 
     def __init__(self, rate: float = 1.0, burst: float = 10.0, max_peers: int = 4096,
@@ -156,24 +160,33 @@ class Security:
 
     def token_ok(self, headers: Mapping[str, str], query: Mapping[str, str],
                  peer: str | None = None) -> bool:
-        """The request shows the token (compared in constant time). With ``peer``, a wrong
-        one counts against that address's budget of guesses, and an address over it is
-        refused without a comparison (:meth:`guessing` says so)."""
+        """The request shows the token (:meth:`check_token` says ``ok``)."""
+        return self.check_token(headers, query, peer) == "ok"
+
+    def check_token(self, headers: Mapping[str, str], query: Mapping[str, str],
+                    peer: str | None = None) -> TokenCheck:
+        """``ok``, ``missing`` or ``wrong``; ``guessing`` for a wrong one from an address over
+        its budget of wrong ones. The right token is compared first, in constant time, and is
+        never limited: a flood of wrong tokens from the owner's address (one NAT, one proxy)
+        does not lock the owner out. Only failures count against the budget."""
         if not self.token:
-            return True
+            return "ok"
         offered = self.offered(headers, query)
         if not offered:
-            return False
-        if peer is not None and not self.guesses.allowed(peer):
-            return False
+            return "missing"
         if hmac.compare_digest(offered.encode(), self.token.encode()):
-            return True
-        if peer is not None:
-            self.guesses.failed(peer)
-        return False
+            return "ok"
+        if peer is None:
+            return "wrong"
+        if not self.guesses.allowed(peer):
+            return "guessing"
+        self.guesses.failed(peer)
+        return "wrong"
 
     def guessing(self, headers: Mapping[str, str], query: Mapping[str, str],
                  peer: str | None) -> bool:
-        """The request offers a token from an address over its budget of wrong ones."""
+        """The request offers a wrong token from an address over its budget of wrong ones
+        (the right token is never "guessing")."""
         return bool(self.token and peer is not None and self.offered(headers, query)
-                    and self.guesses.exhausted(peer))
+                    and self.guesses.exhausted(peer)
+                    and self.check_token(headers, query, None) != "ok")

@@ -86,7 +86,10 @@ class TopicIn:
     robot brakes if that source was in charge. ``access_for``: when what a message may do
     depends on the message (the e-stop: latching is ``stop``, releasing ``drive``), the access
     one message needs, checked once its type is; ``access`` is then what advertising and
-    publishing need before that, the least of them.
+    publishing need before that, the least of them. ``required``: dotted field paths a
+    message must carry as sent (``pose.position``): a transport refuses one without them
+    before the type's defaults would fill them in (a goal without a position is no goal to
+    (0, 0)); see :func:`daemon.coords.missing_required`.
     """
 
     name: str
@@ -96,6 +99,7 @@ class TopicIn:
     accepts: tuple[str, ...] = ()
     moves: bool = False
     access_for: Callable[[dict[str, Any]], Access] | None = None
+    required: tuple[str, ...] = ()
 
     def accepted_types(self) -> tuple[str, ...]:
         return self.accepts or (self.type,)

@@ -23,6 +23,7 @@ from drivers.base import (
     inversion_signs,
     motor_inverted,
 )
+from drivers.host_load import host_busy
 from drivers.rosarduino import (
     AUTO_STOP_S,
     BAUDRATE,
@@ -47,6 +48,29 @@ from drivers.rosarduino import (
 
 # -- I/O: one serial port, driven by the event loop --------------------------------------------
 
+class LateReplies:
+    """Replies that came after ``timeout_s`` because the host was late, and why it was."""
+
+    def __init__(self) -> None:
+        self.extended = 0  # budgets extended because the host was late
+        self.late = 0  # replies that came in the extension
+        self.slowest_s = 0.0
+        self.last_reason: str | None = None
+
+    def waiting(self, reason: str) -> None:
+        self.extended += 1
+        self.last_reason = reason
+
+    def replied(self, after_s: float, within_s: float) -> None:
+        self.slowest_s = max(self.slowest_s, after_s)
+        if after_s > within_s:
+            self.late += 1
+
+    def health(self) -> dict[str, Any]:
+        return {"late_replies": self.late, "slowest_reply_ms": round(self.slowest_s * 1e3, 1),
+                "late_host_reason": self.last_reason}
+
+
 class BridgeLink:
     """Request/reply over an open serial port, without threads: non-blocking fd + add_reader.
 
@@ -57,7 +81,8 @@ class BridgeLink:
     line on the wire between two of the event loop's, never inside one.
     """
 
-    def __init__(self, port: Any, on_fault: Callable[[str], None]) -> None:
+    def __init__(self, port: Any, on_fault: Callable[[str], None],
+                 late: LateReplies | None = None) -> None:
         self._port = port
         self._fd: int = port.fileno()
         self._loop = asyncio.get_running_loop()
@@ -70,29 +95,57 @@ class BridgeLink:
         self.lost = False
         self.closed = False
         self.last_rx_mono = 0.0
+        #: replies that came only in the longer budget of a late host (shared across links)
+        self.late = late or LateReplies()
         self._loop.add_reader(self._fd, self._on_readable)
 
-    async def request(self, line: bytes, reply_within_s: float) -> str:
-        """Send one command and return its reply line."""
+    async def request(self, line: bytes, reply_within_s: float,
+                      late_host_s: float = 0.0) -> str:
+        """Send one command and return its reply line: within ``reply_within_s``, or, while
+        the host is late (:meth:`_host_late`), within ``late_host_s`` in all."""
         command = line.decode("ascii").rstrip("\r")
         if self.error is not None:
             raise DriverFault(self.error)
         future: asyncio.Future[str] = self._loop.create_future()
+        sent = time.monotonic()
         with self._write_lock:  # the reply order is the write order, also for send_now()
             self._pending.append((command, future))
             self.send(line)
-        try:
-            # asyncio.timeout, not wait_for: Python 3.11's wait_for swallows a cancellation
-            # that arrives with the reply, and the cancelled poll task would run on forever
-            async with asyncio.timeout(reply_within_s):
-                return await asyncio.shield(future)
-        except TimeoutError:
-            if future.done() and not future.cancelled():
-                # the reply was read in the same loop pass as the expired deadline (the loop
-                # had been blocked): the board answered, the lateness was ours
-                return future.result()
-            self._poison(f"no reply to {command!r} within {reply_within_s:g} s")
-            raise DriverFault(self.error or "timeout") from None
+        budget, waited = max(reply_within_s, late_host_s), 0.0
+        while True:
+            slice_s = min(reply_within_s, budget - waited)
+            deadline = self._loop.time() + slice_s
+            try:
+                # asyncio.timeout, not wait_for: Python 3.11's wait_for swallows a cancellation
+                # that arrives with the reply, and the cancelled poll task would run on forever
+                async with asyncio.timeout(slice_s):
+                    reply = await asyncio.shield(future)
+                break
+            except TimeoutError:
+                if future.done() and not future.cancelled():
+                    # the reply was read in the same loop pass as the expired deadline (the
+                    # loop had been blocked): the board answered, the lateness was ours
+                    reply = future.result()
+                    break
+                waited = time.monotonic() - sent
+                why = self._host_late(sent, self._loop.time() - deadline, slice_s)
+                if why is None or waited >= budget - 1e-3:
+                    self._poison(f"no reply to {command!r} within {reply_within_s:g} s"
+                                 if why is None else f"no reply to {command!r} within "
+                                 f"{waited:.2g} s, the host late ({why})")
+                    raise DriverFault(self.error or "timeout") from None
+                self.late.waiting(why)
+        self.late.replied(time.monotonic() - sent, reply_within_s)
+        return reply
+
+    def _host_late(self, sent: float, overdue_s: float, slice_s: float) -> str | None:
+        """Why a missing reply may be this host's fault, not the board's: part of a reply
+        arrived, the event loop woke late, or the CPUs are busy; None: the board is silent."""
+        if self.last_rx_mono > sent:
+            return "bytes from the board arrived after the request"
+        if overdue_s >= max(0.05, slice_s / 4):
+            return f"the event loop woke {overdue_s * 1e3:.0f} ms late"
+        return host_busy()
 
     def send(self, data: bytes) -> None:
         """Write bytes without waiting for a reply (also used on a poisoned link to stop)."""
@@ -242,6 +295,10 @@ class SerialSettings:
     encoders: bool = option(True, "poll 'e' for wheel positions (closed-loop odometry)")
     poll_rate: float = option(0.0, "encoder polls per second; 0 = pid_rate", minval=0)
     timeout_s: float = option(0.25, "seconds to wait for a reply before faulting", above=0)
+    late_host_timeout_s: float = option(1.0, "while this host is late (part of the reply came, "
+                                        "the event loop woke late, or the CPUs are busy), wait "
+                                        "this long in all before faulting (docs/driver-serial.md)",
+                                        above=0, maxval=10.0)
     reset_wait_s: float = option(2.0, "seconds to wait after opening the port while the board "
                                  "resets, before the first byte", minval=0)
     boot_timeout_s: float = option(3.0, "then keep asking 'e' for this long until the board "
@@ -325,6 +382,7 @@ class SerialBridgeDriver(MotorDriver):
         self.polls = 0
         self.keepalives = 0
         self.last_rtt_s = 0.0
+        self.late = LateReplies()
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -336,7 +394,7 @@ class SerialBridgeDriver(MotorDriver):
         try:
             await asyncio.sleep(self.settings.reset_wait_s)
             await asyncio.to_thread(self._await_boot, port)
-            self._link = BridgeLink(port, self.report_fault)
+            self._link = BridgeLink(port, self.report_fault, self.late)
             await self._handshake()
         except BaseException:
             self._drop_link() if self._link is not None else port.close()
@@ -458,7 +516,9 @@ class SerialBridgeDriver(MotorDriver):
         if self._link is None:
             raise DriverFault("serial link is not open")
         start = time.monotonic()
-        reply = await self._link.request(line, self.settings.timeout_s)
+        reply = await self._link.request(line, self.settings.timeout_s,
+                                         min(self.settings.late_host_timeout_s,
+                                             self.settings.auto_stop_s / 2))
         self.last_rtt_s = time.monotonic() - start
         return reply
 
@@ -536,6 +596,7 @@ class SerialBridgeDriver(MotorDriver):
             "encoder_polls": self.polls,
             "keepalives": self.keepalives,
             "last_reply_ms": round(self.last_rtt_s * 1e3, 3),
+            **self.late.health(),
             "wire_command": self._wire_command.decode("ascii").rstrip("\r"),
         }
 

@@ -1,6 +1,7 @@
 # Vectorised ray casting against wall segments and circles (numpy), for the simulated lidar.
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -66,6 +67,14 @@ class RayCaster:
         self._e = e
         self._centres = cir[:, 0:2]
         self._radius2 = cir[:, 2] ** 2
+
+    def with_angles(self, angles: np.ndarray) -> RayCaster:
+        """The same world and ranges along another fan of rays, sharing the precomputed
+        geometry (a device whose rays move every sample casts a new fan each time)."""
+        caster = copy.copy(self)
+        caster.angles = np.asarray(angles, dtype=float)
+        caster._directions = np.stack([np.cos(caster.angles), np.sin(caster.angles)])
+        return caster
 
     def cast(self, x: float, y: float, theta: float) -> np.ndarray:
         """Ranges for the robot at (x, y) heading ``theta``; ``inf`` where nothing is hit.

@@ -28,7 +28,12 @@ from sensors.rplidar.requests import Ans, Cmd, Conf
 #: t is the emulator clock (s). inf, NaN or <= 0 means no return.
 RangesFn = Callable[[npt.NDArray[np.float64], float], npt.NDArray[np.float64]]
 
-TICK_S = 0.005
+#: how often a streaming emulator sends what the rotor swept since (s): a UART's bytes arrive
+#: in chunks anyway, and 50 wake-ups a second cost a tenth of 200
+BATCH_S = 0.02
+#: how long an idle emulator sleeps before it looks at its switches again (s); a request
+#: wakes it at once
+IDLE_S = 0.1
 MAX_PENDING_OUT = 1 << 16
 
 
@@ -228,10 +233,10 @@ class RplidarEmulator:
         while not self._stopping.is_set():
             master = self._master
             if master < 0:
-                time.sleep(TICK_S)
+                self._stopping.wait(BATCH_S)
                 continue
             try:
-                readable, _, _ = select.select([master], [], [], TICK_S)
+                readable, _, _ = select.select([master], [], [], self._wait_s(time.monotonic()))
                 with self._lock:
                     if master != self._master:
                         continue
@@ -240,7 +245,15 @@ class RplidarEmulator:
                     self._tick(time.monotonic())
                     self._flush_out()
             except OSError:
-                time.sleep(TICK_S)  # pty closed under us (unplug); the next loop sees it
+                self._stopping.wait(BATCH_S)  # pty closed under us (unplug); the next loop sees it
+
+    def _wait_s(self, now: float) -> float:
+        """How long nothing is due: the next batch while streaming (sooner while bytes wait
+        to be written), the banner after a reset, else an idle look at the switches."""
+        wait = BATCH_S if self._stream is not None or self._out else IDLE_S
+        if self._banner_at is not None:
+            wait = min(wait, max(0.0, self._banner_at - now))
+        return wait
 
     def _receive(self, data: bytes) -> None:
         self._rx += data

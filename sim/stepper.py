@@ -100,8 +100,8 @@ class SimWorld:
         self.battery = BatteryModel(BatterySpec(capacity_ah=self.config.battery_capacity_ah,
                                                 drain=self.config.battery_drain),
                                     soc=self.config.battery_charge)
-        #: whether the robot's contacts touch a charging dock now (set by whoever models docks)
-        self.on_charger: Callable[[], bool] = lambda: False
+        #: whether the robot's contacts touch a charging dock now (the world's docks)
+        self.on_charger: Callable[[], bool] = self._on_dock
         #: graspable objects (sim/objects.py), moved by :attr:`arm_tool` when an arm is on
         self.objects = Objects()
         #: where the arm's tool point is (set by whoever runs the arm), else None
@@ -152,6 +152,12 @@ class SimWorld:
                 self.latest_scan_time = self.time
                 self._next_scan = self.time + 1.0 / self.config.lidar_rate
             self._cond.notify_all()
+
+    def _on_dock(self) -> bool:
+        if not self.world.docks:
+            return False
+        state = self.physics.state
+        return self.world.docked(state.x, state.y, state.theta)
 
     def advance(self, seconds: float) -> None:
         """Step ``round(seconds * physics_rate)`` times, as fast as possible."""
@@ -237,8 +243,7 @@ class SimWorld:
         angles = np.asarray(angles_rad, dtype=float)
         caster = self._device_caster
         if caster is None or not np.array_equal(caster.angles, -angles):
-            caster = RayCaster(self.world, -angles, self.config.range_min,
-                               self.config.range_max)
+            caster = self.lidar.with_angles(-angles)
             self._device_caster = caster
         pose = self._pose()
         return self.noise.lidar(self._with_objects(caster, caster.cast(*pose), pose))

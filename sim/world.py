@@ -11,6 +11,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from nav.dock import DockShape, in_contact
+
 T = TypeVar("T")
 
 #: Where the built-in worlds live (package data): ``<name>.toml``, selected by ``name``.
@@ -62,6 +64,8 @@ class World:
     segments: tuple[Segment, ...]
     circles: tuple[Circle, ...]
     start: Pose = Pose()
+    #: charging docks, each the robot's pose when docked (their V's arms are in ``segments``)
+    docks: tuple[Pose, ...] = ()
     segment_array: np.ndarray = field(init=False, repr=False, compare=False)
     circle_array: np.ndarray = field(init=False, repr=False, compare=False)
 
@@ -86,11 +90,28 @@ class World:
 
     def to_dict(self) -> dict[str, Any]:
         """The world in the world-file format (see docs/simulator.md)."""
+        arms = {arm for dock in self.docks for arm in dock_arms(dock)}
         return {
             "start": {"x": self.start.x, "y": self.start.y, "theta": self.start.theta},
-            "walls": [{"from": [s.x1, s.y1], "to": [s.x2, s.y2]} for s in self.segments],
+            "walls": [{"from": [s.x1, s.y1], "to": [s.x2, s.y2]} for s in self.segments
+                      if s not in arms],
             "circles": [{"center": [c.x, c.y], "radius": c.r} for c in self.circles],
+            **({"docks": [{"x": d.x, "y": d.y, "theta": d.theta} for d in self.docks]}
+               if self.docks else {}),
         }
+
+    def docked(self, x: float, y: float, theta: float) -> bool:
+        """The robot at (x, y, theta) touches a dock's charging contacts."""
+        return any(in_contact((x, y, theta), (d.x, d.y, d.theta)) for d in self.docks)
+
+
+#: the shape of the simulator's docks
+DOCK_SHAPE = DockShape()
+
+
+def dock_arms(dock: Pose) -> tuple[Segment, ...]:
+    """The two arms of the V of a dock (its pose: the robot's when docked)."""
+    return tuple(Segment(*arm) for arm in DOCK_SHAPE.arms((dock.x, dock.y, dock.theta)))
 
 
 def _segment_distances(seg: np.ndarray, x: float, y: float) -> np.ndarray:
@@ -215,14 +236,16 @@ def world_from_dict(data: Any) -> World:
     """Build a world from the world-file structure; errors name the offending field."""
     if not isinstance(data, Mapping):
         raise WorldError("the top level must be a table/object")
-    _reject_unknown(data, {"arena", "start", "walls", "circles"}, "")
+    _reject_unknown(data, {"arena", "start", "walls", "circles", "docks"}, "")
     walls = list(_arena(data.get("arena")))
     walls += [_wall(item, f"walls[{i}]") for i, item in enumerate(_list(data, "walls"))]
     circles = [_circle(item, f"circles[{i}]") for i, item in enumerate(_list(data, "circles"))]
     if not walls and not circles:
         raise WorldError("the world has no walls and no circles")
     start = _start(data.get("start"))
-    world = World(tuple(walls), tuple(circles), start)
+    docks = [_dock(item, f"docks[{i}]") for i, item in enumerate(_list(data, "docks"))]
+    walls += [arm for dock in docks for arm in dock_arms(dock)]
+    world = World(tuple(walls), tuple(circles), start, tuple(docks))
     if world.clearance(start.x, start.y) <= 0:
         raise WorldError(f"start: ({start.x}, {start.y}) is inside or on an obstacle")
     return world
@@ -288,6 +311,14 @@ def _circle(value: Any, where: str) -> Circle:
     if r <= 0:
         raise WorldError(f"{where}.radius: must be > 0, got {r}")
     return Circle(x, y, r)
+
+
+def _dock(value: Any, where: str) -> Pose:
+    table = _table(value, where, {"x", "y", "theta"})
+    if "theta" not in table:
+        raise WorldError(f"{where}.theta: missing (the heading of the robot when docked)")
+    return Pose(_number(table["x"], f"{where}.x"), _number(table["y"], f"{where}.y"),
+                _number(table["theta"], f"{where}.theta"))
 
 
 def _start(value: Any) -> Pose:

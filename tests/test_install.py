@@ -790,12 +790,15 @@ def test_dev_setup_installs_the_compiler_and_headers_a_minimal_debian_lacks(
     headless.write_text(f'#!/bin/sh\ncase "$*" in *sysconfig*) echo /nonexistent; exit 0;; esac\n'
                         f'exec {sys.executable} "$@"\n')
     headless.chmod(0o755)
+    fresh = str(tmp_path / "venv")  # no venv yet: the binding is to be built
     result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": str(headless),
-                                                 "ARBITERD_CC": "no-such-compiler"})
+                                                 "ARBITERD_CC": "no-such-compiler",
+                                                 "ARBITERD_DEV_VENV": fresh})
     assert result.returncode == 0, result.stderr
     apt = next(line for line in result.stdout.splitlines() if "apt-get install" in line)
     assert " gcc" in apt and " python3-dev" in apt, apt
-    result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": sys.executable})
+    result = install_sh("dev", "--dry-run", env={"ARBITERD_PYTHON": sys.executable,
+                                                 "ARBITERD_DEV_VENV": fresh})
     assert "python3-dev" not in result.stdout and " gcc" not in result.stdout, result.stdout
 
 

@@ -148,3 +148,15 @@ def test_a_thin_wall_met_end_on_is_seen() -> None:
 def test_corners_where_walls_meet_get_no_end_cap() -> None:
     ranges = cast(ARENA, 0.0, 0.0, 0.0, np.array([45.0]) * DEG, range_max=20.0)
     assert ranges[0] == pytest.approx(8.0 * math.sqrt(2.0))
+
+
+def test_a_caster_with_other_angles_casts_as_a_new_one() -> None:
+    """The RPLIDAR emulator's rays move every sample: it reuses the world's geometry."""
+    world = generated_world(3, obstacles=6)
+    base = RayCaster(world, ray_angles(), 0.1, 10.0)
+    angles = np.linspace(-0.3, 2.9, 37)
+    moved = base.with_angles(angles)
+    fresh = RayCaster(world, angles, 0.1, 10.0)
+    for pose in ((0.0, 0.0, 0.0), (1.2, -0.7, 2.0)):
+        np.testing.assert_array_equal(moved.cast(*pose), fresh.cast(*pose))
+    assert len(base.cast(0.0, 0.0, 0.0)) == 360  # the original keeps its fan

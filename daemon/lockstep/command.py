@@ -65,6 +65,14 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--kidnap", action="store_true", help="with --localise: once the first "
                    "pose is sure, each start is an untold teleport (a carry); also reports "
                    "how many were noticed and the median time to notice")
+    p.add_argument("--dock", type=int, metavar="N", help="dockings instead of a timed run: N "
+                   "times drive to a random pose of --world (default apartment and warehouse, "
+                   "N each), then go home to its dock, on a base that drifts, mapping on; "
+                   "judged against the true dock")
+    p.add_argument("--day", type=float, metavar="HOURS", help="a day in the life: HOURS "
+                   "simulated hours of missions (goals and fetches) in the warehouse on the "
+                   "simulated battery; the robot goes home by itself, charges and resumes; "
+                   "beside the same missions on an infinite battery")
     p.add_argument("--verbose", action="store_true", help="log every safety and autonomy "
                    "change to stderr")
     return p
@@ -80,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
         return run_fetch(args)
     if args.localise is not None:
         return run_localise(args)
+    if args.dock is not None:
+        return run_dock(args)
+    if args.day is not None:
+        return run_day(args)
     if args.seconds is None or not args.seconds > 0:
         print("arbiterd simulate: --seconds must be > 0", file=sys.stderr)
         return EXIT_USAGE
@@ -208,6 +220,51 @@ def run_fetch(args: argparse.Namespace) -> int:
     summary = summarise(rows)
     print(json.dumps({"missions": rows, "summary": summary}) if args.json
           else json.dumps(summary))
+    return EXIT_OK
+
+
+def run_dock(args: argparse.Namespace) -> int:
+    """``--dock N``: N dockings per world (--world, else apartment and warehouse)."""
+    import time
+
+    from daemon.lockstep.dock import DockRun, summarise
+
+    if args.dock < 1:
+        print("arbiterd simulate: --dock needs N >= 1", file=sys.stderr)
+        return EXIT_USAGE
+    started = time.perf_counter()
+    rows: list[dict[str, Any]] = []
+    for world in [args.world] if args.world else ["apartment", "warehouse"]:
+        try:
+            run = DockRun(world, args.seed or 1, args.dock)
+        except (ConfigError, SimConfigError, WorldError, OSError, ValueError) as exc:
+            print(f"arbiterd simulate: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+        for r in asyncio.run(run.run()):
+            rows.append(r)
+            if not args.json:
+                print(f"  {world} {'docked' if r['docked'] else r['result']:<8} from "
+                      f"{r['distance_m']:5.2f} m {r['seconds']:6.1f} s error "
+                      f"{r.get('error_m', 0):.4f} m {r.get('error_deg', 0):.2f} deg "
+                      f"collisions {r['collisions']} {r['reason']}", flush=True)
+    summary = summarise(rows, time.perf_counter() - started)
+    print(json.dumps({"dockings": rows, **summary}) if args.json else json.dumps(summary))
+    return EXIT_OK
+
+
+def run_day(args: argparse.Namespace) -> int:
+    """``--day HOURS``: missions on the battery, beside an infinite one."""
+    from daemon.lockstep.day import day_run
+
+    if not 0 < args.day <= 48:
+        print("arbiterd simulate: --day needs 0 < HOURS <= 48", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        result = asyncio.run(day_run(args.world or "warehouse", args.seed or 1, args.day))
+    except (ConfigError, SimConfigError, WorldError, OSError, ValueError) as exc:
+        print(f"arbiterd simulate: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    print(json.dumps(result))
     return EXIT_OK
 
 

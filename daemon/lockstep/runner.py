@@ -18,9 +18,13 @@ from daemon.components.arm.component import tool_at
 from daemon.components.arm.controller import ArmController
 from daemon.components.arm.settings import ArmSettings
 from daemon.components.autonomy.component import AutonomyComponent
+from daemon.components.battery.component import BatteryComponent
+from daemon.components.battery.settings import BatterySettings
 from daemon.components.collision_monitor.component import SafetyComponent
 from daemon.components.collision_monitor.settings import CollisionMonitorSettings
 from daemon.components.control.loop import ControlLoop
+from daemon.components.dock.component import DockComponent
+from daemon.components.dock.settings import DockSettings
 from daemon.components.fetch.component import FetchComponent
 from daemon.components.fetch.settings import FetchSettings
 from daemon.components.navigation.component import NavigationComponent
@@ -34,7 +38,7 @@ from daemon.settings import RobotSettings
 from daemon.telemetry import SCAN
 from drivers.devices import create_device
 from drivers.servo_array import ServoArray
-from sensors.scan import LaserScan
+from sensors.scan import LaserScan, ScanPoints
 from sim.coverage import Coverage
 from sim.settings import SimConfig, SimSettings
 from sim.stepper import SimWorld
@@ -78,7 +82,7 @@ class Lockstep:
     def __init__(self, config: Config, *, script: Sequence[Step] = (),
                  autonomy: str | None = None, mapping: bool = False,
                  map_out: str | None = None, navigation: bool = False,
-                 fetch: bool = False) -> None:
+                 fetch: bool = False, dock: bool = False) -> None:
         self.config = config
         self._simulated_lidar(config)
         self.clock = VirtualClock()
@@ -121,13 +125,34 @@ class Lockstep:
                                     self.truth_at_cast) if mapping else None
         self.navigation = NavigationComponent(config, self.plugs, lidar=True, points=points,
                                               inline=True, wall_clock=self.clock) \
-            if navigation or fetch else None
+            if navigation or fetch or dock else None
         if self.navigation is not None:
             self.components["navigation"] = self.navigation
         self.arm: ArmController | None = None
         self.fetch: FetchComponent | None = None
         if fetch:
             self._build_fetch(config)
+        self.battery: BatteryComponent | None = None
+        self.dock: DockComponent | None = None
+        if dock:
+            self._build_dock(config, points)
+
+    def _build_dock(self, config: Config, points: ScanPoints) -> None:
+        """The battery (reading the world's pack) with its policy, and the dock over
+        navigation, the collision monitor and the fetch."""
+        config.update("battery", {"enabled": True, "device": "sim"})
+        battery = BatteryComponent(config.get(BatterySettings), self.plugs,
+                                   model=self.world.battery.measure, wall_clock=self.clock)
+        self.battery = battery
+        nav = self.navigation
+        assert nav is not None
+        nav.gates.append(battery.refusal)
+        self.dock = DockComponent(
+            config.get(DockSettings), self.plugs, nav=nav, guard=self.safety,
+            battery=battery, fetch=self.fetch, points=points,
+            footprint_radius=config.get(CollisionMonitorSettings).footprint_radius,
+            store=None, wall_clock=self.clock)
+        battery.exempt = self.dock.exempt
 
     def _build_fetch(self, config: Config) -> None:
         """The arm (mock servos, stepped in each tick) and the fetch behaviour over it and

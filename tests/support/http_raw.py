@@ -142,14 +142,15 @@ def drip_is_refused(sock: socket.socket) -> bool:
     return not quiet_for(sock, 0.1) and closed_by_peer(sock, 0.1)
 
 
-def stalled_download(port: int, recording: str) -> socket.socket:
-    """A tokenless client that asks for a (large) recording, reads the answer's first bytes
-    and never reads again: the server's handler stays blocked on the socket."""
+def stalled_download(port: int, recording: str, path: str = "") -> socket.socket:
+    """A tokenless client that asks for a (large) recording (or any file at ``path``), reads
+    the answer's first bytes and never reads again: the server's handler stays blocked on
+    the socket."""
     sock = socket.socket()
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: a small window
     sock.settimeout(5)
     sock.connect((LOCAL, port))
-    sock.sendall(request("GET", f"/api/recordings/{recording}", port))
+    sock.sendall(request("GET", path or f"/api/recordings/{recording}", port))
     head = sock.recv(1024)
     assert head.startswith(b"HTTP/1.1 200"), head[:200]
     return sock

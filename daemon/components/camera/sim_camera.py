@@ -45,8 +45,11 @@ class SimCamera(Camera):
         self.seed = seed
         self._process: Any = None
         self._conn: Connection | None = None
+        #: set by a close: a start still running in its thread ends its worker at once
+        self._closing = False
 
     async def _open(self) -> None:
+        self._closing = False
         await asyncio.to_thread(self._start)
 
     def _start(self) -> None:
@@ -61,8 +64,13 @@ class SimCamera(Camera):
             process.kill()
             raise DeviceError(f"[{self.section}] sim: the render worker did not start")
         self._process, self._conn = process, parent
+        if self._closing:  # closed while this start ran: nobody will ever end the worker
+            self._process = self._conn = None
+            parent.close()
+            _end(process)
 
     async def _close(self) -> None:
+        self._closing = True
         conn, process = self._conn, self._process
         self._conn = self._process = None
         if conn is not None:

@@ -151,6 +151,16 @@ class SafetyComponent(BaseComponent):
         self.monitor.on_scan(px, py, t_first, t_first + max(0.0, scan.scan_time))
         self.monitor.warm(self._last_target, self.robot.limited_velocity())
 
+    def set_goal_zone(self, segments: list[tuple[float, float, float, float]] | None,
+                      band: float = 0.0) -> None:
+        """What the robot is meant to touch now (a dock's arms, in the odometry frame): the
+        lidar points within ``band`` of it are no obstacle until ``None`` clears it; every
+        other point keeps its margins."""
+        if (segments is None) != (self.monitor.goal_zone is None):
+            log.info("collision monitor: %s", "the dock is the goal: its arms are no obstacle"
+                     if segments else "no goal zone")
+        self.monitor.set_goal_zone(segments, band)
+
     # -- reporting -----------------------------------------------------------------------------
 
     def _report(self, action: str, reason: str, now: float) -> None:
@@ -184,7 +194,8 @@ class SafetyComponent(BaseComponent):
         nearest = self.monitor.nearest()
         return {"enabled": True, "action": self.action, "zone": self.monitor.zone(now),
                 "nearest_m": None if nearest is None else round(nearest, 3),
-                "scan_age_s": None if age is None else round(age, 3), "reason": self.reason}
+                "scan_age_s": None if age is None else round(age, 3), "reason": self.reason,
+                "goal_zone": self.monitor.goal_zone is not None}
 
     # -- component -----------------------------------------------------------------------------
 

@@ -141,6 +141,12 @@ class CollisionMonitor:
         self._bin_width = 2.0 * math.pi / settings.bins
         self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=POSE_HISTORY)
         self._odom_points: tuple[Array, Array] | None = None
+        #: every point of the revolution, the goal's too (odometry frame)
+        self._all_points: tuple[Array, Array] | None = None
+        #: the goal the robot is meant to touch (a dock's arms, odometry frame), and the band
+        #: around it whose points are not obstacles
+        self.goal_zone: tuple[Array, float] | None = None
+        self.goal_points = 0
         self.table: Table | None = None
         self.scan_first: float | None = None
         self.scan_last: float | None = None
@@ -188,10 +194,37 @@ class CollisionMonitor:
         keep &= np.hypot(px, py) <= self.reach + 2.0 * self.settings.retransform_distance + 1.0
         px, py = px[keep], py[keep]
         c, s = math.cos(th0), math.sin(th0)
-        self._odom_points = (x0 + c * px - s * py, y0 + s * px + c * py)
+        self._all_points = (x0 + c * px - s * py, y0 + s * px + c * py)
+        self._odom_points = self._without_goal(*self._all_points)
         self.scan_first, self.scan_last = t_first, t_last
         self.scans += 1
         self._place(self.pose)
+
+    def set_goal_zone(self, segments: list[tuple[float, float, float, float]] | None,
+                      band: float = 0.0) -> None:
+        """The goal the robot is meant to touch (segments in the odometry frame; None: no
+        goal): points within ``band`` of them are not obstacles until it is cleared. Every
+        other point keeps its margins."""
+        self.goal_zone = None if not segments else (np.array(segments, dtype=float), band)
+        if self._all_points is not None:
+            self._odom_points = self._without_goal(*self._all_points)
+            self._place(self.pose)
+
+    def _without_goal(self, ox: Array, oy: Array) -> tuple[Array, Array]:
+        zone = self.goal_zone
+        if zone is None:
+            self.goal_points = 0
+            return ox, oy
+        segments, band = zone
+        distance = np.full(len(ox), np.inf)
+        for x1, y1, x2, y2 in segments:
+            ex, ey = x2 - x1, y2 - y1
+            u = np.clip(((ox - x1) * ex + (oy - y1) * ey) / max(ex * ex + ey * ey, 1e-12),
+                        0.0, 1.0)
+            distance = np.minimum(distance, np.hypot(x1 + u * ex - ox, y1 + u * ey - oy))
+        obstacle = distance > band
+        self.goal_points = int(len(ox) - obstacle.sum())
+        return ox[obstacle], oy[obstacle]
 
     @property
     def pose(self) -> tuple[float, float, float]:

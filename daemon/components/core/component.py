@@ -13,6 +13,7 @@ from aiohttp import web
 from daemon.bus import Bus
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Reports, Route
 from daemon.latency import LatencyTracker
+from daemon.logthrottle import RepeatFilter
 from daemon.messages.convert import diagnostics_msg, json_string_msg, log_msg
 from daemon.messages.definitions import DIAGNOSTIC_ARRAY, LOG, STRING
 from daemon.metrics import prometheus_text
@@ -101,6 +102,7 @@ class LogRelay(logging.Handler):
 
     def __init__(self, bus: Bus, loop: asyncio.AbstractEventLoop) -> None:
         super().__init__(logging.INFO)
+        self.addFilter(RepeatFilter())  # /rosout and the recording: no flood either
         self.bus = bus
         self.loop = loop
         self.thread = threading.get_ident()

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from aiohttp import web
 
+from daemon import coords
 from daemon.bus import BusKey
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, Plugs, Route
 from daemon.components.arm.component import ArmComponent
@@ -145,12 +146,10 @@ def point_of(body: Mapping[str, Any], key: str) -> tuple[float, float]:
     value = body[key]
     if not isinstance(value, list) or len(value) != 2:
         raise FetchError(f"{key}: expected [x, y], got {value!r}")
-    out = []
-    for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise FetchError(f"{key}[{i}]: expected a finite number, got {v!r}")
-        out.append(float(v))
-    return out[0], out[1]
+    try:
+        return coords.point(value, (f"{key}[0]", f"{key}[1]"))
+    except coords.CoordinateError as exc:
+        raise FetchError(str(exc)) from None
 
 
 class FetchComponent(BaseComponent):

@@ -95,15 +95,15 @@ class Roster:
 
     def on_status(self, robot_id: str, status: dict[str, Any]) -> None:
         with self._lock:
-            robot = self._robot(robot_id)
-            robot.last_seen = self.clock()
-            robot.estop_engaged = bool(status.get("estop_engaged"))
+            member = self._robot(robot_id)
+            member.last_seen = self.clock()
+            member.estop_engaged = bool(status.get("estop_engaged"))
             if isinstance(status.get("console"), str):
-                robot.info.setdefault("console", status["console"])
+                member.info.setdefault("console", status["console"])
             if isinstance(status.get("health"), str):
-                robot.health = status["health"]
-            if robot.pose is None and isinstance(status.get("pose"), dict):
-                robot.pose = {**status["pose"], "frame": "odom"}
+                member.health = status["health"]
+            if member.pose is None and isinstance(status.get("pose"), dict):
+                member.pose = {**status["pose"], "frame": "odom"}
 
     def snapshot(self, stale_s: float) -> list[dict[str, Any]]:
         now = self.clock()

@@ -18,6 +18,7 @@ from daemon.components.foxglove import protocol
 from daemon.components.foxglove.channels import Channel, Outgoing
 from daemon.components.foxglove.protocol import ERROR, WARNING, ProtocolError
 from daemon.components.rosbridge.access import TOKEN_HINT, Authority
+from daemon.coords import missing_required
 from daemon.messages.cdr import CdrError
 from daemon.messages.cdr_read import decode as cdr_decode
 from daemon.messages.msgtypes import MessageError, check_message, has_type, normalize_type
@@ -109,11 +110,11 @@ class FoxgloveSession:
     # -- reading ------------------------------------------------------------------------------
 
     async def serve(self, hello: list[str]) -> None:
-        """Greets (``serverInfo``, the time, then ``advertise``: a player that takes the
-        server's time has one before it sees any topic), then reads until the socket closes."""
-        info, *rest = hello
+        """Greets (``serverInfo``, ``advertise``, then the time: a player that takes the
+        server's time has one before any message, which flows only after it subscribed), then
+        reads until the socket closes."""
         self._last_time_ns = time.time_ns()
-        first: list[str | bytes] = [info, protocol.time_frame(self._last_time_ns), *rest]
+        first: list[str | bytes] = [*hello, protocol.time_frame(self._last_time_ns)]
         self._texts.extend(first)
         self._wake.set()
         writer = asyncio.create_task(self._write_forever(), name=f"foxglove-writer-{self.id}")
@@ -282,7 +283,12 @@ class FoxgloveSession:
                 value: Any = cdr_decode(channel.type, payload)
             else:
                 value = json.loads(payload)
-            return check_message(channel.type, value)
+            msg = check_message(channel.type, value)
+            missing = None if channel.robot is None else missing_required(
+                value, channel.robot.required)  # as sent: before the defaults filled it in
+            if missing is not None:
+                raise MessageError(f"msg.{missing}")
+            return msg
         except (CdrError, MessageError, ValueError, RecursionError) as exc:
             reason = str(exc) or type(exc).__name__
             raise ProtocolError(f"publish {channel.topic}: {reason[:300]}") from None

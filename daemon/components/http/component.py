@@ -138,11 +138,12 @@ class Guard:
                                             self.security.read_requires_token)
         if not needs_token:
             return
-        if self.security.guessing(request.headers, request.query, request.remote):
+        token = self.security.check_token(request.headers, request.query, request.remote)
+        if token == "guessing":
             raise ApiError(429, "too many wrong tokens from this address",
-                           "tokens from it are refused unchecked for a while; wait a second",
+                           "wrong tokens from it are refused for a while; wait a second",
                            {"Retry-After": "1"})
-        if not self.security.token_ok(request.headers, request.query, request.remote):
+        if token != "ok":
             raise ApiError(401, "a valid bearer token is required",
                            "send 'Authorization: Bearer <token>'",
                            {"WWW-Authenticate": 'Bearer realm="arbiterd"'})
@@ -251,6 +252,7 @@ class HttpServer:
         self._accept_errors.install()
         self._runner = CappedRunner(self.app, self.max_connections,
                                     reserved=self.reserved_connections, access_log=None,
+                                    send_timeout_s=self.send_timeout_s,
                                     handle_signals=False, keepalive_timeout=self.idle_timeout_s,
                                     shutdown_timeout=SHUTDOWN_GRACE_S)
         self.bound_port = await start_listening(self._runner,

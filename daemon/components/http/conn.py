@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 import logging
+import socket
+import struct
 import time
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -84,6 +87,34 @@ class JsonRequestHandler(RequestHandler):
         response.force_close()
         return response
 
+    async def finish_response(self, request: BaseRequest, resp: web.StreamResponse,
+                              start_time: float | None) -> tuple[web.StreamResponse, bool]:
+        """aiohttp's, watched when the server has a send timeout: an answer (a big map as
+        JSON) to a client that stops reading would otherwise wait on the socket for ever,
+        holding its connection slot. When no byte of it leaves for ``send_timeout_s`` (as for
+        a download), the connection is reset."""
+        timeout = getattr(self._manager, "send_timeout_s", None)
+        finishing = asyncio.ensure_future(super().finish_response(request, resp, start_time))
+        if timeout is None:
+            return await finishing
+        queued = -1
+        while True:
+            done, _ = await asyncio.wait((finishing,), timeout=timeout)
+            if done:
+                return finishing.result()
+            transport = self.transport
+            now = transport.get_write_buffer_size() if transport is not None else 0
+            if 0 <= queued <= now or transport is None:
+                break
+            queued = now
+        finishing.cancel()
+        bad_request_log(logging.WARNING, "HTTP answer to %s closed: it made no progress for %g "
+                        "s (%d bytes still queued); [http] send_timeout_s sets the limit",
+                        request.remote, timeout, queued)
+        abort_with_reset(self.transport)
+        self.force_close()
+        return resp, True
+
     def log_exception(self, *args: Any, **kw: Any) -> None:
         """aiohttp's own "Unhandled exception" (e.g. a corrupt body it drains after the answer):
         one rate-limited line, no traceback."""
@@ -106,6 +137,18 @@ class JsonRequestHandler(RequestHandler):
         return not self._request_in_progress and not self._messages and not self.closing
 
 
+def abort_with_reset(transport: asyncio.Transport | None) -> None:
+    """Close a connection at once with a reset, dropping what is still queued for it (a plain
+    close would leave the kernel sending it to a client that reads nothing, for minutes)."""
+    if transport is None:
+        return
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    transport.abort()
+
+
 class CappedServer(web.Server):
     """The low-level server with :class:`JsonRequestHandler` and at most ``max_connections``
     open: a new connection beyond the cap closes the oldest idle one (or itself if every
@@ -115,6 +158,8 @@ class CappedServer(web.Server):
     max_connections = 256
     #: beyond the cap, while every connection is busy: connections for the priority routes
     reserved = 0
+    #: an answer's time to be taken by its client, per 64 KiB (None: no deadline)
+    send_timeout_s: float | None = None
     refused = 0
     label = "HTTP"
     setting = "[http] max_connections"
@@ -173,10 +218,11 @@ class CappedRunner(web.AppRunner):
 
     def __init__(self, app: web.Application, max_connections: int, *, reserved: int = 0,
                  label: str = "HTTP", setting: str = "[http] max_connections",
-                 **kwargs: Any) -> None:
+                 send_timeout_s: float | None = None, **kwargs: Any) -> None:
         super().__init__(app, **kwargs)
         self.max_connections = max_connections
         self.reserved = reserved
+        self.send_timeout_s = send_timeout_s
         self.label, self.setting = label, setting
 
     async def _make_server(self) -> web.Server:
@@ -185,6 +231,7 @@ class CappedRunner(web.AppRunner):
         assert isinstance(server, CappedServer)
         server.max_connections = self.max_connections
         server.reserved = self.reserved
+        server.send_timeout_s = self.send_timeout_s
         server.label, server.setting = self.label, self.setting
         server.request_handler = json_http_errors(server.request_handler)
         return server

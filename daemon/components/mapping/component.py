@@ -34,13 +34,17 @@ from daemon.components.mapping.runner import (
     snapshot_of,
 )
 from daemon.components.mapping.settings import MappingSettings, map_name_error
+from daemon.coords import CoordinateError, Extent
+from daemon.files import FileRefused, sees_paths, serve_file, shown
 from daemon.health import Health
 from daemon.messages.definitions import OCCUPANCY_GRID, POSE_WITH_COVARIANCE_STAMPED
 from daemon.paths import state_directory
+from daemon.security import Security
 from daemon.settings import RobotSettings
 from daemon.telemetry import POWER, SCAN, TRANSFORMS, PowerEvent, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
-from daemon.web import ApiError, json_response, read_json_object
+from daemon.web import ApiError, HttpPort, json_response, read_json_object
+from daemon.workers import WorkerDown
 from sensors.rplidar.settings import LidarSettings
 from sensors.scan import LaserScan, ScanPoints
 from slam.mapper import MapperConfig, ScanResult
@@ -86,8 +90,10 @@ class MappingComponent(BaseComponent):
     def __init__(self, settings: MappingSettings, plugs: Plugs, points: ScanPoints, *,
                  maps_dir: Path, base_frame_id: str = "base_link",
                  odom_frame_id: str = "odom", inline: bool = False,
-                 wall_clock: Callable[[], float] = time.time) -> None:
+                 wall_clock: Callable[[], float] = time.time,
+                 http: HttpPort | None = None, security: Security | None = None) -> None:
         self.settings = settings
+        self.http, self.security = http, security or Security("")
         self.bus = plugs.bus
         self.robot = plugs.robot
         self.clock = self.robot.clock
@@ -117,9 +123,8 @@ class MappingComponent(BaseComponent):
 
     def mapper_config(self) -> MapperConfig:
         s = self.settings
-        cells = int((s.max_size_m / s.resolution) ** 2)
         return MapperConfig(resolution=s.resolution, max_range=s.max_range_m, mode=s.mode,
-                            loop_closure=s.loop_closure, max_cells=cells)
+                            loop_closure=s.loop_closure, max_cells=s.max_cells)
 
     async def start(self) -> None:
         grid = None
@@ -136,6 +141,8 @@ class MappingComponent(BaseComponent):
     async def _warm_up(self, runner: MapperRunner) -> None:
         try:
             await runner.health()
+        except WorkerDown as exc:
+            self._lost(exc)
         except Exception as exc:
             self._fail(exc)
 
@@ -164,7 +171,7 @@ class MappingComponent(BaseComponent):
 
     def load(self, name: str) -> MapData:
         """A saved map, checked against [mapping] resolution."""
-        grid = load_map(self.maps_dir / f"{name}.yaml")
+        grid = load_map(self.maps_dir / f"{name}.yaml", self.settings.max_cells)
         if not math.isclose(grid.resolution, self.settings.resolution, rel_tol=1e-6):
             raise MapFileError(f"map {name!r} has {grid.resolution:g} m cells, [mapping] "
                                f"resolution is {self.settings.resolution:g}: set it to "
@@ -237,7 +244,10 @@ class MappingComponent(BaseComponent):
                 odom, points, stamp, _ = job
                 try:
                     result = await self.runner.add_scan(odom, points, stamp)
-                except Exception as exc:  # the worker died or the mapper failed
+                except WorkerDown as exc:  # restarted by its supervisor: skip, go on
+                    self._lost(exc)
+                    return
+                except Exception as exc:  # the mapper failed
                     self._fail(exc)
                     return
                 self._apply(result, stamp)
@@ -253,6 +263,12 @@ class MappingComponent(BaseComponent):
             self.counters.skipped_busy += 1
         return None
 
+    def _lost(self, exc: WorkerDown) -> None:
+        """A revolution or a map lost because the worker is down: counted, not fatal."""
+        self.counters.failed += 1
+        self._pending.clear()
+        log.debug("mapping: %s", exc)
+
     def _fail(self, exc: BaseException) -> None:
         self.counters.failed += 1
         self.problem = f"the mapper failed: {type(exc).__name__}: {exc}"
@@ -262,6 +278,8 @@ class MappingComponent(BaseComponent):
     def _apply(self, result: ScanResult, stamp: float) -> None:
         self.counters.scans += 1
         self.last = result
+        if isinstance(self.runner, ProcessRunner):
+            self.runner.moved_to(result.pose)
         map_frame, odom_frame, _base_frame = self.frames
         self.bus.publish(TRANSFORMS, (Transform(stamp, map_frame, odom_frame,
                                                 *result.map_to_odom),))
@@ -289,6 +307,9 @@ class MappingComponent(BaseComponent):
             return
         try:
             snapshot = await self.runner.snapshot(self.map_version)
+        except WorkerDown as exc:
+            self._lost(exc)
+            return
         except Exception as exc:
             self._fail(exc)
             return
@@ -309,6 +330,15 @@ class MappingComponent(BaseComponent):
 
     async def set_pose(self, pose: Pose2) -> None:
         """Localise from ``pose`` (map frame) at the current odometry."""
+        grid = self.latest_map
+        if grid is not None:
+            extent = Extent(grid.origin_x, grid.origin_y,
+                            grid.origin_x + grid.width * grid.resolution,
+                            grid.origin_y + grid.height * grid.resolution)
+            try:
+                extent.check(pose[0], pose[1], "x, y")
+            except CoordinateError as exc:
+                raise ApiError(422, f"invalid pose: {exc}") from None
         if self.runner is None:
             raise ApiError(409, f"mapping is not running: {self.problem or 'no mapper'}")
         odom = self.robot.pose()
@@ -372,7 +402,11 @@ class MappingComponent(BaseComponent):
         if grid is None:
             raise ApiError(409, "no map to save yet: drive until the lidar has seen some walls")
         try:
-            pgm, yml = await asyncio.to_thread(save_map, self.maps_dir, name, grid)
+            pgm, yml = await asyncio.to_thread(save_map, self.maps_dir, name, grid,
+                                               int(self.settings.max_saved_mb * 1e6))
+        except FileRefused as exc:
+            raise ApiError(507, f"map not saved: {exc.strerror}", "delete saved maps or raise "
+                           "[mapping] max_saved_mb") from None
         except OSError as exc:
             raise ApiError(500, f"cannot save the map in {self.maps_dir}: {exc.strerror}; "
                            "set [mapping] directory to a writable folder") from None
@@ -381,19 +415,20 @@ class MappingComponent(BaseComponent):
                 "height": grid.height, "resolution": grid.resolution}
 
     async def get_maps(self, request: web.Request) -> web.Response:
-        return json_response({"maps": await asyncio.to_thread(saved_maps, self.maps_dir)})
+        maps = await asyncio.to_thread(saved_maps, self.maps_dir)
+        return json_response({"maps": shown(sees_paths(self.security, request), maps)})
 
     async def get_map_file(self, request: web.Request) -> web.StreamResponse:
         filename = request.match_info["file"]
         stem, _, extension = filename.rpartition(".")
+        missing = f"no map file {filename[:80]!r} (GET /api/maps lists them)"
         if extension not in ("yaml", "pgm") or map_name_error(stem):
-            raise ApiError(404, f"no map file {filename!r}: ask for NAME.yaml or NAME.pgm "
-                           "(GET /api/maps lists them)")
-        path = self.maps_dir / filename
-        if not path.is_file():
-            raise ApiError(404, f"no map file {filename!r} (GET /api/maps lists them)")
-        return web.FileResponse(path, headers={"Content-Disposition":
-                                               f'attachment; filename="{filename}"'})
+            raise ApiError(404, f"{missing}: ask for NAME.yaml or NAME.pgm")
+        content_type = "application/x-yaml" if extension == "yaml" else \
+            "image/x-portable-graymap"
+        assert self.http is not None, "routes are served only with ctx.http"
+        return await serve_file(self.http, request, self.maps_dir, filename, content_type,
+                                missing)
 
     async def post_pose(self, request: web.Request) -> web.Response:
         body = await read_json_object(request, 4096)
@@ -445,7 +480,7 @@ class MappingComponent(BaseComponent):
                 TopicOut("/pose", POSE_WITH_COVARIANCE_STAMPED, MAP_POSE, messages.pose_msg,
                          "per revolution"),
                 TopicIn("/initialpose", POSE_WITH_COVARIANCE_STAMPED, self.on_initial_pose,
-                        "drive"))
+                        "drive", required=("pose.pose.position.x", "pose.pose.position.y")))
 
     def status(self) -> dict[str, Any]:
         last, c = self.last, self.counters
@@ -474,6 +509,13 @@ class MappingComponent(BaseComponent):
         problem = status.pop("problem", None)
         if self.problem:
             return Health("error", str(problem or self.problem), status)
+        worker = self.runner.worker if isinstance(self.runner, ProcessRunner) else None
+        down = worker.problem() if worker is not None else None
+        if worker is not None:
+            status["worker"] = worker.values()
+        if down is not None:
+            return Health(down[0], f"{down[1]} (the map since the last save starts anew)"
+                          if self.settings.mode == "map" else down[1], status)
         if status.get("localisation") == "ambiguous":
             return Health("degraded", "the robot's view fits several places of the map alike "
                           "(candidates): drive on, or set the pose", status)
@@ -518,7 +560,8 @@ def create(ctx: DaemonContext) -> MappingComponent | None:
     return MappingComponent(settings, ctx.plugs, ctx.scan_points,
                             maps_dir=maps_directory(settings),
                             base_frame_id=robot.base_frame_id,
-                            odom_frame_id=robot.odom_frame_id)
+                            odom_frame_id=robot.odom_frame_id, http=ctx.http,
+                            security=ctx.security)
 
 
 COMPONENT = ComponentSpec("mapping", create, MappingSettings)

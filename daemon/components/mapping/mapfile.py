@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +10,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import yaml
+
+from daemon.files import list_regular, read_head, read_regular, write_atomically
 
 #: the thresholds a saved YAML carries; grey 205 (unknown) reads as occupancy 50/255 = 0.196,
 #: which a free threshold of 0.196 keeps unknown (a reader tests ``occ < free_thresh``)
@@ -25,6 +26,9 @@ REQUIRED_KEYS = ("image", "resolution", "origin")
 MODES = ("trinary", "scale", "raw")
 #: the largest image a map file may hold (a 500 m square at 0.05 m)
 MAX_CELLS = 100_000_000
+#: the largest map YAML read, and how much of an image is read for its header
+MAX_YAML_BYTES = 65536
+HEADER_BYTES = 512
 
 Int8Grid = npt.NDArray[np.int8]
 
@@ -54,14 +58,27 @@ class MapData:
 
 # -- writing ----------------------------------------------------------------------------------
 
-def save_map(directory: Path, name: str, grid: MapData) -> tuple[Path, Path]:
+def save_map(directory: Path, name: str, grid: MapData,
+             max_total_bytes: int | None = None) -> tuple[Path, Path]:
     """Write NAME.pgm and NAME.yaml (trinary, as map_saver does); each file is written to a
-    temporary name first, so a reader never sees half a map. Returns both paths."""
-    directory.mkdir(parents=True, exist_ok=True)
-    pgm, yml = directory / f"{name}.pgm", directory / f"{name}.yaml"
-    _write_atomically(pgm, pgm_bytes(grid.occupancy))
-    _write_atomically(yml, yaml_text(pgm.name, grid).encode())
+    temporary name first, so a reader never sees half a map. With ``max_total_bytes``, the
+    maps directory's saved maps (this one's old files not counted) stay within it, else
+    :class:`~daemon.files.FileRefused`. Returns both paths."""
+    image, text = pgm_bytes(grid.occupancy), yaml_text(f"{name}.pgm", grid).encode()
+    room = None
+    if max_total_bytes is not None:
+        replaced = {f"{name}.pgm", f"{name}.yaml"}
+        used = sum(size for file, size, _ in list_regular(directory, is_map_file).files
+                   if file not in replaced)
+        room = max_total_bytes - used - len(text)
+    limit = MAX_CELLS + 4096
+    pgm = write_atomically(directory, f"{name}.pgm", image, max_bytes=limit, room=room)
+    yml = write_atomically(directory, f"{name}.yaml", text, max_bytes=MAX_YAML_BYTES)
     return pgm, yml
+
+
+def is_map_file(name: str) -> bool:
+    return name.endswith((".yaml", ".pgm")) and not name.startswith(".")
 
 
 def pgm_bytes(occupancy: Int8Grid) -> bytes:
@@ -82,24 +99,17 @@ def yaml_text(image: str, grid: MapData) -> str:
     }, sort_keys=False)
 
 
-def _write_atomically(path: Path, data: bytes) -> None:
-    partial = path.with_name(f".{path.name}.partial")
-    with open(partial, "wb") as file:
-        file.write(data)
-        file.flush()
-        os.fsync(file.fileno())
-    partial.replace(path)
-
-
 # -- reading ----------------------------------------------------------------------------------
 
-def load_map(yaml_path: Path) -> MapData:
-    """Read a map_server YAML and the image it names (PGM, P5 or P2, 8 bit)."""
+def load_map(yaml_path: Path, max_cells: int = MAX_CELLS) -> MapData:
+    """Read a map_server YAML and the image it names (PGM, P5 or P2, 8 bit) beside it; an
+    image of more than ``max_cells`` cells is refused from its header, before it is read."""
     meta = read_yaml(yaml_path)
     image = Path(meta["image"])
-    if not image.is_absolute():
-        image = yaml_path.parent / image
-    grey = read_pgm(image)
+    if image.is_absolute() or image.name != meta["image"]:
+        raise MapFileError(f"{yaml_path}: image: expected a file name beside the YAML, got "
+                           f"{meta['image']!r}")
+    grey = read_pgm(yaml_path.parent / image, max_cells)
     occupancy = occupancy_of(grey, meta)
     origin = meta["origin"]
     return MapData(occupancy, meta["resolution"], origin[0], origin[1])
@@ -108,7 +118,7 @@ def load_map(yaml_path: Path) -> MapData:
 def read_yaml(path: Path) -> dict[str, Any]:
     """The YAML's keys, checked: every problem names the file and the key."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_regular(path.parent, path.name, MAX_YAML_BYTES).decode("utf-8")
     except FileNotFoundError:
         raise MapFileError(f"{path}: no such map file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -170,30 +180,52 @@ _PGM_HEADER = re.compile(rb"(P[25])\s+(?:#[^\n]*\n\s*)*(\d+)\s+(?:#[^\n]*\n\s*)*
                          rb"(?:#[^\n]*\n\s*)*(\d+)\s")
 
 
-def read_pgm(path: Path) -> npt.NDArray[np.uint8]:
-    """An 8-bit PGM image, top row first; errors name the file and the byte offset."""
+def read_pgm(path: Path, max_cells: int = MAX_CELLS) -> npt.NDArray[np.uint8]:
+    """An 8-bit PGM image, top row first; errors name the file and the byte offset. The size
+    is checked from the header before the image is read: at most ``max_cells`` cells."""
+    kind, width, height, start = pgm_header(path, max_cells)
+    limit = start + width * height * (4 if kind == b"P2" else 1) + 4096
+    data = _read(path, limit)
+    if kind == b"P2":  # the header was matched with CRLF as LF
+        return _plain_pgm(path, data.replace(b"\r\n", b"\n")[start:], width, height)
+    body = data[start:]
+    expected = width * height
+    if len(body) < expected:
+        raise MapFileError(f"{path}: truncated: {width} x {height} cells need {expected} "
+                           f"bytes after the header (byte {start}), found {len(body)}")
+    return np.frombuffer(body[:expected], dtype=np.uint8).reshape(height, width)
+
+
+def pgm_header(path: Path, max_cells: int = MAX_CELLS) -> tuple[bytes, int, int, int]:
+    """A PGM's kind (P5, P2), width, height and where its data starts, from its first bytes
+    only; a map of more than ``max_cells`` cells is refused here."""
     try:
-        data = path.read_bytes()
+        head = read_head(path.parent, path.name, HEADER_BYTES)
     except FileNotFoundError:
         raise MapFileError(f"{path}: the map's image file is missing") from None
     except OSError as exc:
         raise MapFileError(f"{path}: cannot read: {exc}") from None
-    header = _PGM_HEADER.match(data.replace(b"\r\n", b"\n") if data[:2] == b"P2" else data)
+    header = _PGM_HEADER.match(head.replace(b"\r\n", b"\n") if head[:2] == b"P2" else head)
     if header is None:
         raise MapFileError(f"{path}: not a PGM image (byte 0: expected 'P5' or 'P2' and a "
                            "width, height and maximum value); arbiterd reads PGM maps")
     kind, width, height, maxval = header[1], int(header[2]), int(header[3]), int(header[4])
-    if not 0 < width * height <= MAX_CELLS or not 0 < maxval < 256:
-        raise MapFileError(f"{path}: {width} x {height} cells with maximum {maxval}: expected "
-                           f"an 8-bit image of at most {MAX_CELLS} cells")
-    if kind == b"P2":
-        return _plain_pgm(path, data[header.end():], width, height)
-    body = data[header.end():]
-    expected = width * height
-    if len(body) < expected:
-        raise MapFileError(f"{path}: truncated: {width} x {height} cells need {expected} "
-                           f"bytes after the header (byte {header.end()}), found {len(body)}")
-    return np.frombuffer(body[:expected], dtype=np.uint8).reshape(height, width)
+    if not 0 < maxval < 256:
+        raise MapFileError(f"{path}: maximum value {maxval}: expected an 8-bit image")
+    if not 0 < width * height <= max_cells:
+        raise MapFileError(f"{path}: {width} x {height} = {width * height} cells: at most "
+                           f"{max_cells} are loaded ([mapping] max_size_m / resolution, "
+                           "squared)")
+    return kind, width, height, header.end()
+
+
+def _read(path: Path, limit: int) -> bytes:
+    try:
+        return read_regular(path.parent, path.name, limit)
+    except FileNotFoundError:
+        raise MapFileError(f"{path}: the map's image file is missing") from None
+    except OSError as exc:
+        raise MapFileError(f"{path}: cannot read: {exc}") from None
 
 
 def _plain_pgm(path: Path, body: bytes, width: int, height: int) -> npt.NDArray[np.uint8]:
@@ -228,15 +260,18 @@ def occupancy_of(grey: npt.NDArray[np.uint8], meta: dict[str, Any]) -> Int8Grid:
 
 
 def saved_maps(directory: Path) -> list[dict[str, Any]]:
-    """The maps in ``directory``: name, size and the YAML's resolution, newest first."""
+    """The maps in ``directory``: name, size and the YAML's resolution, newest first; each
+    read no further than its YAML and its image's header (bounded work per listing)."""
     out = []
-    for yml in directory.glob("*.yaml") if directory.is_dir() else ():
-        entry: dict[str, Any] = {"name": yml.stem, "modified": yml.stat().st_mtime}
+    listing = list_regular(directory, lambda name: name.endswith(".yaml") and
+                           not name.startswith("."))
+    for name, _, modified in listing.files:
+        yml = directory / name
+        entry: dict[str, Any] = {"name": yml.stem, "modified": modified}
         try:
             meta = read_yaml(yml)
-            grey = read_pgm(yml.parent / meta["image"])
-            entry.update(resolution=meta["resolution"], width=grey.shape[1],
-                         height=grey.shape[0])
+            _, width, height, _ = pgm_header(yml.parent / Path(meta["image"]).name)
+            entry.update(resolution=meta["resolution"], width=width, height=height)
         except MapFileError as exc:
             entry["error"] = str(exc)
         out.append(entry)

@@ -5,6 +5,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from daemon import coords
 from daemon.components.mapping.mapfile import MapData
 from daemon.messages.convert import header, quaternion_z
 from slam.mapper import ScanResult
@@ -70,13 +71,16 @@ def pose_of(msg: dict[str, Any], map_frame: str) -> Pose2:
     if frame != map_frame:
         raise ValueError(f"header.frame_id is {frame!r}: a pose in the map is expected "
                          f"(frame {map_frame!r})")
-    pose = msg["pose"]
-    pose = pose.get("pose", pose)
-    position = pose["position"]
-    x, y = float(position["x"]), float(position["y"])
-    theta = yaw_of(pose["orientation"])
-    if not all(math.isfinite(v) for v in (x, y, theta)):
-        raise ValueError("pose: x, y and the orientation must be finite numbers")
+    outer = msg.get("pose", {})
+    inner = "pose" in outer
+    pose = outer.get("pose", outer)
+    at = "pose.pose" if inner else "pose"
+    position = pose.get("position", {})
+    x = coords.coordinate(position.get("x"), f"{at}.position.x")
+    y = coords.coordinate(position.get("y"), f"{at}.position.y")
+    theta = yaw_of(pose.get("orientation", {}))
+    if not math.isfinite(theta):
+        raise ValueError(f"{at}.orientation: expected finite numbers")
     return (x, y, theta)
 
 
@@ -87,18 +91,11 @@ def pose_of_json(body: Any) -> Pose2:
     unknown = sorted(set(body) - {"x", "y", "theta", "heading_deg"})
     if unknown:
         raise ValueError(f"{unknown[0]}: unknown field (x, y, theta or heading_deg)")
-    values = []
-    for key in ("x", "y"):
-        values.append(_finite(body.get(key), key))
+    x, y = coords.coordinate(body.get("x"), "x"), coords.coordinate(body.get("y"), "y")
     if "heading_deg" in body:
-        values.append(math.radians(_finite(body["heading_deg"], "heading_deg")))
+        theta = math.radians(coords.number(body["heading_deg"], "heading_deg"))
     else:
-        values.append(_finite(body.get("theta", 0.0), "theta"))
-    return (values[0], values[1], values[2])
-
-
-def _finite(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not math.isfinite(value):
-        raise ValueError(f"{key}: expected a finite number, got {value!r}")
-    return float(value)
+        theta = coords.angle(body.get("theta", 0.0), "theta")
+    if abs(theta) > coords.MAX_ANGLE_RAD:
+        raise coords.CoordinateError("heading_deg", "beyond the largest angle taken")
+    return (x, y, theta)

@@ -2,7 +2,6 @@
 # it), or inline for the lockstep simulator and offline builds (repeatable, simulated time).
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
@@ -10,7 +9,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 
 from daemon.components.mapping.mapfile import MapData
-from daemon.workers import worker_pool
+from daemon.workers import SupervisedWorker
 from slam.grid import OccupancyGrid
 from slam.mapper import Mapper, MapperConfig, ScanResult
 from slam.pose import Pose2
@@ -136,10 +135,17 @@ class ProcessRunner:
 
     def __init__(self, config: MapperConfig, grid: MapData | None = None,
                  pose: Pose2 = (0.0, 0.0, 0.0)) -> None:
-        self.pool = worker_pool(_worker_start, config, grid, pose)
+        #: where a restarted mapper starts: the saved map (localize) or a new one, at the
+        #: pose the last revolution gave (:meth:`moved_to`)
+        self.start_pose = pose
+        self.worker = SupervisedWorker("mapping", _worker_start,
+                                       lambda: (config, grid, self.start_pose))
+
+    def moved_to(self, pose: Pose2) -> None:
+        self.start_pose = pose
 
     async def _call(self, function: Callable[..., T], *args: Any) -> T:
-        return await asyncio.get_running_loop().run_in_executor(self.pool, function, *args)
+        return await self.worker.call(function, *args)
 
     async def add_scan(self, odom_pose: Pose2, points_xy: np.ndarray,
                        stamp: float) -> ScanResult:
@@ -161,4 +167,4 @@ class ProcessRunner:
         return await self._call(_worker_trajectory)
 
     def close(self) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.worker.close()

@@ -52,4 +52,13 @@ class MappingSettings(SectionSettings, section="mapping"):
     directory: str = option("", "where saved maps go; '' = maps/ in the service's state directory "
                             "($STATE_DIRECTORY, /var/lib/arbiterd under systemd), else "
                             "~/.local/state/arbiterd/maps")
+    max_saved_mb: float = option(200.0, "saved maps (POST /api/map/save) may fill the maps "
+                                 "directory up to this many MB; a save beyond is refused (507)",
+                                 minval=1.0, maxval=100000.0)
     map_frame_id: str = option("map", "frame of the map, /pose and the map -> odom transform")
+
+    @property
+    def max_cells(self) -> int:
+        """The most cells a map may have: built (it grows up to ``max_size_m`` square) or
+        loaded (a bigger one is refused from its header, before any work)."""
+        return int((self.max_size_m / self.resolution) ** 2)

@@ -47,6 +47,7 @@ from daemon.state_publisher import StatePublisher
 from daemon.telemetry import SCAN, TRANSFORMS, Transform
 from daemon.topics import Inbound, Refusal, Topic, TopicIn, TopicOut
 from daemon.web import ApiError, json_response, read_json_object
+from daemon.workers import WorkerDown
 from nav.costmap import Costmap, CostParams, GridArea, centred_area
 from nav.pursuit import PursuitSettings, figure_eight, transform
 from sensors.rplidar.settings import LidarSettings
@@ -397,9 +398,14 @@ class NavigationComponent(BaseComponent):
         self._planning = False
         if future.cancelled():
             return
-        if future.exception() is not None:
-            log.error("planning failed: %r", future.exception())
-            self._end("failed", f"the planner failed: {future.exception()!r}")
+        exc = future.exception()
+        if isinstance(exc, WorkerDown):
+            log.warning("planning failed: %s", exc)
+            self._end("failed", f"the planner failed: {exc}")
+            return
+        if exc is not None:
+            log.error("planning failed: %r", exc)
+            self._end("failed", f"the planner failed: {exc!r}")
             return
         self._take_plan(future.result(), number, yaw)
 
@@ -612,7 +618,13 @@ class NavigationComponent(BaseComponent):
         # without a lidar nothing is wrong with the robot: goals are refused, saying why
         if not self.lidar:
             return Health("ok", "no lidar: goals are refused; enable [lidar]", self.status())
-        return Health("ok", values=self.status())
+        status = self.status()
+        down = self.worker.worker.problem() if self.worker is not None else None
+        if self.worker is not None:
+            status["worker"] = self.worker.worker.values()
+        if down is not None:
+            return Health(down[0], f"{down[1]}; goals fail until it is back", status)
+        return Health("ok", values=status)
 
     # -- HTTP and topics -----------------------------------------------------------------------
 
@@ -664,8 +676,9 @@ class NavigationComponent(BaseComponent):
                 Route("POST", "/api/mission", self.post_mission, "drive"))
 
     def topics(self) -> Sequence[Topic]:
-        return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive"),
-                TopicIn("/clicked_point", POINT_STAMPED, self.on_clicked_point, "drive"),
+        return (TopicIn("/goal_pose", POSE_STAMPED, self.on_goal_pose, "drive",
+                        required=("pose.position.x", "pose.position.y")),
+                TopicIn("/clicked_point", POINT_STAMPED, self.on_clicked_point, "drive"),  # unused
                 TopicOut("/plan", PATH, PLAN, path_msg, "on every new plan", latched=True),
                 TopicOut("/navigation/state", STRING, STATE, json_string_msg,
                          "on change + 1 Hz"))

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from daemon import coords
 from daemon.components.mapping.messages import yaw_of
 from daemon.messages.convert import header, quaternion_z
 
@@ -49,8 +50,8 @@ def goal_of_pose_stamped(msg: dict[str, Any]) -> GoalRequest:
     frame = str(msg.get("header", {}).get("frame_id", ""))
     pose = msg.get("pose", {})
     position = pose.get("position", {})
-    x = _finite(position.get("x"), "pose.position.x")
-    y = _finite(position.get("y"), "pose.position.y")
+    x = _coordinate(position.get("x"), "pose.position.x")
+    y = _coordinate(position.get("y"), "pose.position.y")
     yaw = yaw_of(pose.get("orientation", {}))
     if not math.isfinite(yaw):
         raise GoalError("pose.orientation: expected finite numbers")
@@ -71,8 +72,9 @@ def goal_of_json(body: dict[str, Any], default_frame: str) -> GoalRequest:
         return _builtin_path(body, frame)
     if "waypoints" in body:
         return GoalRequest(frame, waypoints=_waypoints(body["waypoints"]))
-    yaw = _finite(body["theta"], "theta") if "theta" in body else None
-    return GoalRequest(frame, _finite(body.get("x"), "x"), _finite(body.get("y"), "y"), yaw)
+    yaw = _angle(body["theta"], "theta") if "theta" in body else None
+    return GoalRequest(frame, _coordinate(body.get("x"), "x"), _coordinate(body.get("y"), "y"),
+                       yaw)
 
 
 def _builtin_path(body: dict[str, Any], frame: str) -> GoalRequest:
@@ -93,16 +95,31 @@ def _waypoints(raw: Any) -> tuple[tuple[float, float], ...]:
     for i, point in enumerate(raw):
         if not isinstance(point, list) or len(point) != 2:
             raise GoalError(f"waypoints[{i}]: expected [x, y]")
-        out.append((_finite(point[0], f"waypoints[{i}][0]"),
-                    _finite(point[1], f"waypoints[{i}][1]")))
+        out.append((_coordinate(point[0], f"waypoints[{i}][0]"),
+                    _coordinate(point[1], f"waypoints[{i}][1]")))
     return tuple(out)
 
 
 def _finite(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not math.isfinite(value):
-        raise GoalError(f"{key}: expected a finite number, got {value!r}")
-    return float(value)
+    try:
+        return coords.number(value, key)
+    except coords.CoordinateError as exc:
+        raise GoalError(str(exc)) from None
+
+
+def _coordinate(value: Any, key: str) -> float:
+    """A goal's coordinate through the one validator (finite, within the documented bound)."""
+    try:
+        return coords.coordinate(value, key)
+    except coords.CoordinateError as exc:
+        raise GoalError(str(exc)) from None
+
+
+def _angle(value: Any, key: str) -> float:
+    try:
+        return coords.angle(value, key)
+    except coords.CoordinateError as exc:
+        raise GoalError(str(exc)) from None
 
 
 def path_msg(message: PlanMessage) -> dict[str, Any]:

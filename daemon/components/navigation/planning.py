@@ -2,7 +2,6 @@
 # (the control tick never waits for the interpreter lock), or inline for the lockstep simulator.
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import time
 from collections.abc import Callable
@@ -12,7 +11,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from daemon.workers import worker_pool
+from daemon.workers import SupervisedWorker
 from nav.costmap import Costmap, CostParams, GridArea
 from nav.frontier import Frontier, find_frontiers, known_free_m2
 from nav.planner import Plan, plan
@@ -124,10 +123,13 @@ class PlanningWorker:
     def __init__(self, area: GridArea, params: CostParams) -> None:
         self.cells = SharedCells(area)
         self.costmap = Costmap(area, params, self.cells.arrays)
-        self.pool = worker_pool(_worker_start, self.cells.memory.name, area, params)
+        name = self.cells.memory.name
+        #: restarted on the same shared cells: a new worker loses nothing folded in
+        self.worker = SupervisedWorker("planning", _worker_start,
+                                       lambda: (name, area, params))
 
     async def _call(self, function: Callable[..., T], *args: Any) -> T:
-        return await asyncio.get_running_loop().run_in_executor(self.pool, function, *args)
+        return await self.worker.call(function, *args)
 
     async def ready(self) -> bool:
         """Wait for the worker's start-up (its imports)."""
@@ -140,5 +142,5 @@ class PlanningWorker:
         return await self._call(_worker_look, scans, start, min_cells, block)
 
     def close(self) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.worker.close()
         self.cells.close()

@@ -4,12 +4,10 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import os
 import re
-import stat
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, BinaryIO
+from typing import Any
 
 from aiohttp import web
 
@@ -20,8 +18,8 @@ from daemon.components.recorder.files import RecordingIndex
 from daemon.components.recorder.paths import record_directory
 from daemon.components.recorder.settings import RecorderSettings
 from daemon.components.recorder.writer import FlightRecorder, WriterOptions
+from daemon.files import sees_paths, serve_file, shown
 from daemon.health import Health
-from daemon.security import hide_paths
 from daemon.telemetry import POWER, ROBOT_INFO, PowerEvent
 from daemon.topics import TopicOut
 from daemon.web import ApiError, json_response, read_json_object
@@ -171,40 +169,17 @@ class RecorderComponent(BaseComponent):
 
     async def get_recordings(self, request: web.Request) -> web.Response:
         infos = await asyncio.to_thread(self.index.list)
-        shown = str(self.directory)
-        if not self.ctx.security.sees_paths(request.headers, request.query,
-                                            request.remote):
-            shown = hide_paths(shown)
         return json_response({
-            "directory": shown,
+            "directory": shown(sees_paths(self.ctx.security, request), str(self.directory)),
             "recordings": [i.to_json(topics=False) for i in infos]})
 
     async def get_recording(self, request: web.Request) -> web.StreamResponse:
         name = request.match_info["name"]
+        missing = f"no recording named {name[:80]!r}"
         if _NAME.match(name) is None:
-            raise ApiError(404, f"no recording named {name[:80]!r}", "see GET /api/recordings")
-        try:
-            file = await asyncio.to_thread(self._open, name)
-        except OSError:  # missing, a link, not a regular file, a name too long for the disk
-            raise ApiError(404, f"no recording named {name[:80]!r}",
-                           "see GET /api/recordings") from None
-        try:
-            return await self.ctx.http.send_file(request, file, os.fstat(file.fileno()).st_size, {
-                "Content-Type": "application/octet-stream",
-                "Content-Disposition": f'attachment; filename="{name}"'})
-        finally:
-            file.close()
-
-    def _open(self, name: str) -> BinaryIO:
-        """A recording opened for reading: a regular file, never through a symbolic link."""
-        fd = os.open(self.directory / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-        try:
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise OSError(f"{name}: not a regular file")
-            return os.fdopen(fd, "rb")
-        except BaseException:
-            os.close(fd)
-            raise
+            raise ApiError(404, missing, "see GET /api/recordings")
+        return await serve_file(self.ctx.http, request, self.directory, name,
+                                "application/octet-stream", missing)
 
 
 def create(ctx: DaemonContext) -> RecorderComponent:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +14,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from daemon.components.recorder.writer import recordings
+from daemon.files import open_regular
 
 if TYPE_CHECKING:
     from daemon.components.recorder.writer import OpenFile
@@ -65,8 +67,8 @@ class RecordingInfo:
 def inspect(path: Path) -> RecordingInfo:
     """Read ``path``'s summary, or scan it record by record when it is being recorded or was
     cut short."""
-    with path.open("rb") as stream:
-        size = path.stat().st_size
+    with open_regular(path.parent, path.name) as stream:
+        size = os.fstat(stream.fileno()).st_size
         recording = being_recorded(stream)
         if not recording and _ends_with_magic(stream, size):
             info = _from_summary(path.name, size, stream)

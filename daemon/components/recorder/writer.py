@@ -18,6 +18,7 @@ from mcap.writer import CompressionType, Writer
 
 from daemon import __version__
 from daemon.components.recorder.channels import Channel
+from daemon.files import list_regular
 from daemon.messages.msgtypes import full_text
 
 log = logging.getLogger("arbiterd.recorder")
@@ -389,10 +390,9 @@ class FlightRecorder:
 
 def recordings(directory: Path) -> list[Path]:
     """The flight recorder's files in ``directory`` (nothing else there is touched): regular
-    files only, never a symbolic link (a link to /etc/passwd named like a recording would
-    otherwise be listed, served and, past max_total_mb, counted)."""
-    if not directory.is_dir():
-        return []
-    return [p for p in directory.iterdir()
-            if p.name.startswith(PREFIX) and p.name.endswith(SUFFIX) and not p.is_symlink()
-            and p.is_file()]
+    files only, never a symbolic link nor a FIFO (a link to /etc/passwd named like a
+    recording would otherwise be listed, served and, past max_total_mb, counted); at most
+    :data:`~daemon.files.MAX_LISTED` of them."""
+    listing = list_regular(directory, lambda name: name.startswith(PREFIX) and
+                           name.endswith(SUFFIX))
+    return [directory / name for name, _, _ in listing.files]

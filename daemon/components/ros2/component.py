@@ -10,20 +10,22 @@ from typing import Any
 
 from base.rates import TokenBucket
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext
-from daemon.components.ros2 import announce, names
+from daemon.components.ros2 import announce, names, security
 from daemon.components.ros2.dds import (
     ANNOUNCE_QOS,
+    DdsError,
     DdsNode,
     QosSpec,
     announcement_type,
     available,
     idl_type,
+    libddsc_path,
 )
 from daemon.components.ros2.inlet import Inlet
 from daemon.components.ros2.outlet import Outlet
 from daemon.components.ros2.settings import Ros2Settings
 from daemon.health import Health
-from daemon.messages import cdr
+from daemon.messages import cdr, typehash
 from daemon.messages.cdr_read import decode
 from daemon.messages.definitions import LASER_SCAN
 from daemon.messages.msgtypes import MessageError, check_message
@@ -62,9 +64,11 @@ class Ros2Face(BaseComponent):
     name = "ros2"
     core = False
 
-    def __init__(self, ctx: DaemonContext, settings: Ros2Settings) -> None:
+    def __init__(self, ctx: DaemonContext, settings: Ros2Settings,
+                 enclave: security.Enclave | None = None) -> None:
         self.ctx = ctx
         self.settings = settings
+        self.enclave = enclave
         self.domain = names.domain_id(settings.domain_id)
         self.localhost = names.localhost_only(settings.discovery)
         self.gid_size = announce.GID_SIZE[settings.distro]
@@ -96,7 +100,14 @@ class Ros2Face(BaseComponent):
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
         outs, ins = self._selected()
-        self.node = await asyncio.to_thread(self._build, outs, ins)
+        try:
+            self.node = await asyncio.to_thread(self._build, outs, ins)
+        except DdsError as exc:
+            if self.enclave is None:
+                raise
+            raise OSError(f"[ros2] security: Cyclone DDS refused the enclave {self.enclave.path} "
+                          f"({exc}); check its signatures, the permissions' subject and the "
+                          "governance's domains (docs/ros2.md)") from None
         self.outlet = Outlet(self.settings.queue, idle=self._poll_discovery)
         self.outlet.start()
         assert self.inlet is not None
@@ -140,17 +151,19 @@ class Ros2Face(BaseComponent):
 
     def _build(self, outs: list[TopicOut[Any]], ins: list[TopicIn]) -> DdsNode:
         """The participant and its endpoints (in a thread: DDS set-up is not the loop's)."""
-        node = DdsNode(self.domain, self.localhost, self.settings.distro != "kilted")
+        xml = "" if self.enclave is None else security.cyclone_xml(self.enclave, libddsc_path())
+        node = DdsNode(self.domain, self.localhost, self.settings.distro != "kilted", xml)
         for topic in outs:
             qos = self._qos(topic.name)
-            writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos)
+            writer = node.writer(self._dds_name(topic.name), idl_type(topic.type), qos,
+                                 _user_data(topic.type))
             self.outgoing[topic.name] = Outgoing(topic, writer, _encoder(topic),
                                                  qos.transient_local)
         self.inlet = Inlet(node, self._on_data, self._on_unmatched)
         for inbound in ins:
             self.incoming[inbound.name] = inbound
             reader = node.reader(self._dds_name(inbound.name), idl_type(inbound.type),
-                                 self._qos(inbound.name))
+                                 self._qos(inbound.name), _user_data(inbound.type))
             self.inlet.add(inbound, reader, watch_publishers=inbound.moves)
         info_type = announcement_type(self.gid_size)
         self._announcer = node.writer(announce.TOPIC, info_type, ANNOUNCE_QOS)
@@ -331,6 +344,7 @@ class Ros2Face(BaseComponent):
             "node": self.node_label, "domain_id": self.domain,
             "discovery": "localhost" if self.localhost else "subnet",
             "distro": self.settings.distro, "allow_commands": self.settings.allow_commands,
+            "security": None if self.enclave is None else str(self.enclave.path),
             "subscribers": {name: o.matched for name, o in self.outgoing.items()},
             "published": sum(o.published for o in self.outgoing.values()),
             "dropped": (outlet.dropped if outlet else 0) + self.overflow,
@@ -346,6 +360,12 @@ def _served(topic: TopicOut[Any] | TopicIn) -> bool:
     """Every incoming topic, and every outgoing one that rosbridge serves or whose type is a
     ROS 2 one (/diagnostics; not arbiterd's own /commands log)."""
     return isinstance(topic, TopicIn) or topic.bridge or not topic.type.startswith("arbiterd_")
+
+
+def _user_data(ros_type: str) -> bytes:
+    """The endpoint's USER_DATA: ROS 2's type hash of ``ros_type`` (REP 2011), which the
+    middlewares of Iron and later read and compare."""
+    return typehash.user_data(ros_type)
 
 
 def _encoder(topic: TopicOut[Any]) -> Callable[[Any], bytes]:
@@ -374,7 +394,13 @@ def create(ctx: DaemonContext) -> Ros2Face | None:
     missing = available()
     if missing is not None:
         raise ValueError(f"[ros2] enabled = true, but {missing}")
-    return Ros2Face(ctx, settings)
+    enclave = None
+    if settings.security:
+        try:
+            enclave = security.enclave(settings.security)
+        except security.SecurityError as exc:
+            raise ValueError(f"[ros2] security: {exc}") from None
+    return Ros2Face(ctx, settings, enclave)
 
 
 COMPONENT = ComponentSpec("ros2", create, Ros2Settings)

@@ -5,6 +5,7 @@ import ctypes
 import importlib
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -25,6 +26,10 @@ _IDL_PRIMITIVES: dict[str, str] = {
     "uint16": "uint16", "int32": "int32", "uint32": "uint32", "int64": "int64",
     "uint64": "uint64", "float32": "float32", "float64": "float64",
 }
+
+
+class DdsError(OSError):
+    """Cyclone DDS refused to make the participant (its configuration, security's files)."""
 
 
 class DdsUnavailable(RuntimeError):
@@ -50,6 +55,16 @@ def available() -> str | None:
     except DdsUnavailable as exc:
         return str(exc)
     return None
+
+
+def libddsc_path() -> Path | None:
+    """The Cyclone DDS C library the binding loaded (its security plugins sit beside it)."""
+    cyclone()["internal"].load_cyclonedds()
+    try:
+        maps = Path("/proc/self/maps").read_text().split()
+    except OSError:
+        return None
+    return next((Path(word) for word in maps if "/libddsc.so" in word), None)
 
 
 # -- types ----------------------------------------------------------------------------------
@@ -119,14 +134,18 @@ class QosSpec:
     transient_local: bool
     depth: int
 
-    def qos(self) -> Any:
+    def qos(self, user_data: bytes = b"") -> Any:
+        """The binding's QoS; ``user_data`` is the endpoints' USER_DATA (ROS 2's type hash)."""
         mods = cyclone()
         policy, duration = mods["qos"].Policy, mods["util"].duration
         reliability = (policy.Reliability.Reliable(duration(milliseconds=MAX_BLOCKING_MS))
                        if self.reliable else policy.Reliability.BestEffort)
         durability = (policy.Durability.TransientLocal if self.transient_local
                       else policy.Durability.Volatile)
-        return mods["qos"].Qos(reliability, durability, policy.History.KeepLast(self.depth))
+        policies = [reliability, durability, policy.History.KeepLast(self.depth)]
+        if user_data:
+            policies.append(policy.Userdata(user_data))
+        return mods["qos"].Qos(*policies)
 
 
 ANNOUNCE_QOS = QosSpec(reliable=True, transient_local=True, depth=1)
@@ -171,11 +190,16 @@ class DdsNode:
     GIL while it writes to a local reader of that entity then waits for it (a deadlock; see
     docs/ros2.md). Matches are counted on request, samples waited for on a :meth:`waitset`."""
 
-    def __init__(self, domain: int, localhost: bool, type_information: bool) -> None:
+    def __init__(self, domain: int, localhost: bool, type_information: bool,
+                 security: str = "") -> None:
         mods = self.mods = cyclone()
         self.type_information = type_information
-        self.domain = mods["domain"].Domain(domain, cyclone_config(localhost))
-        self.participant = mods["domain"].DomainParticipant(domain)
+        self.domain = mods["domain"].Domain(domain, cyclone_config(localhost, security))
+        try:
+            self.participant = mods["domain"].DomainParticipant(domain)
+        except mods["core"].DDSException as exc:
+            self.domain.__del__()
+            raise DdsError(str(exc)) from None
         self.publisher = mods["pub"].Publisher(self.participant)
         self.subscriber = mods["sub"].Subscriber(self.participant)
         self._topics: dict[str, Any] = {}
@@ -197,15 +221,15 @@ class DdsNode:
             self._topics[name] = self.mods["topic"].Topic(self.participant, name, data_type)
         return self._topics[name]
 
-    def writer(self, name: str, data_type: Any, qos: QosSpec) -> Any:
+    def writer(self, name: str, data_type: Any, qos: QosSpec, user_data: bytes = b"") -> Any:
         writer = self.mods["pub"].DataWriter(self.publisher, self._topic(name, data_type),
-                                             qos.qos())
+                                             qos.qos(user_data))
         self._entities.append(writer)
         return writer
 
-    def reader(self, name: str, data_type: Any, qos: QosSpec) -> Any:
+    def reader(self, name: str, data_type: Any, qos: QosSpec, user_data: bytes = b"") -> Any:
         reader = self.mods["sub"].DataReader(self.subscriber, self._topic(name, data_type),
-                                             qos.qos())
+                                             qos.qos(user_data))
         self._entities.append(reader)
         return reader
 

@@ -44,12 +44,13 @@ def localhost_only(discovery: str, env: Mapping[str, str] = os.environ) -> bool:
     return env.get(LOCALHOST_ENV, "").strip() == "1"
 
 
-def cyclone_config(localhost: bool) -> str:
+def cyclone_config(localhost: bool, security: str = "") -> str:
     """Cyclone DDS's configuration: loopback only (the interface ``lo``, no multicast, a
-    unicast peer 127.0.0.1 probed over automatic participant indices), else its defaults."""
+    unicast peer 127.0.0.1 probed over automatic participant indices), else its defaults;
+    ``security`` is a <Security> element (security.py) or ''."""
     if not localhost:
-        return "<CycloneDDS><Domain id='any'/></CycloneDDS>"
-    return ("<CycloneDDS><Domain id='any'>"
+        return f"<CycloneDDS><Domain id='any'>{security}</Domain></CycloneDDS>"
+    return ("<CycloneDDS><Domain id='any'>" + security +
             "<General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
             "<AllowMulticast>false</AllowMulticast></General>"
             "<Discovery><ParticipantIndex>auto</ParticipantIndex>"

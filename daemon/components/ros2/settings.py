@@ -57,6 +57,9 @@ class Ros2Settings(SectionSettings, section="ros2"):
                                     "cmd_vel_timeout)", minval=0.0, maxval=10.0)
     queue: int = option(64, "samples waiting for the DDS writer thread; beyond it the oldest is "
                         "dropped", minval=4, maxval=10000)
+    security: str = option("", "DDS Security: the directory of an SROS2 enclave (cert.pem, "
+                           "key.pem, identity_ca.cert.pem, permissions_ca.cert.pem, "
+                           "governance.p7s, permissions.p7s); '' = none (docs/ros2.md)")
     max_rate: float = option(200.0, "incoming samples handled per second and topic (a burst of a "
                              "fifth of it); beyond it the newest are kept and the rest refused as "
                              "overload", above=0.0, maxval=100000.0)

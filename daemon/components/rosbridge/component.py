@@ -150,10 +150,11 @@ class RosbridgeServer(BaseComponent):
                                   "WebSocket (HTTP/1.1)")  # refused, as on the HTTP port,
             http09.force_close()  # and the connection closed
             return http09
-        if self.security.guessing(request.headers, request.query, request.remote):
+        token = self.security.check_token(request.headers, request.query, request.remote)
+        if token == "guessing":
             return self._refuse("guessing", 429, "too many wrong tokens from this address; "
                                 "wait a second")
-        has_token = self.security.token_ok(request.headers, request.query, request.remote)
+        has_token = token == "ok"
         refusal = self._refusal(request, has_token)
         if refusal is not None:
             return refusal

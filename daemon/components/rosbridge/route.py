@@ -6,6 +6,7 @@ from typing import Any
 
 from daemon.components.rosbridge.codec import ProtocolError
 from daemon.components.rosbridge.graph import Topic
+from daemon.coords import missing_required
 from daemon.messages.definitions import STRING
 from daemon.messages.msgtypes import MessageError, check_message
 from daemon.topics import Access, InboundHandler, TopicIn
@@ -33,7 +34,7 @@ class Route:
     the type this client advertised for it and the message check of that type. Only for
     topics whose access does not depend on the message (not the e-stop's)."""
 
-    __slots__ = ("access", "fast", "handler", "name", "topic", "type_name")
+    __slots__ = ("access", "fast", "handler", "name", "required", "topic", "type_name")
 
     def __init__(self, topic: Topic, robot: TopicIn, type_name: str) -> None:
         self.name = topic.name
@@ -42,6 +43,7 @@ class Route:
         self.handler: InboundHandler = robot.handler
         self.type_name = type_name
         self.fast = FAST_CHECKS.get(type_name)
+        self.required = robot.required
 
     def check(self, raw: Any) -> dict[str, Any]:
         """The message checked as ``op_publish`` checks it: the same result, the same error."""
@@ -50,9 +52,13 @@ class Route:
         if msg is not None:
             return msg
         try:
-            return check_message(self.type_name, raw)
+            checked = check_message(self.type_name, raw)
         except MessageError as exc:
             raise ProtocolError(f"publish {self.name}: {exc}") from None
+        missing = missing_required(raw, self.required) if self.required else None
+        if missing is not None:
+            raise ProtocolError(f"publish {self.name}: msg.{missing}")
+        return checked
 
 
 def usable(robot: object) -> bool:

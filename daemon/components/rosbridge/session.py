@@ -42,6 +42,7 @@ from daemon.components.rosbridge.outbox import (
 )
 from daemon.components.rosbridge.route import Route
 from daemon.components.rosbridge.writer import Writer
+from daemon.coords import missing_required
 from daemon.messages.msgtypes import MessageError, check_message, get_type, has_type, normalize_type
 from daemon.topics import Inbound, Refusal, TopicIn, TopicOut
 
@@ -312,6 +313,9 @@ class ClientSession:
             raise ProtocolError(f"publish {name}: {exc}") from None
         robot = topic.robot
         if isinstance(robot, TopicIn):
+            missing = missing_required(raw, robot.required)
+            if missing is not None:
+                raise ProtocolError(f"publish {name}: msg.{missing}")
             if robot.access_for is not None:  # this message may need more (a release)
                 access.check(req.op, name, self.authority, robot.access_for(msg))
             self._keep_route(req, topic, robot, type_name)

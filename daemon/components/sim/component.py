@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import shutil
 import tempfile
 import time
@@ -14,8 +13,10 @@ from typing import Any
 from aiohttp import web
 
 from base.config import Config
+from daemon import coords
 from daemon.commands import CommandError, parse_pose
 from daemon.component import BaseComponent, ComponentSpec, DaemonContext, DeviceUse, Route
+from daemon.coords import CoordinateError, Extent
 from daemon.health import Health
 from daemon.messages.convert import odometry_msg
 from daemon.messages.definitions import ODOMETRY
@@ -191,12 +192,21 @@ class SimRuntime(BaseComponent):
                         inverse((integrated.x, integrated.y, integrated.theta)))
         return compose(moved, start_frame)
 
+    def _extent(self) -> Extent:
+        """The simulated world's walls (what a teleport or an object must be within)."""
+        walls = self.world.world.segment_array
+        xs, ys = walls[:, [0, 2]], walls[:, [1, 3]]
+        return Extent(float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()),
+                      "the simulated world") if walls.size else Extent(0.0, 0.0, 0.0, 0.0)
+
     async def _post_reset(self, request: web.Request) -> web.Response:
         """Teleport, and let odometry report the new pose, so the two start together again."""
         body = await read_json_object(request, 4096) if request.can_read_body else {}
         try:
             values = parse_pose(body)
-        except CommandError as exc:
+            if values is not None:
+                self._extent().check(values[0], values[1], "x, y")
+        except (CommandError, CoordinateError) as exc:
             raise ApiError(422, f"invalid pose: {exc}") from None
         try:
             truth = self.world.reset(Pose(*values) if values else None)
@@ -219,13 +229,10 @@ class SimRuntime(BaseComponent):
         unknown = sorted(set(body) - {"x", "y"})
         if unknown:
             raise ApiError(422, f"{unknown[0]}: unknown field (x, y)")
-        point = []
-        for key in ("x", "y"):
-            value = body.get(key)
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not math.isfinite(value):
-                raise ApiError(422, f"{key}: expected a finite number, got {value!r}")
-            point.append(float(value))
+        try:
+            point = coords.point([body.get("x"), body.get("y")], ("x", "y"), self._extent())
+        except CoordinateError as exc:
+            raise ApiError(422, str(exc)) from None
         try:
             self.world.place_object(point[0], point[1])
         except ValueError as exc:

@@ -61,7 +61,7 @@ async def test_odometry_reset_over_http(tmp_path: Path) -> None:
         status, body = await call(robot, "POST", "/api/odom/reset", {"x": 1, "theta": 1.5})
         assert status == 200 and body["pose"]["x"] == pytest.approx(1.0, abs=0.05)
         for bad, message in (({"z": 1}, "invalid pose: z: unknown field"),
-                             ({"x": "far"}, "invalid pose: x: expected a number")):
+                             ({"x": "far"}, "invalid pose: x: expected a finite number")):
             status, body = await call(robot, "POST", "/api/odom/reset", bad)
             assert status == 422 and message in body["error"], body
 

@@ -191,3 +191,19 @@ async def test_unadvertising_the_driving_channel_brakes(fox: InProcessDaemon) ->
         await client.send(op="unadvertise", channelIds=[1])
         await eventually(lambda: not fox.moving(), "the robot to brake")
         assert [o for o in client.ops if o["op"] == "status"] == []
+
+
+async def test_a_goal_pose_without_a_position_is_refused(fox: InProcessDaemon) -> None:
+    """TopicIn.required holds on this transport too: no goal to (0, 0) from a JSON message
+    that left its position out (the type's defaults would have filled it in)."""
+    nav = fox.component("navigation")
+    goals = nav.navigator.goals
+    async with connect(url(fox), headers=OWNER) as client:
+        await client.send(op="advertise", channels=[{
+            "id": 4, "topic": "/goal_pose", "encoding": "json",
+            "schemaName": "geometry_msgs/PoseStamped"}])
+        await client.ws.send_bytes(publish_frame(4, json.dumps(
+            {"header": {"frame_id": "odom"}, "pose": {"orientation": {"w": 1.0}}}).encode()))
+        status = await client.op("status", "the refusal")
+    assert "msg.pose.position: missing (required)" in status["message"], status
+    assert nav.navigator.goals == goals and not fox.moving()

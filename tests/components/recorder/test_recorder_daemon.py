@@ -29,7 +29,7 @@ from tests.support.wait import wait_for
 INTEROP = REPO / "tests" / "interop"
 RECORDED = {"/odom", "/tf", "/tf_static", "/scan", "/commands", "/latency_reports", "/rosout",
             "/diagnostics", "/odom_ground_truth", "/autonomy/state", "/collision_monitor/state",
-            "/navigation/state", "/fetch/state"}
+            "/navigation/state", "/fetch/state", "/dock/state"}
 
 
 def record_toml(directory: Path, extra: str = "") -> str:

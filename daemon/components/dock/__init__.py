@@ -1,0 +1,1 @@
+# The charging dock: where it is, going home to it, leaving it.
