@@ -58,7 +58,9 @@ async def test_the_worker_plans_and_looks_as_inline_and_shares_its_cells() -> No
     assert looked.explored_m2 == pytest.approx(expected_look.explored_m2)
     assert looked.frontiers and [(f.x, f.y, f.size_m) for f in looked.frontiers] == \
         [(f.x, f.y, f.size_m) for f in expected_look.frontiers]
-    assert not multiprocessing.active_children()
+    # the planner's worker is gone (other tests of this process may leave their own children)
+    assert not [child for child in multiprocessing.active_children()
+                if not child.name.startswith("arbiterd-camera")]
     with pytest.raises(FileNotFoundError):
         SharedMemory(name=name)
 
